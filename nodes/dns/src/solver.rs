@@ -1,0 +1,287 @@
+//! The time integrator: low-storage 3-stage Runge–Kutta (Wray) with a fractional-step
+//! projection per substep, Crank–Nicolson wall-normal diffusion, and adaptive Δt.
+
+use crate::config::{DnsConfig, Forcing};
+use crate::correct;
+use crate::error::DnsError;
+use crate::field::{bulk_mean, update_halo, Component, Velocity};
+use crate::grid::Grid;
+use crate::implicit::YTridiag;
+use crate::init;
+use crate::poisson::Poisson;
+use crate::rhs;
+use crate::timestep;
+use rayon::prelude::*;
+
+const GAMMA: [f64; 3] = [8.0 / 15.0, 5.0 / 12.0, 3.0 / 4.0];
+const ZETA: [f64; 3] = [0.0, -17.0 / 60.0, -5.0 / 12.0];
+
+/// What one step did (the numbers a flow-status message carries).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    pub step: u64,
+    pub t_plus: f64,
+    pub dt_plus: f64,
+    pub cfl: f64,
+    pub max_divergence: f64,
+    pub bulk_velocity: f64,
+    /// Mean body force applied this step (1 for a constant pressure gradient).
+    pub forcing: f64,
+}
+
+/// Channel-flow DNS state and work arrays.
+#[derive(Debug)]
+pub struct Solver {
+    pub cfg: DnsConfig,
+    pub grid: Grid,
+    pub vel: Velocity,
+    /// Pressure correction of the last substep (padded, cell-centred).
+    pub phi: Vec<f64>,
+    /// Time in outer units (h/u_tau).
+    pub time: f64,
+    pub step: u64,
+    rhs_new: Velocity,
+    rhs_old: Velocity,
+    div: Vec<f64>,
+    poisson: Poisson,
+    /// Current mean body force (flow-rate mode adjusts it).
+    forcing: f64,
+}
+
+impl Solver {
+    /// A solver with the configured initial field.
+    pub fn new(cfg: DnsConfig) -> Result<Self, DnsError> {
+        cfg.validate()?;
+        let grid = Grid::new(cfg.nx, cfg.ny, cfg.nz, cfg.lx, cfg.lz, cfg.re_tau, cfg.y1_plus)?;
+        let mut vel = Velocity::zeros(&grid);
+        init::fill(&grid, cfg.re_tau, &cfg.init, &mut vel);
+        vel.update_halos(&grid);
+        let n = grid.padded_len();
+        let poisson = Poisson::new(&grid);
+        let mut s = Self {
+            rhs_new: Velocity::zeros(&grid),
+            rhs_old: Velocity::zeros(&grid),
+            div: vec![0.0; n],
+            phi: vec![0.0; n],
+            poisson,
+            grid,
+            vel,
+            time: 0.0,
+            step: 0,
+            forcing: 1.0,
+            cfg,
+        };
+        s.project(1.0);
+        if let Forcing::FlowRate { bulk_velocity } = s.cfg.forcing {
+            s.set_bulk_velocity(bulk_velocity);
+        }
+        Ok(s)
+    }
+
+    /// Viscous time unit in outer units.
+    pub fn t_unit(&self) -> f64 {
+        1.0 / self.cfg.re_tau
+    }
+
+    pub fn t_plus(&self) -> f64 {
+        self.time * self.cfg.re_tau
+    }
+
+    /// Makes the field divergence-free (`scale` only sets the size of `phi`).
+    pub fn project(&mut self, scale: f64) {
+        let g = &self.grid;
+        correct::divergence(g, &self.vel, 1.0 / scale, &mut self.div);
+        self.poisson.solve(g, &self.div, &mut self.phi);
+        update_halo(g, &mut self.phi, Component::Scalar);
+        correct::project(g, &mut self.vel, &self.phi, scale);
+        self.vel.update_halos(g);
+    }
+
+    fn set_bulk_velocity(&mut self, target: f64) {
+        let ub = bulk_mean(&self.grid, &self.vel.u);
+        let g = &self.grid;
+        let shift = target - ub;
+        for k in 1..=g.nz {
+            for j in 1..=g.ny {
+                for i in 1..=g.nx {
+                    self.vel.u[g.idx(i, j, k)] += shift;
+                }
+            }
+        }
+        self.vel.update_halos(g);
+    }
+
+    /// The time step the next call to [`Solver::step`] will take (outer units).
+    pub fn next_dt(&self) -> f64 {
+        let unit = self.t_unit();
+        if let Some(dt) = self.cfg.dt_fixed_plus {
+            return dt * unit;
+        }
+        let rate = timestep::max_courant_rate(&self.grid, &self.vel);
+        let visc = timestep::viscous_dt_limit(&self.grid, self.cfg.nu(), self.cfg.implicit_y);
+        let conv = if rate > 0.0 { self.cfg.cfl / rate } else { f64::INFINITY };
+        conv.min(visc).min(self.cfg.dt_max_plus * unit)
+    }
+
+    /// Advances one full RK3 step; returns an error instead of producing garbage.
+    pub fn step(&mut self) -> Result<StepReport, DnsError> {
+        let dt = self.next_dt();
+        let cfl = timestep::max_courant_rate(&self.grid, &self.vel) * dt;
+        if !cfl.is_finite() || cfl > 2.0 * timestep::RK3_CFL_LIMIT {
+            return Err(DnsError::BlowUp {
+                step: self.step,
+                t_plus: self.t_plus(),
+                reason: format!("Courant number {cfl:.3} (limit {:.2})", timestep::RK3_CFL_LIMIT),
+            });
+        }
+        for s in 0..3 {
+            self.substep(dt, GAMMA[s], ZETA[s]);
+        }
+        self.time += dt;
+        self.step += 1;
+        let ub_before = bulk_mean(&self.grid, &self.vel.u);
+        if let Forcing::FlowRate { bulk_velocity } = self.cfg.forcing {
+            // the uniform shift is the impulse of the mean pressure gradient over the step
+            self.forcing = (bulk_velocity - ub_before) / dt;
+            self.set_bulk_velocity(bulk_velocity);
+        }
+        let max_div = correct::max_divergence(&self.grid, &self.vel);
+        let bulk = bulk_mean(&self.grid, &self.vel.u);
+        if !bulk.is_finite() || !max_div.is_finite() {
+            return Err(DnsError::BlowUp {
+                step: self.step,
+                t_plus: self.t_plus(),
+                reason: "non-finite velocity".into(),
+            });
+        }
+        Ok(StepReport {
+            step: self.step,
+            t_plus: self.t_plus(),
+            dt_plus: dt * self.cfg.re_tau,
+            cfl,
+            max_divergence: max_div,
+            bulk_velocity: bulk,
+            forcing: self.forcing,
+        })
+    }
+
+    fn substep(&mut self, dt: f64, gamma: f64, zeta: f64) {
+        let alpha = gamma + zeta;
+        let g = &self.grid;
+        let nu = self.cfg.nu();
+        let implicit = self.cfg.implicit_y;
+        let fx = match self.cfg.forcing {
+            Forcing::PressureGradient => 1.0,
+            Forcing::FlowRate { .. } => self.forcing,
+        };
+        let c = 0.5 * alpha * dt * nu;
+        let tri_t = YTridiag::tangential(g, c);
+        let tri_n = YTridiag::normal(g, c);
+        let plane = g.plane();
+        let vel = &self.vel;
+        let (px, nx, ny) = (g.px, g.nx, g.ny);
+        let new = &mut self.rhs_new;
+        let old = &mut self.rhs_old;
+        new.u
+            .par_chunks_mut(plane)
+            .zip(new.v.par_chunks_mut(plane))
+            .zip(new.w.par_chunks_mut(plane))
+            .zip(old.u.par_chunks_mut(plane))
+            .zip(old.v.par_chunks_mut(plane))
+            .zip(old.w.par_chunks_mut(plane))
+            .enumerate()
+            .filter(|(k, _)| *k >= 1 && *k <= g.nz)
+            .for_each(|(k, (((((nu_, nv_), nw_), ou), ov), ow))| {
+                rhs::plane_rhs(g, vel, nu, implicit, k, nu_, nv_, nw_);
+                let a = dt * gamma;
+                let b = dt * zeta;
+                let f = alpha * dt * fx;
+                for j in 1..=ny {
+                    let r = j * px + 1..j * px + 1 + nx;
+                    for ((o, n), _) in ou[r.clone()].iter_mut().zip(&nu_[r.clone()]).zip(0..) {
+                        *o = a * n + b * *o + f;
+                    }
+                    for (o, n) in ow[r.clone()].iter_mut().zip(&nw_[r.clone()]) {
+                        *o = a * n + b * *o;
+                    }
+                    if j < ny {
+                        for (o, n) in ov[r.clone()].iter_mut().zip(&nv_[r.clone()]) {
+                            *o = a * n + b * *o;
+                        }
+                    }
+                }
+                if implicit {
+                    let s = alpha * dt * nu;
+                    rhs::add_lyy_tangential(g, &vel.u, k, s, ou);
+                    rhs::add_lyy_tangential(g, &vel.w, k, s, ow);
+                    rhs::add_lyy_normal(g, &vel.v, k, s, ov);
+                    tri_t.solve_plane(g, ou);
+                    tri_t.solve_plane(g, ow);
+                    tri_n.solve_plane(g, ov);
+                }
+            });
+        // u += du (du is in `old`), then make `old` hold this substep's explicit terms
+        let upd = |f: &mut Vec<f64>, d: &Vec<f64>, jmax: usize| {
+            f.par_chunks_mut(plane)
+                .zip(d.par_chunks(plane))
+                .enumerate()
+                .filter(|(k, _)| *k >= 1 && *k <= g.nz)
+                .for_each(|(_, (pf, pd))| {
+                    for j in 1..=jmax {
+                        let r = j * px + 1..j * px + 1 + nx;
+                        for (x, y) in pf[r.clone()].iter_mut().zip(&pd[r]) {
+                            *x += y;
+                        }
+                    }
+                });
+        };
+        upd(&mut self.vel.u, &self.rhs_old.u, ny);
+        upd(&mut self.vel.v, &self.rhs_old.v, ny - 1);
+        upd(&mut self.vel.w, &self.rhs_old.w, ny);
+        std::mem::swap(&mut self.rhs_new, &mut self.rhs_old);
+        self.vel.update_halos(&self.grid);
+        self.project(alpha * dt);
+    }
+}
+
+impl Solver {
+    /// The checkpoint header describing the current state.
+    pub fn checkpoint_header(&self) -> crate::checkpoint::CheckpointHeader {
+        crate::checkpoint::CheckpointHeader {
+            nx: self.grid.nx,
+            ny: self.grid.ny,
+            nz: self.grid.nz,
+            lx: self.grid.lx,
+            lz: self.grid.lz,
+            re_tau: self.cfg.re_tau,
+            time: self.time,
+            step: self.step,
+            forcing: self.forcing,
+            dy_first: self.grid.dyf[1],
+        }
+    }
+
+    /// Writes a checkpoint (atomic).
+    pub fn write_checkpoint(&self, path: &std::path::Path) -> Result<(), DnsError> {
+        crate::checkpoint::write(path, &self.grid, &self.checkpoint_header(), &self.vel)
+    }
+
+    /// Restores velocity, time, step and forcing from a checkpoint.
+    pub fn read_checkpoint(&mut self, path: &std::path::Path) -> Result<(), DnsError> {
+        let h = crate::checkpoint::read(path, &self.grid, &mut self.vel)?;
+        if (h.dy_first - self.grid.dyf[1]).abs() > 1e-12 * self.grid.dyf[1]
+            || (h.lx - self.grid.lx).abs() > 1e-12
+            || (h.lz - self.grid.lz).abs() > 1e-12
+        {
+            return Err(DnsError::Checkpoint {
+                path: path.display().to_string(),
+                reason: "box size or y-stretching differs from the configuration".into(),
+            });
+        }
+        self.vel.update_halos(&self.grid);
+        self.time = h.time;
+        self.step = h.step;
+        self.forcing = h.forcing;
+        Ok(())
+    }
+}

@@ -1,0 +1,1 @@
+//! fiberflow-viewer

@@ -1,0 +1,1 @@
+//! fiberflow-e2e
