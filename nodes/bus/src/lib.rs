@@ -1,1 +1,6 @@
-//! fiberflow-bus
+//! Bus plumbing placeholder (being written).
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    #[error("{0}")]
+    Other(String),
+}

@@ -242,3 +242,33 @@ impl Profiles {
         s
     }
 }
+
+/// Instantaneous Re_tau from the plane-averaged wall shear of both walls (second-order
+/// one-sided derivative through the wall and the first two cell centres).
+pub fn wall_re_tau(g: &Grid, vel: &Velocity, re_tau_nominal: f64) -> f64 {
+    let (nx, ny, nz) = (g.nx, g.ny, g.nz);
+    let mean_row = |j: usize| -> f64 {
+        let mut s = 0.0;
+        for k in 1..=nz {
+            for i in 1..=nx {
+                s += vel.u[g.idx(i, j, k)];
+            }
+        }
+        s / (nx * nz) as f64
+    };
+    let slope = |y1: f64, u1: f64, y2: f64, u2: f64| (u1 * y2 * y2 - u2 * y1 * y1) / (y1 * y2 * (y2 - y1));
+    let lo = slope(
+        g.yc[1] - g.yf[0],
+        mean_row(1),
+        g.yc[2] - g.yf[0],
+        mean_row(2),
+    );
+    let hi = slope(
+        g.yf[ny] - g.yc[ny],
+        mean_row(ny),
+        g.yf[ny] - g.yc[ny - 1],
+        mean_row(ny - 1),
+    );
+    let tau = 0.5 * (lo + hi) / re_tau_nominal;
+    tau.max(0.0).sqrt() * re_tau_nominal
+}

@@ -1,1 +1,10 @@
-//! fiberflow-flow
+//! The flow node: serves velocity and velocity-gradient samples to fibre groups, from the
+//! channel DNS or from an analytic flow, and runs DNS spin-up to developed turbulence.
+
+pub mod analytic;
+pub mod config;
+pub mod error;
+pub mod spinup;
+
+pub use config::{FlowNodeConfig, FlowSource};
+pub use error::FlowError;

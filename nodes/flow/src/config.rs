@@ -1,0 +1,81 @@
+//! Flow-node configuration: which flow it serves and how it runs.
+
+use crate::analytic::AnalyticFlow;
+use crate::error::FlowError;
+use crate::spinup::SpinupConfig;
+use fiberflow_dns::DnsConfig;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Where the velocity samples come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum FlowSource {
+    /// An analytic flow (wall units), for tests and model validation.
+    Analytic { flow: AnalyticFlow },
+    /// The channel DNS, optionally from a checkpoint.
+    Dns {
+        dns: DnsConfig,
+        #[serde(default)]
+        restart: Option<PathBuf>,
+    },
+}
+
+/// The whole flow-node configuration (the `[flow]` table of a launch file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowNodeConfig {
+    pub source: FlowSource,
+    /// Run a standalone spin-up instead of serving fibre groups.
+    #[serde(default)]
+    pub spinup: Option<SpinupConfig>,
+    /// Serve this many coupling steps (fibre time step `dt_plus` each).
+    #[serde(default)]
+    pub steps: u64,
+    /// Coupling time step in viscous units (the fibre groups use the same).
+    #[serde(default = "default_dt")]
+    pub dt_plus: f64,
+    /// How long to wait for every expected fibre group to announce itself.
+    #[serde(default = "default_join_timeout")]
+    pub join_timeout_s: f64,
+    /// Publish a status message every this many coupling steps.
+    #[serde(default = "default_status_every")]
+    pub status_every: u64,
+}
+
+fn default_dt() -> f64 {
+    0.01
+}
+fn default_join_timeout() -> f64 {
+    30.0
+}
+fn default_status_every() -> u64 {
+    10
+}
+
+impl FlowNodeConfig {
+    pub fn validate(&self) -> Result<(), FlowError> {
+        if let FlowSource::Dns { dns, .. } = &self.source {
+            dns.validate()?;
+        }
+        if let Some(s) = &self.spinup {
+            s.validate()?;
+        }
+        if !(self.dt_plus > 0.0 && self.dt_plus.is_finite() && self.dt_plus <= 10.0) {
+            return Err(FlowError::Config(format!(
+                "flow.dt_plus must be in (0, 10] (got {})",
+                self.dt_plus
+            )));
+        }
+        if !(self.join_timeout_s > 0.0 && self.join_timeout_s <= 3600.0) {
+            return Err(FlowError::Config(format!(
+                "flow.join_timeout_s must be in (0, 3600] (got {})",
+                self.join_timeout_s
+            )));
+        }
+        if self.status_every == 0 {
+            return Err(FlowError::Config("flow.status_every must be >= 1 (got 0)".into()));
+        }
+        Ok(())
+    }
+}
