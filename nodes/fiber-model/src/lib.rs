@@ -1,1 +1,18 @@
-//! fiberflow-fiber-model
+//! The Lindström–Uesaka flexible-fibre model (paper §2, Appendices A and B): chains of
+//! rigid cylindrical segments with implicit joint forces, viscous (Cox/Kim & Karrila) and
+//! inertial cross-flow hydrodynamics, plus joint bending stiffness, gravity and wall
+//! contact. No transport dependency: plain state plus [`step::step`].
+
+pub mod cases;
+pub mod dense;
+pub mod error;
+pub mod fibre;
+pub mod group;
+pub mod hydro;
+pub mod metrics;
+pub mod step;
+
+pub use error::FibreError;
+pub use fibre::{Fibre, Segment};
+pub use hydro::DragModel;
+pub use step::{FluidSample, ModelParams};

@@ -1,0 +1,187 @@
+//! Fibre geometry and state (paper §2.1): a chain of N rigid cylindrical segments joined
+//! by ball-and-socket joints, with per-segment mass and inertia of a solid cylinder.
+
+use crate::error::FibreError;
+use crate::hydro::SegmentShape;
+use nalgebra::{Matrix3, Vector3};
+
+/// Kinematic state of one segment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Segment {
+    /// Centre of mass r_i (unwrapped: periodic directions are never folded).
+    pub r: Vector3<f64>,
+    /// Unit axis ẑ_i.
+    pub z: Vector3<f64>,
+    /// Velocity ṙ_i.
+    pub v: Vector3<f64>,
+    /// Angular velocity ω_i.
+    pub w: Vector3<f64>,
+}
+
+/// Fixed properties of one segment.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmentProps {
+    pub shape: SegmentShape,
+    pub mass: f64,
+    /// Moment of inertia about the axis (m R²/2) and about a diameter (m(3R² + l²)/12).
+    pub inertia_axial: f64,
+    pub inertia_perp: f64,
+}
+
+impl SegmentProps {
+    pub fn new(length: f64, diameter: f64, density: f64) -> Self {
+        let r = 0.5 * diameter;
+        let mass = density * std::f64::consts::PI * r * r * length;
+        Self {
+            shape: SegmentShape::new(length, diameter),
+            mass,
+            inertia_axial: 0.5 * mass * r * r,
+            inertia_perp: mass * (3.0 * r * r + length * length) / 12.0,
+        }
+    }
+
+    /// Inertia tensor in the global frame, I = I⊥ δ + (I∥ − I⊥) ẑẑ.
+    pub fn inertia(&self, z: &Vector3<f64>) -> Matrix3<f64> {
+        self.inertia_perp * Matrix3::identity()
+            + (self.inertia_axial - self.inertia_perp) * (z * z.transpose())
+    }
+
+    /// Time derivative of the inertia tensor of a body spinning at ω: İ = [ω]× I − I [ω]×.
+    pub fn inertia_rate(&self, z: &Vector3<f64>, w: &Vector3<f64>) -> Matrix3<f64> {
+        let i = self.inertia(z);
+        let wx = w.cross_matrix();
+        wx * i - i * wx
+    }
+}
+
+/// One fibre: its segments and their properties.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fibre {
+    pub segments: Vec<Segment>,
+    pub props: Vec<SegmentProps>,
+    /// Density of the fibre material.
+    pub density: f64,
+}
+
+impl Fibre {
+    /// A straight fibre centred at `centre` along `axis`, with the given segment lengths
+    /// and diameters; velocities zero.
+    pub fn straight(
+        centre: Vector3<f64>,
+        axis: Vector3<f64>,
+        lengths: &[f64],
+        diameters: &[f64],
+        density: f64,
+    ) -> Result<Self, FibreError> {
+        let n = lengths.len();
+        if n == 0 {
+            return Err(FibreError::Config("fibre.segments must be >= 1 (got 0)".into()));
+        }
+        if diameters.len() != n {
+            return Err(FibreError::Config(format!(
+                "fibre.diameters has {} entries, fibre.lengths has {n}",
+                diameters.len()
+            )));
+        }
+        if !(density > 0.0 && density.is_finite()) {
+            return Err(FibreError::Config(format!(
+                "fibre.density must be positive and finite (got {density})"
+            )));
+        }
+        for (i, (&l, &d)) in lengths.iter().zip(diameters).enumerate() {
+            if !(d > 0.0 && d.is_finite()) {
+                return Err(FibreError::Config(format!(
+                    "fibre.diameter of segment {i} must be positive and finite (got {d})"
+                )));
+            }
+            if !(l > d && l.is_finite()) {
+                return Err(FibreError::Config(format!(
+                    "fibre.length of segment {i} must exceed its diameter {d} (got {l})"
+                )));
+            }
+        }
+        let norm = axis.norm();
+        if !(norm > 0.0 && norm.is_finite()) {
+            return Err(FibreError::Config("fibre axis must be a non-zero finite vector".into()));
+        }
+        let z = axis / norm;
+        let total: f64 = lengths.iter().sum();
+        let mut s = -0.5 * total;
+        let mut segments = Vec::with_capacity(n);
+        for &l in lengths {
+            segments.push(Segment {
+                r: centre + (s + 0.5 * l) * z,
+                z,
+                v: Vector3::zeros(),
+                w: Vector3::zeros(),
+            });
+            s += l;
+        }
+        let props = lengths
+            .iter()
+            .zip(diameters)
+            .map(|(&l, &d)| SegmentProps::new(l, d, density))
+            .collect();
+        Ok(Self {
+            segments,
+            props,
+            density,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.segments.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.segments.is_empty()
+    }
+
+    /// Joint positions: the N+1 segment end points, start of segment 0 first.
+    pub fn joints(&self) -> Vec<Vector3<f64>> {
+        let mut out = Vec::with_capacity(self.len() + 1);
+        for (s, p) in self.segments.iter().zip(&self.props) {
+            out.push(s.r - 0.5 * p.shape.length * s.z);
+        }
+        if let (Some(s), Some(p)) = (self.segments.last(), self.props.last()) {
+            out.push(s.r + 0.5 * p.shape.length * s.z);
+        }
+        out
+    }
+
+    /// Largest gap between the end of one segment and the start of the next (eq. 2).
+    pub fn max_joint_gap(&self) -> f64 {
+        let mut m: f64 = 0.0;
+        for i in 0..self.len().saturating_sub(1) {
+            let a = self.segments[i].r + 0.5 * self.props[i].shape.length * self.segments[i].z;
+            let b = self.segments[i + 1].r
+                - 0.5 * self.props[i + 1].shape.length * self.segments[i + 1].z;
+            m = m.max((a - b).norm());
+        }
+        m
+    }
+
+    /// Re-chains the segments outward from the fixed middle segment so that every joint
+    /// coincides (paper §2.5: the middle segment is fixed, the others translated).
+    pub fn rechain(&mut self) {
+        let n = self.len();
+        let m = (n - 1) / 2;
+        for i in m + 1..n {
+            let prev = self.segments[i - 1];
+            let hp = 0.5 * self.props[i - 1].shape.length;
+            let h = 0.5 * self.props[i].shape.length;
+            self.segments[i].r = prev.r + hp * prev.z + h * self.segments[i].z;
+        }
+        for i in (0..m).rev() {
+            let next = self.segments[i + 1];
+            let hn = 0.5 * self.props[i + 1].shape.length;
+            let h = 0.5 * self.props[i].shape.length;
+            self.segments[i].r = next.r - hn * next.z - h * self.segments[i].z;
+        }
+    }
+
+    /// Total mass.
+    pub fn mass(&self) -> f64 {
+        self.props.iter().map(|p| p.mass).sum()
+    }
+}

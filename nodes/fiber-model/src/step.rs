@@ -1,0 +1,343 @@
+//! The implicit fibre step (paper eq. 5, 7, 8, 11, 12), derived in dimensional form.
+//!
+//! With P_i = (m/Δt δ + A_i)⁻¹ and Q_i = (İ_i + I_i/Δt + C_i)⁻¹ (all at n−1), eliminating
+//! the velocities from eq. 5 and 7,
+//!   ṙ_i = P_i (s̃_i + Y_i − Y_{i−1}),   ω_i = Q_i (b̃_i + (l_i/2) [ẑ_i]× (Y_i + Y_{i−1})),
+//! where Y_k is the force that segment k+1 exerts on segment k (the paper's X_{k+2}),
+//! s̃_i = m/Δt ṙ_{i,n−1} + A_i v(r_i) + F^w_i and b̃_i = I_i/Δt ω_{i,n−1} + C_i Ω + H_i:G + M^b_i,
+//! turns the connectivity condition (eq. 8) into a block-tridiagonal system for Y_0..Y_{N−2}
+//! (paper eq. 9–10, Appendix B — re-derived here: the first "I*" in b* and C_z* is İ, and
+//! no extra scaling r_p is needed in f64 with consistent units):
+//!   (P_k + W_k) Y_{k−1} + (W_k + W_{k+1} − P_k − P_{k+1}) Y_k + (P_{k+1} + W_{k+1}) Y_{k+1}
+//!     = −(P_{k+1} s̃_{k+1} − P_k s̃_k + h_k Z_k Q_k b̃_k + h_{k+1} Z_{k+1} Q_{k+1} b̃_{k+1}),
+//! with Z = [ẑ]×, h = l/2 and W = h² Z Q Z.
+
+use crate::error::FibreError;
+use crate::fibre::Fibre;
+use crate::hydro::{resistance, DragModel};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+
+/// Fluid velocity and velocity gradient at a segment centre: `grad[(a, b)] = ∂v_a/∂x_b`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FluidSample {
+    pub vel: Vector3<f64>,
+    pub grad: Matrix3<f64>,
+}
+
+impl FluidSample {
+    pub fn at_rest() -> Self {
+        Self {
+            vel: Vector3::zeros(),
+            grad: Matrix3::zeros(),
+        }
+    }
+    /// Strain rate G = (∇v + ∇vᵀ)/2.
+    pub fn strain(&self) -> Matrix3<f64> {
+        0.5 * (self.grad + self.grad.transpose())
+    }
+    /// Fluid angular velocity Ω = (∇ × v)/2.
+    pub fn rotation(&self) -> Vector3<f64> {
+        let g = &self.grad;
+        0.5 * Vector3::new(g[(2, 1)] - g[(1, 2)], g[(0, 2)] - g[(2, 0)], g[(1, 0)] - g[(0, 1)])
+    }
+}
+
+/// Physical parameters shared by every fibre of a group.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModelParams {
+    pub drag: DragModel,
+    /// Gravitational acceleration (body force F^w = (m − ρ_f V) g); zero in the paper.
+    pub gravity: Vector3<f64>,
+    /// Joint bending stiffness k_b: restoring moment k_b ẑ_i × ẑ_{i+1} (0 = fully flexible).
+    pub bending_stiffness: f64,
+    /// Relative Tikhonov parameter (0 = exact block-Thomas solve).
+    pub tikhonov: f64,
+    /// Walls at x2 = ±wall_half_height (None: unbounded).
+    pub wall_half_height: Option<f64>,
+}
+
+/// Hydrodynamic loads at the new velocities (for diagnostics and balance checks).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Loads {
+    /// F^h_i + F^w_i per segment.
+    pub force: Vec<Vector3<f64>>,
+    /// T^h_i per segment.
+    pub torque: Vec<Vector3<f64>>,
+    /// İ_{n−1} per segment, as used in eq. 7.
+    pub inertia_rate: Vec<Matrix3<f64>>,
+}
+
+/// Advances one fibre by Δt. `fluid[i]` is the sample at segment i's centre at t_{n−1}.
+pub fn step(
+    p: &ModelParams,
+    f: &mut Fibre,
+    fluid: &[FluidSample],
+    dt: f64,
+) -> Result<(), FibreError> {
+    step_inner(p, f, fluid, dt, None)
+}
+
+/// [`step`] that also returns the loads at the new velocities.
+pub fn step_with_loads(
+    p: &ModelParams,
+    f: &mut Fibre,
+    fluid: &[FluidSample],
+    dt: f64,
+) -> Result<Loads, FibreError> {
+    let mut loads = Loads::default();
+    step_inner(p, f, fluid, dt, Some(&mut loads))?;
+    Ok(loads)
+}
+
+const MAX_STACK: usize = 32;
+
+fn step_inner(
+    p: &ModelParams,
+    f: &mut Fibre,
+    fluid: &[FluidSample],
+    dt: f64,
+    mut loads: Option<&mut Loads>,
+) -> Result<(), FibreError> {
+    let n = f.len();
+    if fluid.len() != n {
+        return Err(FibreError::SampleCount {
+            expected: n,
+            got: fluid.len(),
+        });
+    }
+    // per-segment quantities (small vectors: stack for typical N)
+    let mut pm: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut qm: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut w: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut ps: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
+    let mut qb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
+    let mut zqb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
+    let mut res_a: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut res_c: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut res_hg: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
+    let mut idot: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let id = Matrix3::<f64>::identity();
+    for i in 0..n {
+        let s = f.segments[i];
+        let pr = f.props[i];
+        let fl = &fluid[i];
+        let g = fl.strain();
+        let omega = fl.rotation();
+        let rel = fl.vel - s.v;
+        let v_perp = (rel - s.z * s.z.dot(&rel)).norm();
+        let r = resistance(&pr.shape, &p.drag, &s.z, &g, v_perp);
+        let volume = pr.mass / f.density;
+        let fw = (pr.mass - p.drag.fluid_density * volume) * p.gravity;
+        let m_dt = pr.mass / dt;
+        let pinv = (m_dt * id + r.a)
+            .try_inverse()
+            .ok_or(FibreError::Singular { fibre: 0 })?;
+        let s_t = m_dt * s.v + r.a * fl.vel + fw;
+        let inertia = pr.inertia(&s.z);
+        let i_dot = pr.inertia_rate(&s.z, &s.w);
+        let qinv = (i_dot + inertia / dt + r.c)
+            .try_inverse()
+            .ok_or(FibreError::Singular { fibre: 0 })?;
+        let mut bend = Vector3::zeros();
+        if p.bending_stiffness != 0.0 {
+            if i + 1 < n {
+                bend += p.bending_stiffness * s.z.cross(&f.segments[i + 1].z);
+            }
+            if i > 0 {
+                bend += p.bending_stiffness * s.z.cross(&f.segments[i - 1].z);
+            }
+        }
+        let b_t = inertia / dt * s.w + r.c * omega + r.h_g + bend;
+        let h = 0.5 * pr.shape.length;
+        let zx = s.z.cross_matrix();
+        pm[i] = pinv;
+        qm[i] = qinv;
+        w[i] = h * h * zx * qinv * zx;
+        ps[i] = pinv * s_t;
+        qb[i] = qinv * b_t;
+        zqb[i] = h * zx * qb[i];
+        res_a[i] = r.a;
+        res_c[i] = r.c;
+        res_hg[i] = r.h_g;
+        idot[i] = i_dot;
+    }
+    // joint forces Y_0..Y_{n-2}
+    let nj = n.saturating_sub(1);
+    let mut y: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(nj);
+    if nj > 0 {
+        let lower = |k: usize| pm[k] + w[k];
+        let diag = |k: usize| w[k] + w[k + 1] - pm[k] - pm[k + 1];
+        let upper = |k: usize| pm[k + 1] + w[k + 1];
+        let rhs = |k: usize| -(ps[k + 1] - ps[k] + zqb[k] + zqb[k + 1]);
+        if p.tikhonov > 0.0 {
+            solve_dense_tikhonov(nj, &lower, &diag, &upper, &rhs, p.tikhonov, &mut y)?;
+        } else {
+            let mut dp: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(nj);
+            let mut rp: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(nj);
+            dp[0] = diag(0);
+            rp[0] = rhs(0);
+            for k in 1..nj {
+                let inv = dp[k - 1].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+                let m = lower(k) * inv;
+                dp[k] = diag(k) - m * upper(k - 1);
+                rp[k] = rhs(k) - m * rp[k - 1];
+            }
+            let last = dp[nj - 1].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+            y[nj - 1] = last * rp[nj - 1];
+            for k in (0..nj - 1).rev() {
+                let inv = dp[k].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+                y[k] = inv * (rp[k] - upper(k) * y[k + 1]);
+            }
+        }
+    }
+    // velocities (eq. 5, 7) and positions (eq. 11, 12)
+    if let Some(l) = loads.as_deref_mut() {
+        l.force.clear();
+        l.torque.clear();
+        l.inertia_rate.clear();
+    }
+    for i in 0..n {
+        let yi = if i < nj { y[i] } else { Vector3::zeros() };
+        let ym = if i > 0 { y[i - 1] } else { Vector3::zeros() };
+        let h = 0.5 * f.props[i].shape.length;
+        let s = &mut f.segments[i];
+        let v_new = ps[i] + pm[i] * (yi - ym);
+        let w_new = qb[i] + qm[i] * (h * s.z.cross(&(yi + ym)));
+        if let Some(l) = loads.as_deref_mut() {
+            let pr = f.props[i];
+            let volume = pr.mass / f.density;
+            let fw = (pr.mass - p.drag.fluid_density * volume) * p.gravity;
+            l.force.push(res_a[i] * (fluid[i].vel - v_new) + fw);
+            l.torque.push(res_c[i] * (fluid[i].rotation() - w_new) + res_hg[i]);
+            l.inertia_rate.push(idot[i]);
+        }
+        s.v = v_new;
+        s.w = w_new;
+    }
+    if !f
+        .segments
+        .iter()
+        .all(|s| s.v.iter().chain(s.w.iter()).all(|x| x.is_finite()))
+    {
+        return Err(FibreError::Singular { fibre: 0 });
+    }
+    for s in f.segments.iter_mut() {
+        s.r += dt * s.v;
+        s.z = rotate(&s.z, &(dt * s.w));
+    }
+    f.rechain();
+    if let Some(hh) = p.wall_half_height {
+        wall_contact(f, hh);
+    }
+    Ok(())
+}
+
+/// Rotates `z` by the rotation vector `phi` (Rodrigues) and renormalises. To first order
+/// this is eq. 12, ẑ_n = ẑ + Δt ω × ẑ; unlike eq. 12 it is an exact rotation, so a fibre in
+/// solid-body rotation keeps its shape over any number of steps.
+pub fn rotate(z: &Vector3<f64>, phi: &Vector3<f64>) -> Vector3<f64> {
+    let angle = phi.norm();
+    let out = if angle < 1e-300 {
+        *z
+    } else {
+        let k = phi / angle;
+        let (s, c) = angle.sin_cos();
+        z * c + k.cross(z) * s + k * (k.dot(z) * (1.0 - c))
+    };
+    out / out.norm()
+}
+
+/// Frictionless, inelastic wall contact: if a segment end leaves |x2| <= H, the whole fibre
+/// is translated back along ê2 (so joints stay closed) and wall-ward ê2 velocities are zeroed.
+pub fn wall_contact(f: &mut Fibre, half_height: f64) {
+    let joints = f.joints();
+    let ymax = joints.iter().map(|j| j.y).fold(f64::NEG_INFINITY, f64::max);
+    let ymin = joints.iter().map(|j| j.y).fold(f64::INFINITY, f64::min);
+    let mut shift = 0.0;
+    if ymax > half_height {
+        shift = half_height - ymax;
+        for s in f.segments.iter_mut() {
+            s.v.y = s.v.y.min(0.0);
+        }
+    } else if ymin < -half_height {
+        shift = -half_height - ymin;
+        for s in f.segments.iter_mut() {
+            s.v.y = s.v.y.max(0.0);
+        }
+    }
+    if shift != 0.0 {
+        for s in f.segments.iter_mut() {
+            s.r.y += shift;
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn solve_dense_tikhonov(
+    nj: usize,
+    lower: &dyn Fn(usize) -> Matrix3<f64>,
+    diag: &dyn Fn(usize) -> Matrix3<f64>,
+    upper: &dyn Fn(usize) -> Matrix3<f64>,
+    rhs: &dyn Fn(usize) -> Vector3<f64>,
+    lambda: f64,
+    y: &mut smallvec_like::Buf<Vector3<f64>>,
+) -> Result<(), FibreError> {
+    let dim = 3 * nj;
+    let mut a = DMatrix::<f64>::zeros(dim, dim);
+    let mut b = DVector::<f64>::zeros(dim);
+    for k in 0..nj {
+        a.fixed_view_mut::<3, 3>(3 * k, 3 * k).copy_from(&diag(k));
+        if k > 0 {
+            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k - 1)).copy_from(&lower(k));
+        }
+        if k + 1 < nj {
+            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k + 1)).copy_from(&upper(k));
+        }
+        b.fixed_view_mut::<3, 1>(3 * k, 0).copy_from(&rhs(k));
+    }
+    let x = crate::dense::tikhonov_solve(&a, &b, lambda).ok_or(FibreError::Singular { fibre: 0 })?;
+    for k in 0..nj {
+        y[k] = Vector3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]);
+    }
+    Ok(())
+}
+
+/// A tiny fixed-capacity buffer: on the stack up to MAX_STACK entries, heap beyond.
+mod smallvec_like {
+    use super::MAX_STACK;
+    use std::ops::{Index, IndexMut};
+
+    pub enum Buf<T: Copy + Default> {
+        Stack([T; MAX_STACK], usize),
+        Heap(Vec<T>),
+    }
+
+    impl<T: Copy + Default> Buf<T> {
+        pub fn new(n: usize) -> Self {
+            if n <= MAX_STACK {
+                Buf::Stack([T::default(); MAX_STACK], n)
+            } else {
+                Buf::Heap(vec![T::default(); n])
+            }
+        }
+    }
+
+    impl<T: Copy + Default> Index<usize> for Buf<T> {
+        type Output = T;
+        fn index(&self, i: usize) -> &T {
+            match self {
+                Buf::Stack(a, n) => &a[..*n][i],
+                Buf::Heap(v) => &v[i],
+            }
+        }
+    }
+
+    impl<T: Copy + Default> IndexMut<usize> for Buf<T> {
+        fn index_mut(&mut self, i: usize) -> &mut T {
+            match self {
+                Buf::Stack(a, n) => &mut a[..*n][i],
+                Buf::Heap(v) => &mut v[i],
+            }
+        }
+    }
+}
