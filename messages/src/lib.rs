@@ -1,1 +1,14 @@
-//! fiberflow-messages
+//! Message types of the fiberflow bus, their ROS 2 `.msg` definitions, topic names and the
+//! CDR codec. One encoding on the wire and in MCAP: the recorder stores bytes as received.
+//! No transport dependency.
+
+pub mod codec;
+pub mod schema;
+pub mod topics;
+pub mod types;
+
+pub use codec::{decode, encode, DecodeError, Message};
+pub use types::*;
+
+/// Version of every message layout in this crate; bumped on any incompatible change.
+pub const SCHEMA_VERSION: u32 = 1;

@@ -1,0 +1,106 @@
+//! The `.msg` definitions (kept next to the types in `messages/msg/`), embedded.
+
+pub const RUN_ANNOUNCEMENT: &str = include_str!("../msg/RunAnnouncement.msg");
+pub const FLOW_STATUS: &str = include_str!("../msg/FlowStatus.msg");
+pub const FLOW_SAMPLES: &str = include_str!("../msg/FlowSamples.msg");
+pub const FIBER_GROUP_STATE: &str = include_str!("../msg/FiberGroupState.msg");
+pub const FIBER_GROUP_METRICS: &str = include_str!("../msg/FiberGroupMetrics.msg");
+pub const HEARTBEAT: &str = include_str!("../msg/Heartbeat.msg");
+/// `sensor_msgs/msg/PointCloud2` with its dependencies, in MCAP ros2msg form.
+pub const POINT_CLOUD2: &str = include_str!("../msg/PointCloud2.msg");
+pub const POINT_CLOUD2_NAME: &str = "sensor_msgs/msg/PointCloud2";
+
+/// Schema text by ROS 2 type name ("" if unknown).
+pub fn text(type_name: &str) -> &'static str {
+    match type_name {
+        "fiberflow_msgs/msg/RunAnnouncement" => RUN_ANNOUNCEMENT,
+        "fiberflow_msgs/msg/FlowStatus" => FLOW_STATUS,
+        "fiberflow_msgs/msg/FlowSamples" => FLOW_SAMPLES,
+        "fiberflow_msgs/msg/FiberGroupState" => FIBER_GROUP_STATE,
+        "fiberflow_msgs/msg/FiberGroupMetrics" => FIBER_GROUP_METRICS,
+        "fiberflow_msgs/msg/Heartbeat" => HEARTBEAT,
+        POINT_CLOUD2_NAME => POINT_CLOUD2,
+        _ => "",
+    }
+}
+
+/// Checks that a payload of the given type decodes (used by the recorder to drop garbage).
+pub fn validate(type_name: &str, bytes: &[u8]) -> Result<(), crate::DecodeError> {
+    use crate::types::*;
+    use crate::decode;
+    match type_name {
+        "fiberflow_msgs/msg/RunAnnouncement" => decode::<RunAnnouncement>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FlowStatus" => decode::<FlowStatus>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FlowSamples" => decode::<FlowSamples>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FiberGroupState" => decode::<FiberGroupState>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FiberGroupMetrics" => decode::<FiberGroupMetrics>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/Heartbeat" => decode::<Heartbeat>(bytes).map(|_| ()),
+        _ => Err(crate::DecodeError::Malformed {
+            len: bytes.len(),
+            reason: format!("unknown type {type_name}"),
+        }),
+    }
+}
+
+/// Walks a payload against a flat `.msg` definition (primitives, strings and sequences of
+/// them) and checks every length fits the buffer, before any allocation happens. This guards
+/// the CDR decoder against hostile lengths (a string claiming 4 GiB) and checks the `.msg`
+/// text and the serde layout agree.
+pub fn check_layout(schema: &str, bytes: &[u8]) -> Result<(), String> {
+    if bytes.len() < 4 || bytes[0] != 0 || bytes[1] != 1 {
+        return Err("missing CDR little-endian encapsulation header".into());
+    }
+    let data = &bytes[4..];
+    let mut pos = 0usize;
+    let align = |pos: &mut usize, a: usize| *pos = (*pos).div_ceil(a) * a;
+    let take = |pos: &mut usize, n: usize| -> Result<(), String> {
+        let end = pos.checked_add(n).ok_or("length overflow")?;
+        if end > data.len() {
+            return Err(format!("needs {end} bytes, payload has {}", data.len()));
+        }
+        *pos = end;
+        Ok(())
+    };
+    let read_u32 = |pos: &mut usize| -> Result<usize, String> {
+        align(pos, 4);
+        let p = *pos;
+        take(pos, 4)?;
+        let mut b = [0u8; 4];
+        b.copy_from_slice(&data[p..p + 4]);
+        Ok(u32::from_le_bytes(b) as usize)
+    };
+    for line in schema.lines() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let Some((ty, _name)) = line.split_once(' ') else {
+            return Err(format!("bad schema line {line:?}"));
+        };
+        let (base, seq) = match ty.strip_suffix("[]") {
+            Some(b) => (b, true),
+            None => (ty, false),
+        };
+        let size = match base {
+            "uint8" | "int8" | "bool" => 1,
+            "uint32" | "int32" | "float32" => 4,
+            "uint64" | "int64" | "float64" => 8,
+            "string" => 0,
+            other => return Err(format!("unsupported field type {other}")),
+        };
+        let count = if seq { read_u32(&mut pos)? } else { 1 };
+        for _ in 0..count {
+            if size == 0 {
+                let n = read_u32(&mut pos)?;
+                take(&mut pos, n)?;
+            } else {
+                align(&mut pos, size);
+                take(&mut pos, size)?;
+            }
+            if count > data.len() {
+                return Err(format!("sequence of {count} cannot fit {} bytes", data.len()));
+            }
+        }
+    }
+    Ok(())
+}

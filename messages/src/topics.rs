@@ -1,0 +1,56 @@
+//! Topic names: slash paths under `fiberflow/<run>/`, identical to Rerun entity paths and
+//! (with `/` kept) to iceoryx2 service names.
+
+/// Topic builder for one run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Topics {
+    pub run: String,
+}
+
+impl Topics {
+    pub fn new(run: &str) -> Self {
+        Self { run: run.to_string() }
+    }
+    pub fn prefix(&self) -> String {
+        format!("fiberflow/{}", self.run)
+    }
+    pub fn announce(&self) -> String {
+        format!("fiberflow/{}/control/announce", self.run)
+    }
+    pub fn heartbeat(&self, node: &str) -> String {
+        format!("fiberflow/{}/control/heartbeat/{node}", self.run)
+    }
+    pub fn flow_status(&self) -> String {
+        format!("fiberflow/{}/flow/status", self.run)
+    }
+    pub fn flow_samples(&self, group: &str) -> String {
+        format!("fiberflow/{}/flow/samples/{group}", self.run)
+    }
+    pub fn fiber_state(&self, group: &str) -> String {
+        format!("fiberflow/{}/fibers/{group}/state", self.run)
+    }
+    pub fn fiber_metrics(&self, group: &str) -> String {
+        format!("fiberflow/{}/fibers/{group}/metrics", self.run)
+    }
+    /// PointCloud2 channel the recorder derives for viewers (not published on the bus).
+    pub fn fiber_points(&self, group: &str) -> String {
+        format!("fiberflow/{}/fibers/{group}/points", self.run)
+    }
+}
+
+/// Which message type a topic carries (by its path shape), for decoders and the recorder.
+pub fn type_of(topic: &str) -> Option<&'static str> {
+    let parts: Vec<&str> = topic.split('/').collect();
+    if parts.len() < 4 || parts[0] != "fiberflow" {
+        return None;
+    }
+    match (parts[2], parts.len()) {
+        ("control", 4) if parts[3] == "announce" => Some("fiberflow_msgs/msg/RunAnnouncement"),
+        ("control", 5) if parts[3] == "heartbeat" => Some("fiberflow_msgs/msg/Heartbeat"),
+        ("flow", 4) if parts[3] == "status" => Some("fiberflow_msgs/msg/FlowStatus"),
+        ("flow", 5) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
+        ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
+        ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),
+        _ => None,
+    }
+}

@@ -1,0 +1,105 @@
+//! The message types. Field order is the wire order and matches the `.msg` files in
+//! `messages/msg/` (a test checks them against an independent CDR decoder).
+//! Units: wall units throughout (lengths ν/u_tau, velocities u_tau, time ν/u_tau²).
+
+use serde::{Deserialize, Serialize};
+
+/// Published once by the flow node when every expected node has joined.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunAnnouncement {
+    pub schema_version: u32,
+    pub run_id: String,
+    /// SHA-256 of the launch file text.
+    pub config_digest: String,
+    /// Fibre groups taking part.
+    pub groups: Vec<String>,
+    pub steps: u64,
+    pub dt_plus: f64,
+    /// Channel box in wall units (x, y, z); y spans [-box/2, box/2].
+    pub box_plus: Vec<f64>,
+}
+
+/// Flow-solver health, every few coupling steps.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlowStatus {
+    pub schema_version: u32,
+    pub step: u64,
+    pub t_plus: f64,
+    pub dt_plus: f64,
+    pub cfl: f64,
+    pub max_divergence: f64,
+    pub bulk_velocity: f64,
+    pub re_tau: f64,
+}
+
+/// Fluid velocity and velocity gradient at a group's segment centres (state of `step`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlowSamples {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    /// 3 per point.
+    pub velocity: Vec<f64>,
+    /// 9 per point, row-major ∂v_a/∂x_b.
+    pub velocity_gradient: Vec<f64>,
+}
+
+/// Complete state of a fibre group at `step` (positions unwrapped).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FiberGroupState {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    /// Per fibre: number of segments N.
+    pub segments_per_fiber: Vec<u32>,
+    /// Per fibre: segment length, diameter, density ratio, initial layer (0 near wall,
+    /// 1 next, 2 middle).
+    pub segment_length: Vec<f64>,
+    pub diameter: Vec<f64>,
+    pub density_ratio: Vec<f64>,
+    pub layer: Vec<u8>,
+    /// Per segment, 3 values each.
+    pub centre: Vec<f64>,
+    pub axis: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub angular_velocity: Vec<f64>,
+}
+
+/// Per-fibre metrics of a group at `step` (paper §4.3).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FiberGroupMetrics {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    /// 3 per fibre.
+    pub centre_of_mass: Vec<f64>,
+    pub z1: Vec<f64>,
+    pub sigma2: Vec<f64>,
+    pub end_to_end: Vec<f64>,
+    pub mean_abs_z1: f64,
+    pub mean_sigma2: f64,
+}
+
+/// Node lifecycle and health.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Heartbeat {
+    pub schema_version: u32,
+    pub node: String,
+    /// 0 starting, 1 ready, 2 running, 3 done, 4 failed.
+    pub state: u8,
+    pub step: u64,
+    /// Messages dropped so far (undecodable or wrong version).
+    pub dropped: u64,
+}
+
+/// Lifecycle states carried by [`Heartbeat::state`].
+pub mod lifecycle {
+    pub const STARTING: u8 = 0;
+    pub const READY: u8 = 1;
+    pub const RUNNING: u8 = 2;
+    pub const DONE: u8 = 3;
+    pub const FAILED: u8 = 4;
+}
