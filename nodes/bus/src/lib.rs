@@ -1,6 +1,89 @@
-//! Bus plumbing placeholder (being written).
+//! The bus: one publish/subscribe trait, three transports (in-process channels, zenoh, and
+//! iceoryx2 — see `Transport`), and the plumbing every node shares: decoding with drop
+//! counting so garbage on a topic is dropped, counted and logged once, never a panic.
+
+pub mod inbox;
+pub mod inproc;
+pub mod zenoh_bus;
+
+pub use inbox::{DropCounter, Inbox};
+
+use std::sync::mpsc::Receiver;
+use std::sync::Arc;
+
+/// Bus errors (connection and publish failures; never raised for bad input).
 #[derive(Debug, thiserror::Error)]
 pub enum BusError {
-    #[error("{0}")]
-    Other(String),
+    #[error("transport error: {0}")]
+    Transport(String),
+    #[error("transport {0} is not available in this build")]
+    Unavailable(String),
 }
+
+/// One received message: topic and raw payload.
+pub type Envelope = (String, Vec<u8>);
+
+/// A subscription delivers envelopes in arrival order per publisher.
+pub struct Subscription {
+    pub rx: Receiver<Envelope>,
+    /// Keeps transport-side resources alive (e.g. the zenoh subscriber).
+    _guard: Option<Box<dyn Send>>,
+}
+
+impl Subscription {
+    pub fn new(rx: Receiver<Envelope>, guard: Option<Box<dyn Send>>) -> Self {
+        Self { rx, _guard: guard }
+    }
+}
+
+/// Publish/subscribe over slash topics. `pattern` is an exact topic or a prefix ending in
+/// `/**`.
+pub trait Bus: Send + Sync {
+    fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError>;
+    fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError>;
+    /// Transport name for logs.
+    fn name(&self) -> &'static str;
+}
+
+/// True if `topic` matches `pattern` (exact, or prefix with `/**`).
+pub fn matches(pattern: &str, topic: &str) -> bool {
+    match pattern.strip_suffix("/**") {
+        Some(prefix) => topic == prefix || topic.starts_with(&format!("{prefix}/")),
+        None => pattern == topic,
+    }
+}
+
+/// Which transport carries the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Transport {
+    Inproc,
+    Zenoh,
+    Iceoryx2,
+}
+
+impl std::str::FromStr for Transport {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "inproc" => Ok(Transport::Inproc),
+            "zenoh" => Ok(Transport::Zenoh),
+            "iceoryx2" => Ok(Transport::Iceoryx2),
+            other => Err(format!(
+                "unknown transport {other:?} (allowed: inproc, zenoh, iceoryx2)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Transport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Transport::Inproc => "inproc",
+            Transport::Zenoh => "zenoh",
+            Transport::Iceoryx2 => "iceoryx2",
+        })
+    }
+}
+
+/// Shared handle to a bus.
+pub type BusHandle = Arc<dyn Bus>;

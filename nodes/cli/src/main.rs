@@ -1,6 +1,10 @@
-//! `fiberflow`: the command-line front door (launch, node, replay, inspect, analyze, view).
+//! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
+mod launch;
+mod launchfile;
+mod nodes;
 mod progress;
+mod recording;
 mod spinup_cmd;
 
 use anyhow::{Context, Result};
@@ -16,13 +20,57 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Cmd {
-    /// Run a DNS spin-up from a flow configuration (TOML) and write checkpoint + statistics.
+    /// Run a whole experiment from a launch file (TOML).
+    Launch {
+        file: PathBuf,
+        /// Output folder (default: recordings/<run id>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// inproc | zenoh | iceoryx2 (default: the launch file's run.transport).
+        #[arg(long)]
+        transport: Option<String>,
+    },
+    /// Run one node from a spec written by the launcher.
+    Node {
+        #[arg(long)]
+        spec: PathBuf,
+    },
+    /// Run a DNS spin-up from a flow configuration and write checkpoint + statistics.
     Spinup {
-        /// Flow configuration (a `[flow]` table with `source.kind = "dns"` and `[flow.spinup]`).
         config: PathBuf,
-        /// Output directory.
         #[arg(long, default_value = "recordings/spinup")]
         out: PathBuf,
+    },
+    /// Channels, message counts, metadata and integrity of a recording.
+    Inspect {
+        mcap: PathBuf,
+        /// Salvage a file whose writer was killed into <mcap>.recovered.mcap.
+        #[arg(long)]
+        recover: bool,
+    },
+    /// Republish a recording on the bus (zenoh) in its original order and timing.
+    Replay {
+        mcap: PathBuf,
+        /// Playback speed (1 = one t+ per second of wall time); 0 = as fast as possible.
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// zenoh endpoint to connect to.
+        #[arg(long)]
+        connect: Vec<String>,
+    },
+    /// Publish random byte strings on every topic of a run (robustness testing).
+    Inject {
+        #[arg(long)]
+        run: String,
+        #[arg(long)]
+        connect: Vec<String>,
+        /// Topics relative to fiberflow/<run>/.
+        #[arg(long, required = true)]
+        topic: Vec<String>,
+        #[arg(long, default_value_t = 10_000)]
+        count: u64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
     },
 }
 
@@ -36,6 +84,14 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.cmd {
+        Cmd::Launch { file, out, transport } => {
+            launch::launch(&file, out, transport).with_context(|| format!("launch {} failed", file.display()))?;
+            Ok(())
+        }
+        Cmd::Node { spec } => nodes::node_cmd(&spec),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
+        Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
+        Cmd::Replay { mcap, speed, connect } => recording::replay_cmd(&mcap, speed, connect),
+        Cmd::Inject { run, connect, topic, count, seed } => recording::inject_cmd(&run, connect, &topic, count, seed),
     }
 }

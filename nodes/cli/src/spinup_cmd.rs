@@ -11,6 +11,15 @@ struct File {
     flow: FlowNodeConfig,
 }
 
+/// Runs the spin-up described by a flow-node configuration.
+pub fn run_config(flow: &FlowNodeConfig, out: &Path) -> Result<()> {
+    let FlowSource::Dns { dns, .. } = &flow.source else {
+        bail!("flow.source.kind must be \"dns\" for a spin-up");
+    };
+    let sp = flow.spinup.clone().context("[flow.spinup] is missing")?;
+    spin(dns, &sp, out)
+}
+
 pub fn run(config: &Path, out: &Path) -> Result<()> {
     let text = std::fs::read_to_string(config)
         .with_context(|| format!("reading {}", config.display()))?;
@@ -29,10 +38,14 @@ pub fn run(config: &Path, out: &Path) -> Result<()> {
         bail!("{}: flow.source.kind must be \"dns\" for a spin-up", config.display());
     };
     let sp = file.flow.spinup.clone().context("spinup")?;
+    spin(dns, &sp, out)
+}
+
+fn spin(dns: &fiberflow_dns::DnsConfig, sp: &fiberflow_flow::spinup::SpinupConfig, out: &Path) -> Result<()> {
     let pb = t_plus_bar(sp.duration_plus);
     let start = std::cell::Cell::new(f64::NAN);
     let mut last_re = f64::NAN;
-    let summary = fiberflow_flow::spinup::run(dns, &sp, out, &mut |rep, re| {
+    let summary = fiberflow_flow::spinup::run(dns, sp, out, &mut |rep, re| {
         if start.get().is_nan() {
             start.set(rep.t_plus - rep.dt_plus);
         }

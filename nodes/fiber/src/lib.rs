@@ -1,1 +1,7 @@
-//! fiberflow-fiber
+//! The fibre node: owns one fibre group (a paper case or any user set-up), integrates the
+//! Lindström–Uesaka model in lockstep with the flow node and publishes states and metrics.
+
+pub mod config;
+pub mod serve;
+
+pub use config::FiberNodeConfig;

@@ -4,6 +4,7 @@
 pub mod analytic;
 pub mod config;
 pub mod error;
+pub mod serve;
 pub mod spinup;
 
 pub use config::{FlowNodeConfig, FlowSource};

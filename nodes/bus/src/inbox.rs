@@ -1,0 +1,60 @@
+//! Typed receiving with drop accounting: undecodable or wrong-version payloads are dropped,
+//! counted per topic, and logged once per topic.
+
+use crate::{Envelope, Subscription};
+use fiberflow_messages::Message;
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// Per-topic drop counts.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct DropCounter {
+    pub by_topic: BTreeMap<String, u64>,
+}
+
+impl DropCounter {
+    /// Counts a drop; logs the first one per topic.
+    pub fn drop_one(&mut self, topic: &str, reason: &str) {
+        let c = self.by_topic.entry(topic.to_string()).or_insert(0);
+        if *c == 0 {
+            tracing::warn!(topic, reason, "dropping undecodable message (further drops on this topic are counted silently)");
+        }
+        *c += 1;
+    }
+    pub fn total(&self) -> u64 {
+        self.by_topic.values().sum()
+    }
+}
+
+/// A subscription plus a drop counter.
+pub struct Inbox {
+    pub sub: Subscription,
+    pub drops: DropCounter,
+}
+
+impl Inbox {
+    pub fn new(sub: Subscription) -> Self {
+        Self {
+            sub,
+            drops: DropCounter::default(),
+        }
+    }
+
+    /// Next raw envelope, or None on timeout / disconnect.
+    pub fn recv_raw(&mut self, timeout: Duration) -> Option<Envelope> {
+        self.sub.rx.recv_timeout(timeout).ok()
+    }
+
+    /// Next message that decodes as `M` within `timeout`; garbage is dropped and counted.
+    pub fn recv<M: Message>(&mut self, timeout: Duration) -> Option<(String, M)> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            let (topic, bytes) = self.sub.rx.recv_timeout(left).ok()?;
+            match fiberflow_messages::decode::<M>(&bytes) {
+                Ok(m) => return Some((topic, m)),
+                Err(e) => self.drops.drop_one(&topic, &e.to_string()),
+            }
+        }
+    }
+}

@@ -1,0 +1,236 @@
+//! `fiberflow launch`: runs a whole experiment from a launch file. Owns its children: one
+//! process group, SIGINT/SIGTERM forwarded with escalation, per-node logs under the run's
+//! folder, the log path printed when a node dies, no orphans.
+
+use crate::launchfile::LaunchFile;
+use crate::nodes::{open_bus, run_node, NodeSpec};
+use crate::progress::t_plus_bar;
+use anyhow::{bail, Context, Result};
+use fiberflow_bus::{BusHandle, Inbox};
+use fiberflow_messages::topics::Topics;
+use fiberflow_messages::FlowStatus;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Result of a launched run.
+pub struct LaunchOutcome {
+    pub out_dir: PathBuf,
+    pub mcap: Option<PathBuf>,
+    pub launch: LaunchFile,
+}
+
+fn free_port() -> Result<u16> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free loopback port")?;
+    Ok(l.local_addr()?.port())
+}
+
+pub fn launch(file: &Path, out: Option<PathBuf>, transport: Option<String>) -> Result<LaunchOutcome> {
+    let (lf, text) = LaunchFile::load(file)?;
+    let out_dir = out.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id));
+    std::fs::create_dir_all(out_dir.join("logs")).with_context(|| format!("creating {}", out_dir.display()))?;
+    std::fs::create_dir_all(out_dir.join("config"))?;
+    if lf.flow.spinup.is_some() {
+        crate::spinup_cmd::run_config(&lf.flow, &out_dir)?;
+        return Ok(LaunchOutcome { out_dir, mcap: None, launch: lf });
+    }
+    let transport = transport.unwrap_or_else(|| lf.run.transport.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
+    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
+    let mut nodes = vec!["flow".to_string()];
+    nodes.extend(lf.groups());
+    if lf.recorder.enabled {
+        nodes.push("recorder".into());
+    }
+    let launch_file_name = file.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let base = NodeSpec {
+        node: String::new(),
+        launch: lf.clone(),
+        launch_file_name,
+        launch_text: text,
+        transport: transport.clone(),
+        zenoh_listen: vec![],
+        zenoh_connect: vec![],
+        out_dir: out_dir.clone(),
+    };
+    println!("run {} ({} steps, dt+ = {}), transport {transport}, output {}", lf.run.id, lf.run.steps, lf.run.dt_plus, out_dir.display());
+    match transport.as_str() {
+        "inproc" => run_inproc(&base, &nodes, stop)?,
+        "zenoh" => run_processes(&base, &nodes, stop)?,
+        "iceoryx2" => bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)"),
+        other => bail!("--transport must be inproc, zenoh or iceoryx2 (got {other:?})"),
+    }
+    let mcap = lf.recorder.enabled.then(|| out_dir.join("run.mcap"));
+    if let Some(m) = &mcap {
+        println!("recording: {}", m.display());
+    }
+    Ok(LaunchOutcome { out_dir, mcap, launch: lf })
+}
+
+/// Progress bar fed by flow status messages.
+fn progress_thread(bus: BusHandle, lf: &LaunchFile, finished: Arc<AtomicBool>) -> Result<std::thread::JoinHandle<()>> {
+    let t = Topics::new(&lf.run.id);
+    let mut inbox = Inbox::new(bus.subscribe(&t.flow_status())?);
+    let total = lf.run.steps as f64 * lf.run.dt_plus;
+    Ok(std::thread::spawn(move || {
+        let pb = t_plus_bar(total);
+        while !finished.load(Ordering::SeqCst) {
+            if let Some((_, s)) = inbox.recv::<FlowStatus>(Duration::from_millis(100)) {
+                pb.set_position((s.t_plus * 100.0) as u64);
+                let re = if s.re_tau.is_finite() && s.re_tau > 0.0 { format!(" Re_tau {:.1}", s.re_tau) } else { String::new() };
+                pb.set_message(format!("{:.2} / {:.1}{re}", s.t_plus, total));
+            }
+        }
+        pb.finish();
+    }))
+}
+
+fn run_inproc(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<()> {
+    let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
+    let finished = Arc::new(AtomicBool::new(false));
+    let prog = progress_thread(bus.clone(), &base.launch, finished.clone())?;
+    let mut handles = Vec::new();
+    for n in nodes {
+        let mut spec = base.clone();
+        spec.node = n.clone();
+        let bus = bus.clone();
+        let stop = stop.clone();
+        handles.push((
+            n.clone(),
+            std::thread::Builder::new()
+                .name(format!("node-{n}"))
+                .spawn(move || run_node(&spec, bus, stop))?,
+        ));
+    }
+    let mut failure = None;
+    for (n, h) in handles {
+        match h.join() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => failure = failure.or(Some(format!("node {n} failed: {e:#}"))),
+            Err(_) => failure = failure.or(Some(format!("node {n} panicked"))),
+        }
+    }
+    finished.store(true, Ordering::SeqCst);
+    let _ = prog.join();
+    if let Some(f) = failure {
+        bail!(f);
+    }
+    Ok(())
+}
+
+struct Node {
+    name: String,
+    child: Child,
+    log: PathBuf,
+}
+
+fn signal_group(pgid: i32, sig: i32) {
+    // SAFETY: plain syscall; a stale group id only yields ESRCH
+    unsafe {
+        libc::kill(-pgid, sig);
+    }
+}
+
+fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<()> {
+    let port = free_port()?;
+    let rendezvous = format!("tcp/127.0.0.1:{port}");
+    std::fs::write(base.out_dir.join("endpoint.txt"), &rendezvous)?;
+    println!("zenoh rendezvous {rendezvous} (loopback only, multicast scouting off)");
+    let exe = std::env::current_exe().context("locating the fiberflow executable")?;
+    let mut children: Vec<Node> = Vec::new();
+    let mut pgid: i32 = 0;
+    for n in nodes {
+        let mut spec = base.clone();
+        spec.node = n.clone();
+        if n == "flow" {
+            spec.zenoh_listen = vec![rendezvous.clone()];
+        } else {
+            spec.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
+            spec.zenoh_connect = vec![rendezvous.clone()];
+        }
+        let spec_path = base.out_dir.join("config").join(format!("{n}.toml"));
+        std::fs::write(&spec_path, toml::to_string(&spec)?)?;
+        let log = base.out_dir.join("logs").join(format!("{n}.log"));
+        let logf = std::fs::File::create(&log)?;
+        let mut cmd = Command::new(&exe);
+        cmd.arg("node")
+            .arg("--spec")
+            .arg(&spec_path)
+            .stdin(Stdio::null())
+            .stdout(logf.try_clone()?)
+            .stderr(logf)
+            .process_group(pgid);
+        let child = cmd.spawn().with_context(|| format!("starting node {n}"))?;
+        if pgid == 0 {
+            pgid = child.id() as i32;
+        }
+        children.push(Node { name: n.clone(), child, log });
+        if n == "flow" {
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+    // the launcher's own bus connection, for the progress bar
+    let mut me = base.clone();
+    me.node = "launcher".into();
+    me.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
+    me.zenoh_connect = vec![rendezvous];
+    let bus = open_bus(&me)?;
+    let finished = Arc::new(AtomicBool::new(false));
+    let prog = progress_thread(bus, &base.launch, finished.clone())?;
+    let result = supervise(&mut children, pgid, &stop);
+    finished.store(true, Ordering::SeqCst);
+    let _ = prog.join();
+    result
+}
+
+/// Waits for the children; on a signal or a failed node, stops the rest (TERM, then KILL).
+fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> {
+    let mut failure: Option<String> = None;
+    let mut exited = vec![false; children.len()];
+    loop {
+        if stop.load(Ordering::SeqCst) && failure.is_none() {
+            failure = Some("interrupted".into());
+            signal_group(pgid, libc::SIGTERM);
+        }
+        for (i, n) in children.iter_mut().enumerate() {
+            if exited[i] {
+                continue;
+            }
+            if let Some(st) = n.child.try_wait()? {
+                exited[i] = true;
+                if !st.success() && failure.is_none() {
+                    failure = Some(format!("node {} exited with {st}; its log: {}", n.name, n.log.display()));
+                    eprintln!("{}", failure.as_deref().unwrap_or_default());
+                    signal_group(pgid, libc::SIGTERM);
+                }
+            }
+        }
+        if exited.iter().all(|e| *e) {
+            break;
+        }
+        if failure.is_some() {
+            // escalation: give the group 3 s to finish (recorder closes its file), then KILL
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(3) {
+                if children.iter_mut().all(|n| matches!(n.child.try_wait(), Ok(Some(_)))) {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            signal_group(pgid, libc::SIGKILL);
+            for n in children.iter_mut() {
+                let _ = n.child.wait();
+            }
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    match failure {
+        Some(f) => bail!(f),
+        None => Ok(()),
+    }
+}

@@ -1,0 +1,127 @@
+//! `fiberflow node`: runs one node (flow, fiber group, recorder) on a bus. The launcher
+//! calls the same function in threads (inproc) or in child processes (zenoh).
+
+use crate::launchfile::LaunchFile;
+use anyhow::{bail, Context, Result};
+use fiberflow_bus::zenoh_bus::{ZenohBus, ZenohSettings};
+use fiberflow_bus::{inproc::InprocBus, BusHandle, Transport};
+use fiberflow_flow::serve::RunInfo;
+use fiberflow_recorder::RunMetadata;
+use serde::{Deserialize, Serialize};
+use sha2::Digest;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Everything a node process needs (written by the launcher as `<out>/config/<node>.toml`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct NodeSpec {
+    /// "flow", "recorder", or a fibre group name.
+    pub node: String,
+    pub launch: LaunchFile,
+    pub launch_file_name: String,
+    pub launch_text: String,
+    pub transport: String,
+    #[serde(default)]
+    pub zenoh_listen: Vec<String>,
+    #[serde(default)]
+    pub zenoh_connect: Vec<String>,
+    pub out_dir: PathBuf,
+}
+
+pub fn digest(text: &str) -> String {
+    let h = sha2::Sha256::digest(text.as_bytes());
+    h.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Opens the bus for a spec (inproc is only possible inside the launcher).
+pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
+    let t: Transport = spec.transport.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+    match t {
+        Transport::Zenoh => {
+            let s = ZenohSettings {
+                listen: spec.zenoh_listen.clone(),
+                connect: spec.zenoh_connect.clone(),
+                multicast_scouting: false,
+            };
+            Ok(Arc::new(ZenohBus::open(&s).context("opening zenoh session")?))
+        }
+        Transport::Inproc => Ok(Arc::new(InprocBus::new())),
+        Transport::Iceoryx2 => bail!(
+            "transport iceoryx2 is not available yet in this build (use zenoh or inproc)"
+        ),
+    }
+}
+
+/// Runs the node named in the spec until the run ends.
+pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
+    let lf = &spec.launch;
+    let groups = lf.groups();
+    match spec.node.as_str() {
+        "flow" => {
+            let mut expected = groups.clone();
+            if lf.recorder.enabled {
+                expected.push("recorder".into());
+            }
+            let info = RunInfo {
+                run_id: lf.run.id.clone(),
+                config_digest: digest(&spec.launch_text),
+                groups,
+                expected_nodes: expected,
+                steps: lf.run.steps,
+                box_plus: lf.box_plus(),
+                step_timeout_s: lf.run.step_timeout_s,
+            };
+            let s = fiberflow_flow::serve::serve(&lf.flow, bus, &info, |_| {})?;
+            tracing::info!(steps = s.steps, dropped = s.drops.total(), "flow node done");
+            report_drops("flow", &s.drops);
+        }
+        "recorder" => {
+            let mut meta = RunMetadata {
+                run_id: lf.run.id.clone(),
+                launch_file_name: spec.launch_file_name.clone(),
+                launch_text: spec.launch_text.clone(),
+                software_version: env!("CARGO_PKG_VERSION").into(),
+                git_commit: option_env!("FIBERFLOW_GIT_COMMIT").unwrap_or("unknown").into(),
+                transport: spec.transport.clone(),
+                ..Default::default()
+            };
+            meta.node_configs.insert("flow".into(), toml::to_string(&lf.flow).unwrap_or_default());
+            for f in &lf.fibers {
+                meta.node_configs.insert(f.group.clone(), toml::to_string(f).unwrap_or_default());
+            }
+            let mut expect = groups.clone();
+            expect.push("flow".into());
+            let path = spec.out_dir.join("run.mcap");
+            let s = fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, stop)?;
+            tracing::info!(messages = s.messages, path = %s.path.display(), "recording finished");
+            report_drops("recorder", &s.drops);
+        }
+        g => {
+            let Some(cfg) = lf.fibers.iter().find(|f| f.group == g) else {
+                bail!("node {g:?} is neither flow, recorder nor a fibre group of the launch file");
+            };
+            let drops = fiberflow_fiber::serve::serve(cfg, bus, &lf.run.id, lf.box_plus(), lf.run.step_timeout_s)?;
+            report_drops(g, &drops);
+        }
+    }
+    Ok(())
+}
+
+/// Prints drop counts as `dropped <node> <topic> <count>` lines (parsed by tests).
+fn report_drops(node: &str, d: &fiberflow_bus::DropCounter) {
+    for (topic, n) in &d.by_topic {
+        println!("dropped {node} {topic} {n}");
+    }
+}
+
+/// `fiberflow node --spec FILE`.
+pub fn node_cmd(spec_path: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(spec_path).with_context(|| format!("reading {}", spec_path.display()))?;
+    let spec: NodeSpec = toml::from_str(&text).with_context(|| format!("parsing {}", spec_path.display()))?;
+    let stop = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone()).context("installing SIGTERM handler")?;
+    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone()).context("installing SIGINT handler")?;
+    let bus = open_bus(&spec)?;
+    run_node(&spec, bus, stop).with_context(|| format!("node {} failed", spec.node))
+}

@@ -1,0 +1,225 @@
+//! Fibre-group configuration (the `[[fibers]]` tables of a launch file), in wall units.
+
+use fiberflow_fiber_model::cases::{build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement};
+use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Initial segment velocities.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum InitialVelocity {
+    /// The fluid's velocity and rotation at each segment centre (default).
+    #[default]
+    Fluid,
+    /// At rest.
+    Rest,
+}
+
+/// Where fibres start.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum PlacementConfig {
+    /// 5 layers in x2 (near each wall, next, centre) of `per_layer` vertical fibres.
+    Layers {
+        #[serde(default = "default_per_layer")]
+        per_layer: usize,
+        #[serde(default = "default_near")]
+        near_wall_plus: f64,
+        #[serde(default = "default_next")]
+        next_plus: f64,
+    },
+    /// Explicit centres and axes (wall units); layer tags default to "middle".
+    Explicit {
+        centres: Vec<[f64; 3]>,
+        axes: Vec<[f64; 3]>,
+    },
+}
+
+fn default_per_layer() -> usize {
+    10
+}
+fn default_near() -> f64 {
+    15.0
+}
+fn default_next() -> f64 {
+    50.0
+}
+
+/// One fibre group.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FiberNodeConfig {
+    /// Group name (topic path component).
+    pub group: String,
+    /// A paper case sets segment length and density ratio (explicit values override).
+    #[serde(default)]
+    pub case: Option<PaperCase>,
+    #[serde(default = "default_segments")]
+    pub segments: usize,
+    #[serde(default)]
+    pub segment_length_plus: Option<f64>,
+    /// Default: the d+ ≈ 0.232 consistent with the paper's τ_s+ = 13.5.
+    #[serde(default)]
+    pub diameter_plus: Option<f64>,
+    #[serde(default)]
+    pub density_ratio: Option<f64>,
+    #[serde(default = "default_placement")]
+    pub placement: PlacementConfig,
+    #[serde(default)]
+    pub initial_velocity: InitialVelocity,
+    #[serde(default)]
+    pub bending_stiffness_plus: f64,
+    #[serde(default)]
+    pub gravity_plus: [f64; 3],
+    #[serde(default)]
+    pub tikhonov: f64,
+    /// Cross-flow drag coefficient C_D (1 in the paper; 0 = viscous only).
+    #[serde(default = "default_cd")]
+    pub drag_coefficient: f64,
+    /// Keep segment ends inside the walls (|x2| <= box_plus[1]/2).
+    #[serde(default = "default_true")]
+    pub wall_contact: bool,
+    /// Publish metrics every this many steps.
+    #[serde(default = "default_metrics_every")]
+    pub metrics_every: u64,
+}
+
+fn default_segments() -> usize {
+    7
+}
+fn default_placement() -> PlacementConfig {
+    PlacementConfig::Layers {
+        per_layer: default_per_layer(),
+        near_wall_plus: default_near(),
+        next_plus: default_next(),
+    }
+}
+fn default_cd() -> f64 {
+    1.0
+}
+fn default_true() -> bool {
+    true
+}
+fn default_metrics_every() -> u64 {
+    1
+}
+
+/// A built group plus per-fibre layer tags.
+pub struct BuiltGroup {
+    pub group: FibreGroup,
+    pub layers: Vec<u8>,
+}
+
+impl FiberNodeConfig {
+    fn resolved(&self) -> (f64, f64, f64) {
+        let (lc, rc) = self.case.map(|c| c.parameters()).unwrap_or((3.0, 1150.0));
+        (
+            self.segment_length_plus.unwrap_or(lc),
+            self.diameter_plus.unwrap_or_else(paper_diameter_plus),
+            self.density_ratio.unwrap_or(rc),
+        )
+    }
+
+    /// Validates and builds the group for a channel box (wall units).
+    pub fn build(&self, box_plus: [f64; 3]) -> Result<BuiltGroup, FibreError> {
+        let bad = |key: &str, range: &str, v: String| {
+            Err(FibreError::Config(format!(
+                "fibers[{}].{key} must be {range} (got {v})",
+                self.group
+            )))
+        };
+        if self.group.is_empty() || !self.group.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
+            return bad("group", "a non-empty name of [A-Za-z0-9_-]", format!("{:?}", self.group));
+        }
+        if self.segments == 0 || self.segments > 1000 {
+            return bad("segments", "in 1..=1000", self.segments.to_string());
+        }
+        let (l, d, rho) = self.resolved();
+        if !(d > 0.0 && d.is_finite()) {
+            return bad("diameter_plus", "positive and finite", d.to_string());
+        }
+        if !(l > d && l.is_finite()) {
+            return bad("segment_length_plus", "greater than diameter_plus", l.to_string());
+        }
+        if !(rho > 0.0 && rho.is_finite()) {
+            return bad("density_ratio", "positive and finite", rho.to_string());
+        }
+        if !(self.bending_stiffness_plus >= 0.0 && self.bending_stiffness_plus.is_finite()) {
+            return bad("bending_stiffness_plus", ">= 0 and finite", self.bending_stiffness_plus.to_string());
+        }
+        if !(self.tikhonov >= 0.0 && self.tikhonov < 1.0) {
+            return bad("tikhonov", "in [0, 1)", self.tikhonov.to_string());
+        }
+        if !(self.drag_coefficient >= 0.0 && self.drag_coefficient.is_finite()) {
+            return bad("drag_coefficient", ">= 0", self.drag_coefficient.to_string());
+        }
+        if self.metrics_every == 0 {
+            return bad("metrics_every", ">= 1", "0".into());
+        }
+        let placements: Vec<Placement> = match &self.placement {
+            PlacementConfig::Layers {
+                per_layer,
+                near_wall_plus,
+                next_plus,
+            } => {
+                let half = 0.5 * l * self.segments as f64;
+                if *per_layer == 0 {
+                    return bad("placement.per_layer", ">= 1", "0".into());
+                }
+                if !(*near_wall_plus >= half && *near_wall_plus < 0.5 * box_plus[1]) {
+                    return bad(
+                        "placement.near_wall_plus",
+                        &format!("in [{half}, {}) so the fibre starts inside the channel", 0.5 * box_plus[1]),
+                        near_wall_plus.to_string(),
+                    );
+                }
+                if !(*next_plus >= half && *next_plus < 0.5 * box_plus[1]) {
+                    return bad("placement.next_plus", "inside the channel", next_plus.to_string());
+                }
+                five_layers(box_plus, *per_layer, *near_wall_plus, *next_plus)
+            }
+            PlacementConfig::Explicit { centres, axes } => {
+                if centres.len() != axes.len() || centres.is_empty() {
+                    return bad(
+                        "placement.axes",
+                        "as many entries as placement.centres (>= 1)",
+                        format!("{} vs {}", axes.len(), centres.len()),
+                    );
+                }
+                centres
+                    .iter()
+                    .zip(axes)
+                    .map(|(c, a)| Placement {
+                        centre: Vector3::from(*c),
+                        axis: Vector3::from(*a),
+                        layer: Layer::Middle,
+                        upper: false,
+                    })
+                    .collect()
+            }
+        };
+        let mut fibres = Vec::with_capacity(placements.len());
+        let mut layers = Vec::with_capacity(placements.len());
+        for p in &placements {
+            fibres.push(build_fibre(p, self.segments, l, d, rho)?);
+            layers.push(p.layer.index());
+        }
+        let params = ModelParams {
+            drag: DragModel {
+                viscosity: 1.0,
+                fluid_density: 1.0,
+                drag_coefficient: self.drag_coefficient,
+            },
+            gravity: Vector3::from(self.gravity_plus),
+            bending_stiffness: self.bending_stiffness_plus,
+            tikhonov: self.tikhonov,
+            wall_half_height: self.wall_contact.then_some(0.5 * box_plus[1]),
+        };
+        Ok(BuiltGroup {
+            group: FibreGroup::new(params, fibres),
+            layers,
+        })
+    }
+}
