@@ -1,1 +1,90 @@
-//! fiberflow-e2e
+//! Helpers for the end-to-end tests: locate the `fiberflow` binary, run launches, read
+//! recordings.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The `fiberflow` binary next to the test executable (cargo builds it for `cargo test`).
+pub fn fiberflow() -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe.parent().and_then(|d| d.parent()).expect("target dir");
+    let bin = dir.join("fiberflow");
+    assert!(bin.exists(), "fiberflow binary not found at {} (run cargo build first)", bin.display());
+    bin
+}
+
+/// The repository root.
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().expect("repo root").to_path_buf()
+}
+
+/// A fresh scratch folder.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("fiberflow-e2e-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("scratch dir");
+    d
+}
+
+/// Runs `fiberflow launch` and asserts success; returns stdout.
+pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
+    let o = Command::new(fiberflow())
+        .arg("launch")
+        .arg(file)
+        .arg("--out")
+        .arg(out)
+        .arg("--transport")
+        .arg(transport)
+        .output()
+        .expect("running fiberflow launch");
+    let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "launch {} --transport {transport} failed:\n{stdout}\n{}",
+        file.display(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    stdout
+}
+
+/// Fibre-state payloads per group, ordered by step (read with the Rust mcap reader).
+pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
+    let bytes = std::fs::read(mcap_path).expect("reading mcap");
+    let mut out: BTreeMap<String, Vec<(u64, Vec<u8>)>> = BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).expect("mcap stream") {
+        let m = m.expect("mcap message");
+        if m.channel.topic.ends_with("/state") {
+            let group = m.channel.topic.rsplit('/').nth(1).unwrap_or_default().to_string();
+            // step is the first u64 after schema_version and the group string (CDR layout)
+            out.entry(group).or_default().push((m.sequence as u64, m.data.to_vec()));
+        }
+    }
+    out.into_iter()
+        .map(|(g, v)| (g, v.into_iter().map(|(_, d)| d).collect()))
+        .collect()
+}
+
+/// Metadata records of a recording by name.
+pub fn metadata(mcap_path: &Path) -> BTreeMap<String, BTreeMap<String, String>> {
+    let bytes = std::fs::read(mcap_path).expect("reading mcap");
+    mcap::Summary::read(&bytes)
+        .expect("summary")
+        .expect("a finished file has a summary section");
+    let mut out = BTreeMap::new();
+    for rec in mcap::read::LinearReader::new(&bytes).expect("mcap records") {
+        if let Ok(mcap::records::Record::Metadata(md)) = rec {
+            out.insert(md.name.clone(), md.metadata.clone());
+        }
+    }
+    out
+}
+
+/// Python with the independent decoders (`mcap`, `mcap-ros2-support`) installed?
+pub fn python_ok() -> bool {
+    Command::new("python3")
+        .args(["-c", "import mcap, mcap_ros2"])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false)
+}

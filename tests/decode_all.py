@@ -1,0 +1,25 @@
+"""Independent check of a fiberflow recording: open it with the Python `mcap` reader and
+decode every message with `mcap-ros2-support` from the ros2msg schema stored in the file.
+Prints a JSON summary; exits non-zero if anything fails to decode."""
+import json
+import sys
+
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+path = sys.argv[1]
+counts = {}
+last_step = {}
+with open(path, "rb") as f:
+    reader = make_reader(f, decoder_factories=[DecoderFactory()])
+    for schema, channel, message, decoded in reader.iter_decoded_messages():
+        counts[schema.name] = counts.get(schema.name, 0) + 1
+        if schema.name == "fiberflow_msgs/msg/FiberGroupState":
+            n = sum(decoded.segments_per_fiber)
+            assert len(decoded.centre) == 3 * n, "centre length"
+            assert decoded.schema_version == 1
+            last_step[decoded.group] = decoded.step
+        if schema.name == "sensor_msgs/msg/PointCloud2":
+            assert decoded.point_step == 16 and len(decoded.data) == 16 * decoded.width
+    summary = reader.get_summary()
+print(json.dumps({"counts": counts, "last_step": last_step, "channels": len(summary.channels)}))
