@@ -18,7 +18,10 @@ fn transports_give_bitwise_identical_states() {
     assert_eq!(sa.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
     for (g, v) in &sa {
         assert_eq!(v.len(), 201, "group {g}: states for steps 0..=200");
-        assert!(v == &sb[g], "group {g}: states differ between inproc and zenoh");
+        assert!(
+            v == &sb[g],
+            "group {g}: states differ between inproc and zenoh"
+        );
     }
     // the recording carries its provenance
     let md = metadata(&a.join("run.mcap"));
@@ -42,8 +45,20 @@ fn recording_decodes_with_independent_reader() {
         .output()
         .expect("python3");
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "decode failed: {text}\n{}", String::from_utf8_lossy(&o.stderr));
-    for t in ["FiberGroupState", "FiberGroupMetrics", "FlowSamples", "FlowStatus", "Heartbeat", "RunAnnouncement", "PointCloud2"] {
+    assert!(
+        o.status.success(),
+        "decode failed: {text}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    for t in [
+        "FiberGroupState",
+        "FiberGroupMetrics",
+        "FlowSamples",
+        "FlowStatus",
+        "Heartbeat",
+        "RunAnnouncement",
+        "PointCloud2",
+    ] {
         assert!(text.contains(t), "no {t} messages decoded: {text}");
     }
     assert!(text.contains("\"case1\": 200"), "{text}");
@@ -51,7 +66,9 @@ fn recording_decodes_with_independent_reader() {
 
 fn long_launch(dir: &std::path::Path, steps: u64) -> std::path::PathBuf {
     let text = std::fs::read_to_string(root().join("launch/analytic-shear.toml")).unwrap();
-    let text = text.replace("steps = 200", &format!("steps = {steps}")).replace("dt_plus = 0.5", "dt_plus = 0.05");
+    let text = text
+        .replace("steps = 200", &format!("steps = {steps}"))
+        .replace("dt_plus = 0.5", "dt_plus = 0.05");
     let p = dir.join("long.toml");
     std::fs::write(&p, text).unwrap();
     p
@@ -80,40 +97,71 @@ fn garbage_on_every_topic_is_dropped_and_counted() {
     launch(&file, &clean, "inproc");
     let dirty = dir.join("dirty");
     let mut child = Command::new(fiberflow())
-        .arg("launch").arg(&file).arg("--out").arg(&dirty).arg("--transport").arg("zenoh")
-        .stdout(Stdio::null()).stderr(Stdio::null())
-        .spawn().expect("launch");
+        .arg("launch")
+        .arg(&file)
+        .arg("--out")
+        .arg(&dirty)
+        .arg("--transport")
+        .arg("zenoh")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("launch");
     let endpoint = wait_for(&dirty.join("endpoint.txt"), 20);
     // wait until the run is stepping (the recorder has joined)
     std::thread::sleep(Duration::from_secs(2));
     let topics = [
-        "control/announce", "control/heartbeat/flow", "control/heartbeat/case1", "flow/status",
-        "flow/samples/case1", "flow/samples/stiff", "fibers/case1/state", "fibers/case1/metrics",
+        "control/announce",
+        "control/heartbeat/flow",
+        "control/heartbeat/case1",
+        "flow/status",
+        "flow/samples/case1",
+        "flow/samples/stiff",
+        "fibers/case1/state",
+        "fibers/case1/metrics",
         "fibers/stiff/state",
     ];
     let mut inj = Command::new(fiberflow());
-    inj.args(["inject", "--run", "analytic-shear", "--connect", endpoint.trim(), "--count", "10000"]);
+    inj.args([
+        "inject",
+        "--run",
+        "analytic-shear",
+        "--connect",
+        endpoint.trim(),
+        "--count",
+        "10000",
+    ]);
     for t in topics {
         inj.args(["--topic", t]);
     }
     let o = inj.output().expect("inject");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let st = child.wait().expect("launcher");
-    assert!(st.success(), "run with garbage failed; logs in {}", dirty.join("logs").display());
+    assert!(
+        st.success(),
+        "run with garbage failed; logs in {}",
+        dirty.join("logs").display()
+    );
     let a = states(&clean.join("run.mcap"));
     let b = states(&dirty.join("run.mcap"));
     assert!(a == b, "garbage changed the result");
     let drops = &metadata(&dirty.join("run.mcap"))["fiberflow.drops"];
     for t in topics {
         let key = format!("fiberflow/analytic-shear/{t}");
-        assert_eq!(drops.get(&key).map(String::as_str), Some("10000"), "drops on {key}: {drops:?}");
+        assert_eq!(
+            drops.get(&key).map(String::as_str),
+            Some("10000"),
+            "drops on {key}: {drops:?}"
+        );
     }
 }
 
 fn pids_with(needle: &str) -> Vec<i32> {
     let mut out = Vec::new();
     for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else { continue };
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
         if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
             let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
             if cmd.contains(needle) {
@@ -132,21 +180,40 @@ fn killed_recorder_is_recoverable() {
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
     let mut child = Command::new(fiberflow())
-        .arg("launch").arg(&file).arg("--out").arg(&out).arg("--transport").arg("zenoh")
-        .stdout(Stdio::null()).stderr(Stdio::null())
-        .spawn().expect("launch");
+        .arg("launch")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .arg("--transport")
+        .arg("zenoh")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("launch");
     wait_for(&out.join("endpoint.txt"), 20);
     std::thread::sleep(Duration::from_secs(4));
     let spec = out.join("config/recorder.toml").display().to_string();
     let pids = pids_with(&spec);
     assert_eq!(pids.len(), 1, "recorder process not found");
-    let kill_ns = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_nanos() as u64;
+    let kill_ns = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
     unsafe { libc::kill(pids[0], libc::SIGKILL) };
     let st = child.wait().expect("launcher");
     assert!(!st.success(), "the launcher must report the dead recorder");
-    let o = Command::new(fiberflow()).arg("inspect").arg("--recover").arg(out.join("run.mcap")).output().unwrap();
+    let o = Command::new(fiberflow())
+        .arg("inspect")
+        .arg("--recover")
+        .arg(out.join("run.mcap"))
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{text}\n{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{text}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let rec = out.join("run.recovered.mcap");
     let bytes = std::fs::read(&rec).unwrap();
     let mut last = 0u64;
@@ -158,8 +225,14 @@ fn killed_recorder_is_recoverable() {
     }
     assert!(n > 100, "only {n} messages recovered");
     let lost_ms = kill_ns.saturating_sub(last) / 1_000_000;
-    assert!(lost_ms <= 1000, "recovered data ends {lost_ms} ms before the kill");
-    assert!(pids_with(&out.display().to_string()).is_empty(), "orphan processes left");
+    assert!(
+        lost_ms <= 1000,
+        "recovered data ends {lost_ms} ms before the kill"
+    );
+    assert!(
+        pids_with(&out.display().to_string()).is_empty(),
+        "orphan processes left"
+    );
 }
 
 /// Ctrl-C on the launcher: every child is gone within 5 s and the MCAP is finished.
@@ -169,9 +242,16 @@ fn ctrl_c_stops_everything_cleanly() {
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
     let mut child = Command::new(fiberflow())
-        .arg("launch").arg(&file).arg("--out").arg(&out).arg("--transport").arg("zenoh")
-        .stdout(Stdio::null()).stderr(Stdio::null())
-        .spawn().expect("launch");
+        .arg("launch")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .arg("--transport")
+        .arg("zenoh")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("launch");
     wait_for(&out.join("endpoint.txt"), 20);
     std::thread::sleep(Duration::from_secs(3));
     let t0 = Instant::now();
@@ -181,9 +261,15 @@ fn ctrl_c_stops_everything_cleanly() {
         if pids_with(&out.display().to_string()).is_empty() {
             break;
         }
-        assert!(t0.elapsed() < Duration::from_secs(5), "children still alive 5 s after Ctrl-C");
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "children still alive 5 s after Ctrl-C"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
     let md = metadata(&out.join("run.mcap"));
-    assert!(md.contains_key("fiberflow.run"), "recording not finished properly");
+    assert!(
+        md.contains_key("fiberflow.run"),
+        "recording not finished properly"
+    );
 }

@@ -55,12 +55,13 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
         len: bytes.len(),
         reason,
     })?;
-    let m: M = cdr::deserialize_from(bytes, cdr::size::Bounded(bytes.len() as u64)).map_err(|e| {
-        DecodeError::Malformed {
-            len: bytes.len(),
-            reason: e.to_string(),
-        }
-    })?;
+    let m: M =
+        cdr::deserialize_from(bytes, cdr::size::Bounded(bytes.len() as u64)).map_err(|e| {
+            DecodeError::Malformed {
+                len: bytes.len(),
+                reason: e.to_string(),
+            }
+        })?;
     if m.schema_version() != SCHEMA_VERSION {
         return Err(DecodeError::Version {
             got: m.schema_version(),
@@ -99,7 +100,13 @@ mod tests {
         let s = state();
         let b = encode(&s);
         schema::check_layout(FiberGroupState::schema_text(), &b).unwrap();
-        let hb = Heartbeat { schema_version: SCHEMA_VERSION, node: "flow".into(), state: 1, step: 3, dropped: 0 };
+        let hb = Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: "flow".into(),
+            state: 1,
+            step: 3,
+            dropped: 0,
+        };
         schema::check_layout(Heartbeat::schema_text(), &encode(&hb)).unwrap();
         let ann = RunAnnouncement {
             schema_version: SCHEMA_VERSION,
@@ -119,7 +126,11 @@ mod tests {
     fn round_trip() {
         let s = state();
         let b = encode(&s);
-        assert_eq!(&b[..4], &[0, 1, 0, 0], "CDR little-endian encapsulation header");
+        assert_eq!(
+            &b[..4],
+            &[0, 1, 0, 0],
+            "CDR little-endian encapsulation header"
+        );
         assert_eq!(decode::<FiberGroupState>(&b).unwrap(), s);
     }
 

@@ -26,8 +26,8 @@ pub fn text(type_name: &str) -> &'static str {
 
 /// Checks that a payload of the given type decodes (used by the recorder to drop garbage).
 pub fn validate(type_name: &str, bytes: &[u8]) -> Result<(), crate::DecodeError> {
-    use crate::types::*;
     use crate::decode;
+    use crate::types::*;
     match type_name {
         "fiberflow_msgs/msg/RunAnnouncement" => decode::<RunAnnouncement>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FlowStatus" => decode::<FlowStatus>(bytes).map(|_| ()),
@@ -98,7 +98,10 @@ pub fn check_layout(schema: &str, bytes: &[u8]) -> Result<(), String> {
                 take(&mut pos, size)?;
             }
             if count > data.len() {
-                return Err(format!("sequence of {count} cannot fit {} bytes", data.len()));
+                return Err(format!(
+                    "sequence of {count} cannot fit {} bytes",
+                    data.len()
+                ));
             }
         }
     }

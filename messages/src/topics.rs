@@ -9,7 +9,9 @@ pub struct Topics {
 
 impl Topics {
     pub fn new(run: &str) -> Self {
-        Self { run: run.to_string() }
+        Self {
+            run: run.to_string(),
+        }
     }
     pub fn prefix(&self) -> String {
         format!("fiberflow/{}", self.run)

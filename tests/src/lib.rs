@@ -10,13 +10,20 @@ pub fn fiberflow() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
     let dir = exe.parent().and_then(|d| d.parent()).expect("target dir");
     let bin = dir.join("fiberflow");
-    assert!(bin.exists(), "fiberflow binary not found at {} (run cargo build first)", bin.display());
+    assert!(
+        bin.exists(),
+        "fiberflow binary not found at {} (run cargo build first)",
+        bin.display()
+    );
     bin
 }
 
 /// The repository root.
 pub fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().expect("repo root").to_path_buf()
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("repo root")
+        .to_path_buf()
 }
 
 /// A fresh scratch folder.
@@ -55,9 +62,17 @@ pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
     for m in mcap::MessageStream::new(&bytes).expect("mcap stream") {
         let m = m.expect("mcap message");
         if m.channel.topic.ends_with("/state") {
-            let group = m.channel.topic.rsplit('/').nth(1).unwrap_or_default().to_string();
+            let group = m
+                .channel
+                .topic
+                .rsplit('/')
+                .nth(1)
+                .unwrap_or_default()
+                .to_string();
             // step is the first u64 after schema_version and the group string (CDR layout)
-            out.entry(group).or_default().push((m.sequence as u64, m.data.to_vec()));
+            out.entry(group)
+                .or_default()
+                .push((m.sequence as u64, m.data.to_vec()));
         }
     }
     out.into_iter()

@@ -1,1 +1,28 @@
-//! fiberflow-analysis
+//! Analysis: turns recordings and flow statistics into the paper's figures and numbers
+//! (CSV + PNG + a markdown summary). Paper §3.2 (flow validation) and §4 (fibres).
+
+pub mod fibres;
+pub mod flow_validation;
+pub mod plot;
+pub mod reference;
+
+#[derive(Debug, thiserror::Error)]
+pub enum AnalysisError {
+    #[error("i/o error on {path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Data(String),
+    #[error("plot {path}: {reason}")]
+    Plot { path: String, reason: String },
+}
+
+pub(crate) fn io_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> AnalysisError + '_ {
+    move |source| AnalysisError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}

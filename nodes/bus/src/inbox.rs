@@ -17,7 +17,11 @@ impl DropCounter {
     pub fn drop_one(&mut self, topic: &str, reason: &str) {
         let c = self.by_topic.entry(topic.to_string()).or_insert(0);
         if *c == 0 {
-            tracing::warn!(topic, reason, "dropping undecodable message (further drops on this topic are counted silently)");
+            tracing::warn!(
+                topic,
+                reason,
+                "dropping undecodable message (further drops on this topic are counted silently)"
+            );
         }
         *c += 1;
     }

@@ -38,15 +38,19 @@ fn terr<E: std::fmt::Display>(e: E) -> BusError {
 impl ZenohBus {
     pub fn open(s: &ZenohSettings) -> Result<Self, BusError> {
         let mut c = zenoh::Config::default();
-        let list = |v: &[String]| {
-            serde_json::to_string(v).unwrap_or_else(|_| "[]".into())
-        };
+        let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
         c.insert_json5("mode", "\"peer\"").map_err(terr)?;
-        c.insert_json5("listen/endpoints", &list(&s.listen)).map_err(terr)?;
-        c.insert_json5("connect/endpoints", &list(&s.connect)).map_err(terr)?;
+        c.insert_json5("listen/endpoints", &list(&s.listen))
+            .map_err(terr)?;
+        c.insert_json5("connect/endpoints", &list(&s.connect))
+            .map_err(terr)?;
         c.insert_json5(
             "scouting/multicast/enabled",
-            if s.multicast_scouting { "true" } else { "false" },
+            if s.multicast_scouting {
+                "true"
+            } else {
+                "false"
+            },
         )
         .map_err(terr)?;
         let session = zenoh::open(c).wait().map_err(terr)?;

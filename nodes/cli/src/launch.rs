@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 pub struct LaunchOutcome {
     pub out_dir: PathBuf,
     pub mcap: Option<PathBuf>,
-    pub launch: LaunchFile,
+    pub launch: Option<LaunchFile>,
 }
 
 fn free_port() -> Result<u16> {
@@ -28,14 +28,41 @@ fn free_port() -> Result<u16> {
     Ok(l.local_addr()?.port())
 }
 
-pub fn launch(file: &Path, out: Option<PathBuf>, transport: Option<String>) -> Result<LaunchOutcome> {
+pub fn launch(
+    file: &Path,
+    out: Option<PathBuf>,
+    transport: Option<String>,
+) -> Result<LaunchOutcome> {
+    // a spin-up file has only a [flow] table with [flow.spinup]
+    let raw =
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let value: toml::Value =
+        toml::from_str(&raw).with_context(|| format!("parsing {}", file.display()))?;
+    if value.get("run").is_none() && value.get("flow").and_then(|f| f.get("spinup")).is_some() {
+        let stem = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_else(|| "spinup".into());
+        let out = out.unwrap_or_else(|| PathBuf::from("recordings").join(stem));
+        crate::spinup_cmd::run(file, &out)?;
+        return Ok(LaunchOutcome {
+            out_dir: out,
+            mcap: None,
+            launch: None,
+        });
+    }
     let (lf, text) = LaunchFile::load(file)?;
     let out_dir = out.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id));
-    std::fs::create_dir_all(out_dir.join("logs")).with_context(|| format!("creating {}", out_dir.display()))?;
+    std::fs::create_dir_all(out_dir.join("logs"))
+        .with_context(|| format!("creating {}", out_dir.display()))?;
     std::fs::create_dir_all(out_dir.join("config"))?;
     if lf.flow.spinup.is_some() {
         crate::spinup_cmd::run_config(&lf.flow, &out_dir)?;
-        return Ok(LaunchOutcome { out_dir, mcap: None, launch: lf });
+        return Ok(LaunchOutcome {
+            out_dir,
+            mcap: None,
+            launch: Some(lf),
+        });
     }
     let transport = transport.unwrap_or_else(|| lf.run.transport.clone());
     let stop = Arc::new(AtomicBool::new(false));
@@ -46,7 +73,10 @@ pub fn launch(file: &Path, out: Option<PathBuf>, transport: Option<String>) -> R
     if lf.recorder.enabled {
         nodes.push("recorder".into());
     }
-    let launch_file_name = file.file_name().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+    let launch_file_name = file
+        .file_name()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_default();
     let base = NodeSpec {
         node: String::new(),
         launch: lf.clone(),
@@ -57,22 +87,42 @@ pub fn launch(file: &Path, out: Option<PathBuf>, transport: Option<String>) -> R
         zenoh_connect: vec![],
         out_dir: out_dir.clone(),
     };
-    println!("run {} ({} steps, dt+ = {}), transport {transport}, output {}", lf.run.id, lf.run.steps, lf.run.dt_plus, out_dir.display());
+    println!(
+        "run {} ({} steps, dt+ = {}), transport {transport}, output {}",
+        lf.run.id,
+        lf.run.steps,
+        lf.run.dt_plus,
+        out_dir.display()
+    );
     match transport.as_str() {
         "inproc" => run_inproc(&base, &nodes, stop)?,
         "zenoh" => run_processes(&base, &nodes, stop)?,
-        "iceoryx2" => bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)"),
+        "iceoryx2" => {
+            bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)")
+        }
         other => bail!("--transport must be inproc, zenoh or iceoryx2 (got {other:?})"),
     }
     let mcap = lf.recorder.enabled.then(|| out_dir.join("run.mcap"));
     if let Some(m) = &mcap {
         println!("recording: {}", m.display());
+        if lf.run.analyze {
+            let table = crate::analyze::fibres(m, &out_dir.join("analysis"))?;
+            println!("{table}");
+        }
     }
-    Ok(LaunchOutcome { out_dir, mcap, launch: lf })
+    Ok(LaunchOutcome {
+        out_dir,
+        mcap,
+        launch: Some(lf),
+    })
 }
 
 /// Progress bar fed by flow status messages.
-fn progress_thread(bus: BusHandle, lf: &LaunchFile, finished: Arc<AtomicBool>) -> Result<std::thread::JoinHandle<()>> {
+fn progress_thread(
+    bus: BusHandle,
+    lf: &LaunchFile,
+    finished: Arc<AtomicBool>,
+) -> Result<std::thread::JoinHandle<()>> {
     let t = Topics::new(&lf.run.id);
     let mut inbox = Inbox::new(bus.subscribe(&t.flow_status())?);
     let total = lf.run.steps as f64 * lf.run.dt_plus;
@@ -81,7 +131,11 @@ fn progress_thread(bus: BusHandle, lf: &LaunchFile, finished: Arc<AtomicBool>) -
         while !finished.load(Ordering::SeqCst) {
             if let Some((_, s)) = inbox.recv::<FlowStatus>(Duration::from_millis(100)) {
                 pb.set_position((s.t_plus * 100.0) as u64);
-                let re = if s.re_tau.is_finite() && s.re_tau > 0.0 { format!(" Re_tau {:.1}", s.re_tau) } else { String::new() };
+                let re = if s.re_tau.is_finite() && s.re_tau > 0.0 {
+                    format!(" Re_tau {:.1}", s.re_tau)
+                } else {
+                    String::new()
+                };
                 pb.set_message(format!("{:.2} / {:.1}{re}", s.t_plus, total));
             }
         }
@@ -168,7 +222,11 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         if pgid == 0 {
             pgid = child.id() as i32;
         }
-        children.push(Node { name: n.clone(), child, log });
+        children.push(Node {
+            name: n.clone(),
+            child,
+            log,
+        });
         if n == "flow" {
             std::thread::sleep(Duration::from_millis(200));
         }
@@ -203,7 +261,11 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
             if let Some(st) = n.child.try_wait()? {
                 exited[i] = true;
                 if !st.success() && failure.is_none() {
-                    failure = Some(format!("node {} exited with {st}; its log: {}", n.name, n.log.display()));
+                    failure = Some(format!(
+                        "node {} exited with {st}; its log: {}",
+                        n.name,
+                        n.log.display()
+                    ));
                     eprintln!("{}", failure.as_deref().unwrap_or_default());
                     signal_group(pgid, libc::SIGTERM);
                 }
@@ -216,7 +278,10 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
             // escalation: give the group 3 s to finish (recorder closes its file), then KILL
             let t0 = Instant::now();
             while t0.elapsed() < Duration::from_secs(3) {
-                if children.iter_mut().all(|n| matches!(n.child.try_wait(), Ok(Some(_)))) {
+                if children
+                    .iter_mut()
+                    .all(|n| matches!(n.child.try_wait(), Ok(Some(_))))
+                {
                     break;
                 }
                 std::thread::sleep(Duration::from_millis(50));

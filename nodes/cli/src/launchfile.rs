@@ -70,16 +70,23 @@ pub struct LaunchFile {
 impl LaunchFile {
     /// Reads, resolves relative paths against the file's folder, and validates.
     pub fn load(path: &Path) -> Result<(Self, String)> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading launch file {}", path.display()))?;
-        let mut lf: LaunchFile =
-            toml::from_str(&text).with_context(|| format!("parsing launch file {}", path.display()))?;
-        let base = path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("reading launch file {}", path.display()))?;
+        let mut lf: LaunchFile = toml::from_str(&text)
+            .with_context(|| format!("parsing launch file {}", path.display()))?;
+        let base = path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from("."));
         let fix = |p: &mut PathBuf| {
             if p.is_relative() {
                 *p = base.join(&*p);
             }
         };
-        if let FlowSource::Dns { restart: Some(r), .. } = &mut lf.flow.source {
+        if let FlowSource::Dns {
+            restart: Some(r), ..
+        } = &mut lf.flow.source
+        {
             fix(r);
         }
         if let Some(sp) = lf.flow.spinup.as_mut() {
@@ -95,24 +102,39 @@ impl LaunchFile {
 
     pub fn validate(&self) -> Result<()> {
         let r = &self.run;
-        if r.id.is_empty() || !r.id.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
-            bail!("run.id must be a non-empty name of [A-Za-z0-9_-] (got {:?})", r.id);
+        if r.id.is_empty()
+            || !r
+                .id
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+        {
+            bail!(
+                "run.id must be a non-empty name of [A-Za-z0-9_-] (got {:?})",
+                r.id
+            );
         }
         if r.steps == 0 || r.steps > 100_000_000 {
             bail!("run.steps must be in 1..=1e8 (got {})", r.steps);
         }
         if !(r.step_timeout_s > 0.0 && r.step_timeout_s <= 3600.0) {
-            bail!("run.step_timeout_s must be in (0, 3600] (got {})", r.step_timeout_s);
+            bail!(
+                "run.step_timeout_s must be in (0, 3600] (got {})",
+                r.step_timeout_s
+            );
         }
         self.flow.validate()?;
         let mut names = std::collections::BTreeSet::new();
         for f in &self.fibers {
-            f.build(self.box_plus()).map_err(|e| anyhow::anyhow!("{e}"))?;
+            f.build(self.box_plus())
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
             if !names.insert(f.group.clone()) {
                 bail!("fibers: group name {:?} is used twice", f.group);
             }
             if ["flow", "recorder", "launcher"].contains(&f.group.as_str()) {
-                bail!("fibers[{}].group: the names flow, recorder and launcher are reserved", f.group);
+                bail!(
+                    "fibers[{}].group: the names flow, recorder and launcher are reserved",
+                    f.group
+                );
             }
         }
         Ok(())
@@ -125,7 +147,9 @@ impl LaunchFile {
         }
         let (re, lx, lz) = match &self.flow.source {
             FlowSource::Dns { dns, .. } => (dns.re_tau, dns.lx, dns.lz),
-            FlowSource::Analytic { .. } => (150.0, 2.0 * std::f64::consts::PI, std::f64::consts::PI),
+            FlowSource::Analytic { .. } => {
+                (150.0, 2.0 * std::f64::consts::PI, std::f64::consts::PI)
+            }
         };
         [lx * re, 2.0 * re, lz * re]
     }

@@ -1,5 +1,6 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
+mod analyze;
 mod launch;
 mod launchfile;
 mod nodes;
@@ -12,7 +13,11 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 
 #[derive(Parser, Debug)]
-#[command(name = "fiberflow", version, about = "Flexible fibres in DNS of turbulent channel flow")]
+#[command(
+    name = "fiberflow",
+    version,
+    about = "Flexible fibres in DNS of turbulent channel flow"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
@@ -58,6 +63,22 @@ enum Cmd {
         #[arg(long)]
         connect: Vec<String>,
     },
+    /// Fibre analysis of a recording: MSD, alignment, coiling (CSV, PNG, summary.md).
+    Analyze {
+        mcap: PathBuf,
+        /// Output folder (default: <mcap folder>/analysis).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Compare DNS statistics (stats.csv from a spin-up) with the reference DNS data.
+    FlowReport {
+        stats: PathBuf,
+        /// Folder with the reference files (MKM_chan180.*, HJ_Re180.prof).
+        #[arg(long)]
+        reference: PathBuf,
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Publish random byte strings on every topic of a run (robustness testing).
     Inject {
         #[arg(long)]
@@ -84,14 +105,61 @@ fn main() -> Result<()> {
         .init();
     let cli = Cli::parse();
     match cli.cmd {
-        Cmd::Launch { file, out, transport } => {
-            launch::launch(&file, out, transport).with_context(|| format!("launch {} failed", file.display()))?;
+        Cmd::Launch {
+            file,
+            out,
+            transport,
+        } => {
+            let o = launch::launch(&file, out, transport)
+                .with_context(|| format!("launch {} failed", file.display()))?;
+            if let (Some(lf), Some(m)) = (&o.launch, &o.mcap) {
+                println!(
+                    "run {} finished: {} (view: rerun {})",
+                    lf.run.id,
+                    o.out_dir.display(),
+                    m.display()
+                );
+            }
             Ok(())
         }
         Cmd::Node { spec } => nodes::node_cmd(&spec),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
-        Cmd::Replay { mcap, speed, connect } => recording::replay_cmd(&mcap, speed, connect),
-        Cmd::Inject { run, connect, topic, count, seed } => recording::inject_cmd(&run, connect, &topic, count, seed),
+        Cmd::Replay {
+            mcap,
+            speed,
+            connect,
+        } => recording::replay_cmd(&mcap, speed, connect),
+        Cmd::Analyze { mcap, out } => {
+            let out = out.unwrap_or_else(|| {
+                mcap.parent()
+                    .unwrap_or(std::path::Path::new("."))
+                    .join("analysis")
+            });
+            let table = analyze::fibres(&mcap, &out)?;
+            println!("{table}");
+            Ok(())
+        }
+        Cmd::FlowReport {
+            stats,
+            reference,
+            out,
+        } => {
+            let out = out.unwrap_or_else(|| {
+                stats
+                    .parent()
+                    .unwrap_or(std::path::Path::new("."))
+                    .join("validation")
+            });
+            println!("{}", analyze::flow(&stats, &reference, &out)?);
+            Ok(())
+        }
+        Cmd::Inject {
+            run,
+            connect,
+            topic,
+            count,
+            seed,
+        } => recording::inject_cmd(&run, connect, &topic, count, seed),
     }
 }

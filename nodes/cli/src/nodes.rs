@@ -36,7 +36,10 @@ pub fn digest(text: &str) -> String {
 
 /// Opens the bus for a spec (inproc is only possible inside the launcher).
 pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
-    let t: Transport = spec.transport.parse().map_err(|e: String| anyhow::anyhow!(e))?;
+    let t: Transport = spec
+        .transport
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!(e))?;
     match t {
         Transport::Zenoh => {
             let s = ZenohSettings {
@@ -44,12 +47,14 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
                 connect: spec.zenoh_connect.clone(),
                 multicast_scouting: false,
             };
-            Ok(Arc::new(ZenohBus::open(&s).context("opening zenoh session")?))
+            Ok(Arc::new(
+                ZenohBus::open(&s).context("opening zenoh session")?,
+            ))
         }
         Transport::Inproc => Ok(Arc::new(InprocBus::new())),
-        Transport::Iceoryx2 => bail!(
-            "transport iceoryx2 is not available yet in this build (use zenoh or inproc)"
-        ),
+        Transport::Iceoryx2 => {
+            bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)")
+        }
     }
 }
 
@@ -82,13 +87,17 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 launch_file_name: spec.launch_file_name.clone(),
                 launch_text: spec.launch_text.clone(),
                 software_version: env!("CARGO_PKG_VERSION").into(),
-                git_commit: option_env!("FIBERFLOW_GIT_COMMIT").unwrap_or("unknown").into(),
+                git_commit: option_env!("FIBERFLOW_GIT_COMMIT")
+                    .unwrap_or("unknown")
+                    .into(),
                 transport: spec.transport.clone(),
                 ..Default::default()
             };
-            meta.node_configs.insert("flow".into(), toml::to_string(&lf.flow).unwrap_or_default());
+            meta.node_configs
+                .insert("flow".into(), toml::to_string(&lf.flow).unwrap_or_default());
             for f in &lf.fibers {
-                meta.node_configs.insert(f.group.clone(), toml::to_string(f).unwrap_or_default());
+                meta.node_configs
+                    .insert(f.group.clone(), toml::to_string(f).unwrap_or_default());
             }
             let mut expect = groups.clone();
             expect.push("flow".into());
@@ -101,7 +110,13 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             let Some(cfg) = lf.fibers.iter().find(|f| f.group == g) else {
                 bail!("node {g:?} is neither flow, recorder nor a fibre group of the launch file");
             };
-            let drops = fiberflow_fiber::serve::serve(cfg, bus, &lf.run.id, lf.box_plus(), lf.run.step_timeout_s)?;
+            let drops = fiberflow_fiber::serve::serve(
+                cfg,
+                bus,
+                &lf.run.id,
+                lf.box_plus(),
+                lf.run.step_timeout_s,
+            )?;
             report_drops(g, &drops);
         }
     }
@@ -117,11 +132,15 @@ fn report_drops(node: &str, d: &fiberflow_bus::DropCounter) {
 
 /// `fiberflow node --spec FILE`.
 pub fn node_cmd(spec_path: &Path) -> Result<()> {
-    let text = std::fs::read_to_string(spec_path).with_context(|| format!("reading {}", spec_path.display()))?;
-    let spec: NodeSpec = toml::from_str(&text).with_context(|| format!("parsing {}", spec_path.display()))?;
+    let text = std::fs::read_to_string(spec_path)
+        .with_context(|| format!("reading {}", spec_path.display()))?;
+    let spec: NodeSpec =
+        toml::from_str(&text).with_context(|| format!("parsing {}", spec_path.display()))?;
     let stop = Arc::new(AtomicBool::new(false));
-    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone()).context("installing SIGTERM handler")?;
-    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone()).context("installing SIGINT handler")?;
+    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
+        .context("installing SIGTERM handler")?;
+    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
+        .context("installing SIGINT handler")?;
     let bus = open_bus(&spec)?;
     run_node(&spec, bus, stop).with_context(|| format!("node {} failed", spec.node))
 }

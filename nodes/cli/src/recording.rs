@@ -7,7 +7,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
-    let ins = fiberflow_recorder::recover::inspect(path).with_context(|| format!("reading {}", path.display()))?;
+    let ins = fiberflow_recorder::recover::inspect(path)
+        .with_context(|| format!("reading {}", path.display()))?;
     println!("{}: {} messages", path.display(), ins.messages);
     println!("{:<60} {:<40} {:>8}", "topic", "schema", "count");
     for (t, (s, n)) in &ins.channels {
@@ -16,7 +17,14 @@ pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
     for (name, md) in &ins.metadata {
         println!("metadata {name}:");
         for (k, v) in md {
-            let v = if v.len() > 70 { format!("{}…", &v[..v.char_indices().nth(70).map(|c| c.0).unwrap_or(v.len())]) } else { v.clone() };
+            let v = if v.len() > 70 {
+                format!(
+                    "{}…",
+                    &v[..v.char_indices().nth(70).map(|c| c.0).unwrap_or(v.len())]
+                )
+            } else {
+                v.clone()
+            };
             println!("  {k} = {}", v.replace('\n', " "));
         }
     }
@@ -29,7 +37,8 @@ pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
     }
     if recover {
         let dst = path.with_extension("recovered.mcap");
-        let n = fiberflow_recorder::recover::recover(path, &dst).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let n =
+            fiberflow_recorder::recover::recover(path, &dst).map_err(|e| anyhow::anyhow!("{e}"))?;
         println!("recovered {n} messages into {}", dst.display());
     }
     Ok(())
@@ -69,11 +78,20 @@ pub fn replay_cmd(path: &Path, speed: f64, connect: Vec<String>) -> Result<()> {
         bus.publish(&m.channel.topic, &m.data)?;
         n += 1;
     }
-    println!("replayed {n} messages in {:.1} s", start.elapsed().as_secs_f64());
+    println!(
+        "replayed {n} messages in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
     Ok(())
 }
 
-pub fn inject_cmd(run: &str, connect: Vec<String>, topics: &[String], count: u64, seed: u64) -> Result<()> {
+pub fn inject_cmd(
+    run: &str,
+    connect: Vec<String>,
+    topics: &[String],
+    count: u64,
+    seed: u64,
+) -> Result<()> {
     let bus = zenoh(connect)?;
     std::thread::sleep(Duration::from_millis(500));
     let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
@@ -93,6 +111,9 @@ pub fn inject_cmd(run: &str, connect: Vec<String>, topics: &[String], count: u64
             std::thread::sleep(Duration::from_millis(10));
         }
     }
-    println!("injected {count} random payloads on each of {} topics", topics.len());
+    println!(
+        "injected {count} random payloads on each of {} topics",
+        topics.len()
+    );
     Ok(())
 }

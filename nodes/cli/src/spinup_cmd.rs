@@ -21,9 +21,10 @@ pub fn run_config(flow: &FlowNodeConfig, out: &Path) -> Result<()> {
 }
 
 pub fn run(config: &Path, out: &Path) -> Result<()> {
-    let text = std::fs::read_to_string(config)
-        .with_context(|| format!("reading {}", config.display()))?;
-    let mut file: File = toml::from_str(&text).with_context(|| format!("parsing {}", config.display()))?;
+    let text =
+        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
+    let mut file: File =
+        toml::from_str(&text).with_context(|| format!("parsing {}", config.display()))?;
     let base = config.parent().unwrap_or(Path::new("."));
     let Some(sp) = file.flow.spinup.as_mut() else {
         bail!("{}: [flow.spinup] is missing", config.display());
@@ -35,13 +36,20 @@ pub fn run(config: &Path, out: &Path) -> Result<()> {
     }
     file.flow.validate()?;
     let FlowSource::Dns { dns, .. } = &file.flow.source else {
-        bail!("{}: flow.source.kind must be \"dns\" for a spin-up", config.display());
+        bail!(
+            "{}: flow.source.kind must be \"dns\" for a spin-up",
+            config.display()
+        );
     };
     let sp = file.flow.spinup.clone().context("spinup")?;
     spin(dns, &sp, out)
 }
 
-fn spin(dns: &fiberflow_dns::DnsConfig, sp: &fiberflow_flow::spinup::SpinupConfig, out: &Path) -> Result<()> {
+fn spin(
+    dns: &fiberflow_dns::DnsConfig,
+    sp: &fiberflow_flow::spinup::SpinupConfig,
+    out: &Path,
+) -> Result<()> {
     let pb = t_plus_bar(sp.duration_plus);
     let start = std::cell::Cell::new(f64::NAN);
     let mut last_re = f64::NAN;

@@ -9,7 +9,10 @@ fn bench_step(c: &mut Criterion) {
     group.sample_size(10);
     for (name, nx) in [("coarse_64x64x64", 64usize), ("fine_192x64x64", 192)] {
         let mut cfg = DnsConfig::with_cells(nx, 64, 64);
-        cfg.init = InitialField::Turbulent { amplitude: 0.25, seed: 1 };
+        cfg.init = InitialField::Turbulent {
+            amplitude: 0.25,
+            seed: 1,
+        };
         let mut s = match Solver::new(cfg) {
             Ok(s) => s,
             Err(e) => panic!("solver: {e}"),

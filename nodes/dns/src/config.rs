@@ -153,11 +153,7 @@ impl DnsConfig {
             }
         }
         if !(self.cfl > 0.0 && self.cfl <= crate::timestep::RK3_CFL_LIMIT) {
-            return bad(
-                "cfl",
-                "in (0, 1.73] (RK3 stability)",
-                self.cfl.to_string(),
-            );
+            return bad("cfl", "in (0, 1.73] (RK3 stability)", self.cfl.to_string());
         }
         if !(self.dt_max_plus > 0.0 && self.dt_max_plus.is_finite()) {
             return bad("dt_max_plus", "positive", self.dt_max_plus.to_string());

@@ -146,41 +146,38 @@ impl Poisson {
             let a = &self.a;
             let inv_den = &self.inv_den;
             let cp = &self.cp;
-            self.spec
-                .par_chunks_mut(ny * nz)
-                .enumerate()
-                .for_each_init(
-                    || vec![Complex64::new(0.0, 0.0); fwd_z.get_inplace_scratch_len().max(1)],
-                    |scratch, (kx, blk)| {
-                        for j in 0..ny {
-                            for k in 0..nz {
-                                blk[j * nz + k] = rows[kx + nxh * (j + ny * k)];
-                            }
+            self.spec.par_chunks_mut(ny * nz).enumerate().for_each_init(
+                || vec![Complex64::new(0.0, 0.0); fwd_z.get_inplace_scratch_len().max(1)],
+                |scratch, (kx, blk)| {
+                    for j in 0..ny {
+                        for k in 0..nz {
+                            blk[j * nz + k] = rows[kx + nxh * (j + ny * k)];
                         }
-                        fwd_z.process_with_scratch(blk, scratch);
-                        let base = ny * nz * kx;
-                        // forward sweep, vectorised over kz
+                    }
+                    fwd_z.process_with_scratch(blk, scratch);
+                    let base = ny * nz * kx;
+                    // forward sweep, vectorised over kz
+                    for kz in 0..nz {
+                        blk[kz] *= inv_den[base + kz];
+                    }
+                    for j in 1..ny {
+                        let (prev, cur) = blk.split_at_mut(j * nz);
+                        let prev = &prev[(j - 1) * nz..];
+                        let aj = a[j];
                         for kz in 0..nz {
-                            blk[kz] *= inv_den[base + kz];
+                            cur[kz] = (cur[kz] - prev[kz] * aj) * inv_den[base + j * nz + kz];
                         }
-                        for j in 1..ny {
-                            let (prev, cur) = blk.split_at_mut(j * nz);
-                            let prev = &prev[(j - 1) * nz..];
-                            let aj = a[j];
-                            for kz in 0..nz {
-                                cur[kz] = (cur[kz] - prev[kz] * aj) * inv_den[base + j * nz + kz];
-                            }
+                    }
+                    for j in (0..ny - 1).rev() {
+                        let (cur, next) = blk.split_at_mut((j + 1) * nz);
+                        let cur = &mut cur[j * nz..];
+                        for kz in 0..nz {
+                            cur[kz] = cur[kz] - next[kz] * cp[base + j * nz + kz];
                         }
-                        for j in (0..ny - 1).rev() {
-                            let (cur, next) = blk.split_at_mut((j + 1) * nz);
-                            let cur = &mut cur[j * nz..];
-                            for kz in 0..nz {
-                                cur[kz] = cur[kz] - next[kz] * cp[base + j * nz + kz];
-                            }
-                        }
-                        inv_z.process_with_scratch(blk, scratch);
-                    },
-                );
+                    }
+                    inv_z.process_with_scratch(blk, scratch);
+                },
+            );
         }
         // 3. transpose back and inverse real FFT in x
         {

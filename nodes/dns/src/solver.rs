@@ -52,7 +52,15 @@ impl Solver {
     /// A solver with the configured initial field.
     pub fn new(cfg: DnsConfig) -> Result<Self, DnsError> {
         cfg.validate()?;
-        let grid = Grid::new(cfg.nx, cfg.ny, cfg.nz, cfg.lx, cfg.lz, cfg.re_tau, cfg.y1_plus)?;
+        let grid = Grid::new(
+            cfg.nx,
+            cfg.ny,
+            cfg.nz,
+            cfg.lx,
+            cfg.lz,
+            cfg.re_tau,
+            cfg.y1_plus,
+        )?;
         let mut vel = Velocity::zeros(&grid);
         init::fill(&grid, cfg.re_tau, &cfg.init, &mut vel);
         vel.update_halos(&grid);
@@ -119,7 +127,11 @@ impl Solver {
         }
         let rate = timestep::max_courant_rate(&self.grid, &self.vel);
         let visc = timestep::viscous_dt_limit(&self.grid, self.cfg.nu(), self.cfg.implicit_y);
-        let conv = if rate > 0.0 { self.cfg.cfl / rate } else { f64::INFINITY };
+        let conv = if rate > 0.0 {
+            self.cfg.cfl / rate
+        } else {
+            f64::INFINITY
+        };
         conv.min(visc).min(self.cfg.dt_max_plus * unit)
     }
 
@@ -131,7 +143,10 @@ impl Solver {
             return Err(DnsError::BlowUp {
                 step: self.step,
                 t_plus: self.t_plus(),
-                reason: format!("Courant number {cfl:.3} (limit {:.2})", timestep::RK3_CFL_LIMIT),
+                reason: format!(
+                    "Courant number {cfl:.3} (limit {:.2})",
+                    timestep::RK3_CFL_LIMIT
+                ),
             });
         }
         for s in 0..3 {

@@ -176,7 +176,7 @@ impl RunningStats {
         let mut rows = Vec::with_capacity(ny / 2);
         for j in 0..ny / 2 {
             let jm = ny - 1 - j; // mirror cell
-            // fold: u, w, uu, vv, ww, oxx.. symmetric; v, uv, oz antisymmetric
+                                 // fold: u, w, uu, vv, ww, oxx.. symmetric; v, uv, oz antisymmetric
             let um = 0.5 * (mean(j, U) + mean(jm, U));
             let vm_lo = mean(j, V);
             let vm_hi = mean(jm, V);
@@ -235,8 +235,17 @@ impl Profiles {
         for r in &self.rows {
             s.push_str(&format!(
                 "{:.6},{:.4},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
-                r.y, r.y_plus, r.u_mean, r.u_rms, r.v_rms, r.w_rms, r.uv, r.omega_z_mean,
-                r.omega_x_rms, r.omega_y_rms, r.omega_z_rms
+                r.y,
+                r.y_plus,
+                r.u_mean,
+                r.u_rms,
+                r.v_rms,
+                r.w_rms,
+                r.uv,
+                r.omega_z_mean,
+                r.omega_x_rms,
+                r.omega_y_rms,
+                r.omega_z_rms
             ));
         }
         s
@@ -256,7 +265,8 @@ pub fn wall_re_tau(g: &Grid, vel: &Velocity, re_tau_nominal: f64) -> f64 {
         }
         s / (nx * nz) as f64
     };
-    let slope = |y1: f64, u1: f64, y2: f64, u2: f64| (u1 * y2 * y2 - u2 * y1 * y1) / (y1 * y2 * (y2 - y1));
+    let slope =
+        |y1: f64, u1: f64, y2: f64, u2: f64| (u1 * y2 * y2 - u2 * y1 * y1) / (y1 * y2 * (y2 - y1));
     let lo = slope(
         g.yc[1] - g.yf[0],
         mean_row(1),

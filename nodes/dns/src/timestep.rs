@@ -35,7 +35,10 @@ pub fn max_courant_rate(g: &Grid, vel: &Velocity) -> f64 {
 
 /// Viscous stability limit of the explicit part of the diffusion for RK3.
 pub fn viscous_dt_limit(g: &Grid, nu: f64, implicit_y: bool) -> f64 {
-    let dymin = g.dyf[1..=g.ny].iter().cloned().fold(f64::INFINITY, f64::min);
+    let dymin = g.dyf[1..=g.ny]
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
     let mut s = 1.0 / (g.dx * g.dx) + 1.0 / (g.dz * g.dz);
     if !implicit_y {
         s += 1.0 / (dymin * dymin);

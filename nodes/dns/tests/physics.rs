@@ -52,18 +52,30 @@ fn projection_leaves_no_divergence() {
 #[test]
 fn stretched_grid_steps_stay_divergence_free() {
     let mut cfg = DnsConfig::with_cells(32, 64, 32);
-    cfg.init = InitialField::Turbulent { amplitude: 0.3, seed: 9 };
+    cfg.init = InitialField::Turbulent {
+        amplitude: 0.3,
+        seed: 9,
+    };
     let mut s = Solver::new(cfg).unwrap();
     for _ in 0..5 {
         let r = s.step().unwrap();
-        assert!(r.max_divergence <= 1e-10, "max |div u| = {:e}", r.max_divergence);
+        assert!(
+            r.max_divergence <= 1e-10,
+            "max |div u| = {:e}",
+            r.max_divergence
+        );
     }
 }
 
 /// Solves ν L u = -1 (the discrete steady laminar problem) directly by Thomas.
 fn discrete_poiseuille(g: &Grid, nu: f64) -> Vec<f64> {
     let ny = g.ny;
-    let (mut a, mut b, mut c, mut d) = (vec![0.0; ny], vec![0.0; ny], vec![0.0; ny], vec![-1.0 / nu; ny]);
+    let (mut a, mut b, mut c, mut d) = (
+        vec![0.0; ny],
+        vec![0.0; ny],
+        vec![0.0; ny],
+        vec![-1.0 / nu; ny],
+    );
     for j in 0..ny {
         let jp = j + 1;
         a[j] = 1.0 / (g.dyc[jp - 1] * g.dyf[jp]);
@@ -117,7 +129,10 @@ fn laminar_poiseuille_from_rest() {
             let y = g.yc[j];
             err_par = err_par.max((u - (1.0 - y * y) / 0.2).abs() / 5.0);
         }
-        assert!(err_disc < 1e-6, "ny={ny}: distance to steady state {err_disc:e}");
+        assert!(
+            err_disc < 1e-6,
+            "ny={ny}: distance to steady state {err_disc:e}"
+        );
         errs.push(err_par);
     }
     let order = (errs[0] / errs[1]).log2();
@@ -195,7 +210,10 @@ fn decaying_mode_rate_and_convergence() {
 #[test]
 fn restart_is_bitwise() {
     let mut cfg = DnsConfig::with_cells(16, 16, 16);
-    cfg.init = InitialField::Turbulent { amplitude: 0.3, seed: 3 };
+    cfg.init = InitialField::Turbulent {
+        amplitude: 0.3,
+        seed: 3,
+    };
     let mut a = Solver::new(cfg.clone()).unwrap();
     for _ in 0..10 {
         a.step().unwrap();
@@ -244,7 +262,11 @@ fn sampler_exact_for_simple_shear() {
         let z = 3.0 * g.lz * rng.symmetric();
         let y = (-mid_lo) * rng.symmetric();
         let sm = smp.sample(&g, &s.vel, [x, y, z]);
-        assert!((sm.vel[0] - shear * y).abs() < 1e-12, "u at y={y}: {}", sm.vel[0]);
+        assert!(
+            (sm.vel[0] - shear * y).abs() < 1e-12,
+            "u at y={y}: {}",
+            sm.vel[0]
+        );
         assert!(sm.vel[1].abs() < 1e-14);
         assert!((sm.vel[2] - 0.7).abs() < 1e-12);
         for (c, gv) in sm.grad.iter().enumerate() {
@@ -280,7 +302,11 @@ fn sampler_second_order_on_smooth_field() {
         let mut rng = SplitMix64::new(5);
         let mut e: f64 = 0.0;
         for _ in 0..100 {
-            let p = [g.lx * rng.symmetric(), 0.8 * rng.symmetric(), g.lz * rng.symmetric()];
+            let p = [
+                g.lx * rng.symmetric(),
+                0.8 * rng.symmetric(),
+                g.lz * rng.symmetric(),
+            ];
             let sm = smp.sample(&g, &vel, p);
             e = e.max((sm.vel[0] - f(p[0], p[1], p[2])).abs());
             let dfdx = kx * (kx * p[0]).cos() * (kz * p[2]).cos() * (1.0 - p[1] * p[1]);
@@ -302,6 +328,12 @@ fn config_errors_name_the_key() {
     c.cfl = 3.0;
     assert!(c.validate().unwrap_err().to_string().contains("flow.cfl"));
     let mut c = DnsConfig::coarse();
-    c.forcing = Forcing::FlowRate { bulk_velocity: -1.0 };
-    assert!(c.validate().unwrap_err().to_string().contains("bulk_velocity"));
+    c.forcing = Forcing::FlowRate {
+        bulk_velocity: -1.0,
+    };
+    assert!(c
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("bulk_velocity"));
 }

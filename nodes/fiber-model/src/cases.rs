@@ -189,10 +189,17 @@ mod tests {
         let tau = relaxation_time_plus(3.0, d, 1150.0);
         assert!((tau - 13.5).abs() < 1e-6);
         let gamma_dot = 0.033 / (d * 3.0);
-        assert!((2.0 * gamma_dot - 0.095).abs() < 0.005, "S = {}", 2.0 * gamma_dot);
+        assert!(
+            (2.0 * gamma_dot - 0.095).abs() < 0.005,
+            "S = {}",
+            2.0 * gamma_dot
+        );
         let re = crate::hydro::cox_equivalent_aspect_ratio(21.0 / d);
         let jeffery = std::f64::consts::PI * (re + 1.0 / re) / gamma_dot;
-        assert!((jeffery / 3378.0 - 1.0).abs() < 0.05, "Jeffery time {jeffery}");
+        assert!(
+            (jeffery / 3378.0 - 1.0).abs() < 0.05,
+            "Jeffery time {jeffery}"
+        );
     }
 
     #[test]

@@ -75,7 +75,9 @@ impl Fibre {
     ) -> Result<Self, FibreError> {
         let n = lengths.len();
         if n == 0 {
-            return Err(FibreError::Config("fibre.segments must be >= 1 (got 0)".into()));
+            return Err(FibreError::Config(
+                "fibre.segments must be >= 1 (got 0)".into(),
+            ));
         }
         if diameters.len() != n {
             return Err(FibreError::Config(format!(
@@ -102,7 +104,9 @@ impl Fibre {
         }
         let norm = axis.norm();
         if !(norm > 0.0 && norm.is_finite()) {
-            return Err(FibreError::Config("fibre axis must be a non-zero finite vector".into()));
+            return Err(FibreError::Config(
+                "fibre axis must be a non-zero finite vector".into(),
+            ));
         }
         let z = axis / norm;
         let total: f64 = lengths.iter().sum();

@@ -216,10 +216,18 @@ mod tests {
         let th = 30f64.to_radians();
         let z = Vector3::new(th.cos(), th.sin(), 0.0);
         let g = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0);
-        let viscous = DragModel { viscosity: 1.0, fluid_density: 1.0, drag_coefficient: 0.0 };
+        let viscous = DragModel {
+            viscosity: 1.0,
+            fluid_density: 1.0,
+            drag_coefficient: 0.0,
+        };
         let r = resistance(&shape, &viscous, &z, &g, 0.0);
         assert!(r.h_g.z < 0.0, "viscous strain torque {}", r.h_g.z);
-        let inertial = DragModel { viscosity: 0.0, fluid_density: 1.0, drag_coefficient: 1.0 };
+        let inertial = DragModel {
+            viscosity: 0.0,
+            fluid_density: 1.0,
+            drag_coefficient: 1.0,
+        };
         let r = resistance(&shape, &inertial, &z, &g, 2.0);
         assert!(r.h_g.z < 0.0, "inertial strain torque {}", r.h_g.z);
         // and its size is the integral of the cross-flow drag: C_D ρ d l³ v⊥/24 |ẑ×Gẑ|

@@ -30,9 +30,17 @@ pub fn metrics(f: &Fibre) -> FibreMetrics {
     }
     com /= mass;
     let norm = zs.norm();
-    let zhat = if norm > 0.0 { zs / norm } else { Vector3::zeros() };
+    let zhat = if norm > 0.0 {
+        zs / norm
+    } else {
+        Vector3::zeros()
+    };
     let sigma2 = if n > 1 {
-        f.segments.iter().map(|s| (s.z - zhat).norm_squared()).sum::<f64>() / (n - 1) as f64
+        f.segments
+            .iter()
+            .map(|s| (s.z - zhat).norm_squared())
+            .sum::<f64>()
+            / (n - 1) as f64
     } else {
         0.0
     };

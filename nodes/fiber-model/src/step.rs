@@ -1,16 +1,24 @@
 //! The implicit fibre step (paper eq. 5, 7, 8, 11, 12), derived in dimensional form.
 //!
-//! With P_i = (m/Δt δ + A_i)⁻¹ and Q_i = (İ_i + I_i/Δt + C_i)⁻¹ (all at n−1), eliminating
+//! With P_i = (m/Δt δ + A_i)⁻¹ and Q_i = (I_i/Δt + C_i)⁻¹ (all at n−1), eliminating
 //! the velocities from eq. 5 and 7,
 //!   ṙ_i = P_i (s̃_i + Y_i − Y_{i−1}),   ω_i = Q_i (b̃_i + (l_i/2) [ẑ_i]× (Y_i + Y_{i−1})),
 //! where Y_k is the force that segment k+1 exerts on segment k (the paper's X_{k+2}),
-//! s̃_i = m/Δt ṙ_{i,n−1} + A_i v(r_i) + F^w_i and b̃_i = I_i/Δt ω_{i,n−1} + C_i Ω + H_i:G + M^b_i,
+//! s̃_i = m/Δt ṙ_{i,n−1} + A_i v(r_i) + F^w_i and
+//! b̃_i = I_i/Δt ω_{i,n−1} − ω_{i,n−1} × (I_i ω_{i,n−1}) + C_i Ω + H_i:G + M^b_i,
 //! turns the connectivity condition (eq. 8) into a block-tridiagonal system for Y_0..Y_{N−2}
 //! (paper eq. 9–10, Appendix B — re-derived here: the first "I*" in b* and C_z* is İ, and
 //! no extra scaling r_p is needed in f64 with consistent units):
 //!   (P_k + W_k) Y_{k−1} + (W_k + W_{k+1} − P_k − P_{k+1}) Y_k + (P_{k+1} + W_{k+1}) Y_{k+1}
 //!     = −(P_{k+1} s̃_{k+1} − P_k s̃_k + h_k Z_k Q_k b̃_k + h_{k+1} Z_{k+1} Q_{k+1} b̃_{k+1}),
 //! with Z = [ẑ]×, h = l/2 and W = h² Z Q Z.
+//!
+//! Deviation from eq. 7, on purpose: the paper writes the rate of change of the inertia as
+//! İ_{n−1}·ω_n (implicit in ω_n). For a slender segment I∥/I⊥ ≈ 1.5 (d/l)² ≈ 0.01, and the
+//! term I⊥ ẑ·(ω_{n−1} × ω_n) it adds to the axial equation is not balanced by I∥/Δt: the
+//! axial spin is then amplified every step and the fibre blows up in turbulence. We use the
+//! exact gyroscopic term ω × (Iω) = İω at n−1, explicitly; its axial component vanishes
+//! identically for an axisymmetric segment, and the scheme stays first order.
 
 use crate::error::FibreError;
 use crate::fibre::Fibre;
@@ -38,7 +46,11 @@ impl FluidSample {
     /// Fluid angular velocity Ω = (∇ × v)/2.
     pub fn rotation(&self) -> Vector3<f64> {
         let g = &self.grad;
-        0.5 * Vector3::new(g[(2, 1)] - g[(1, 2)], g[(0, 2)] - g[(2, 0)], g[(1, 0)] - g[(0, 1)])
+        0.5 * Vector3::new(
+            g[(2, 1)] - g[(1, 2)],
+            g[(0, 2)] - g[(2, 0)],
+            g[(1, 0)] - g[(0, 1)],
+        )
     }
 }
 
@@ -63,8 +75,8 @@ pub struct Loads {
     pub force: Vec<Vector3<f64>>,
     /// T^h_i per segment.
     pub torque: Vec<Vector3<f64>>,
-    /// İ_{n−1} per segment, as used in eq. 7.
-    pub inertia_rate: Vec<Matrix3<f64>>,
+    /// Explicit gyroscopic term ω_{n−1} × (I ω_{n−1}) per segment (= İ_{n−1} ω_{n−1}).
+    pub gyroscopic: Vec<Vector3<f64>>,
 }
 
 /// Advances one fibre by Δt. `fluid[i]` is the sample at segment i's centre at t_{n−1}.
@@ -115,7 +127,7 @@ fn step_inner(
     let mut res_a: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
     let mut res_c: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
     let mut res_hg: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
-    let mut idot: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
+    let mut gyro: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let id = Matrix3::<f64>::identity();
     for i in 0..n {
         let s = f.segments[i];
@@ -134,8 +146,8 @@ fn step_inner(
             .ok_or(FibreError::Singular { fibre: 0 })?;
         let s_t = m_dt * s.v + r.a * fl.vel + fw;
         let inertia = pr.inertia(&s.z);
-        let i_dot = pr.inertia_rate(&s.z, &s.w);
-        let qinv = (i_dot + inertia / dt + r.c)
+        let gyroscopic = s.w.cross(&(inertia * s.w));
+        let qinv = (inertia / dt + r.c)
             .try_inverse()
             .ok_or(FibreError::Singular { fibre: 0 })?;
         let mut bend = Vector3::zeros();
@@ -147,7 +159,7 @@ fn step_inner(
                 bend += p.bending_stiffness * s.z.cross(&f.segments[i - 1].z);
             }
         }
-        let b_t = inertia / dt * s.w + r.c * omega + r.h_g + bend;
+        let b_t = inertia / dt * s.w - gyroscopic + r.c * omega + r.h_g + bend;
         let h = 0.5 * pr.shape.length;
         let zx = s.z.cross_matrix();
         pm[i] = pinv;
@@ -159,7 +171,7 @@ fn step_inner(
         res_a[i] = r.a;
         res_c[i] = r.c;
         res_hg[i] = r.h_g;
-        idot[i] = i_dot;
+        gyro[i] = gyroscopic;
     }
     // joint forces Y_0..Y_{n-2}
     let nj = n.saturating_sub(1);
@@ -177,15 +189,21 @@ fn step_inner(
             dp[0] = diag(0);
             rp[0] = rhs(0);
             for k in 1..nj {
-                let inv = dp[k - 1].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+                let inv = dp[k - 1]
+                    .try_inverse()
+                    .ok_or(FibreError::Singular { fibre: 0 })?;
                 let m = lower(k) * inv;
                 dp[k] = diag(k) - m * upper(k - 1);
                 rp[k] = rhs(k) - m * rp[k - 1];
             }
-            let last = dp[nj - 1].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+            let last = dp[nj - 1]
+                .try_inverse()
+                .ok_or(FibreError::Singular { fibre: 0 })?;
             y[nj - 1] = last * rp[nj - 1];
             for k in (0..nj - 1).rev() {
-                let inv = dp[k].try_inverse().ok_or(FibreError::Singular { fibre: 0 })?;
+                let inv = dp[k]
+                    .try_inverse()
+                    .ok_or(FibreError::Singular { fibre: 0 })?;
                 y[k] = inv * (rp[k] - upper(k) * y[k + 1]);
             }
         }
@@ -194,7 +212,7 @@ fn step_inner(
     if let Some(l) = loads.as_deref_mut() {
         l.force.clear();
         l.torque.clear();
-        l.inertia_rate.clear();
+        l.gyroscopic.clear();
     }
     for i in 0..n {
         let yi = if i < nj { y[i] } else { Vector3::zeros() };
@@ -208,8 +226,9 @@ fn step_inner(
             let volume = pr.mass / f.density;
             let fw = (pr.mass - p.drag.fluid_density * volume) * p.gravity;
             l.force.push(res_a[i] * (fluid[i].vel - v_new) + fw);
-            l.torque.push(res_c[i] * (fluid[i].rotation() - w_new) + res_hg[i]);
-            l.inertia_rate.push(idot[i]);
+            l.torque
+                .push(res_c[i] * (fluid[i].rotation() - w_new) + res_hg[i]);
+            l.gyroscopic.push(gyro[i]);
         }
         s.v = v_new;
         s.w = w_new;
@@ -288,14 +307,17 @@ fn solve_dense_tikhonov(
     for k in 0..nj {
         a.fixed_view_mut::<3, 3>(3 * k, 3 * k).copy_from(&diag(k));
         if k > 0 {
-            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k - 1)).copy_from(&lower(k));
+            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k - 1))
+                .copy_from(&lower(k));
         }
         if k + 1 < nj {
-            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k + 1)).copy_from(&upper(k));
+            a.fixed_view_mut::<3, 3>(3 * k, 3 * (k + 1))
+                .copy_from(&upper(k));
         }
         b.fixed_view_mut::<3, 1>(3 * k, 0).copy_from(&rhs(k));
     }
-    let x = crate::dense::tikhonov_solve(&a, &b, lambda).ok_or(FibreError::Singular { fibre: 0 })?;
+    let x =
+        crate::dense::tikhonov_solve(&a, &b, lambda).ok_or(FibreError::Singular { fibre: 0 })?;
     for k in 0..nj {
         y[k] = Vector3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]);
     }

@@ -1,6 +1,8 @@
 //! Fibre-group configuration (the `[[fibers]]` tables of a launch file), in wall units.
 
-use fiberflow_fiber_model::cases::{build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement};
+use fiberflow_fiber_model::cases::{
+    build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement,
+};
 use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
 use nalgebra::Vector3;
@@ -41,7 +43,8 @@ fn default_per_layer() -> usize {
     10
 }
 fn default_near() -> f64 {
-    15.0
+    // centre 20 wall units from the wall: the longest case (7 x 4.5) still fits
+    20.0
 }
 fn default_next() -> f64 {
     50.0
@@ -130,8 +133,17 @@ impl FiberNodeConfig {
                 self.group
             )))
         };
-        if self.group.is_empty() || !self.group.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') {
-            return bad("group", "a non-empty name of [A-Za-z0-9_-]", format!("{:?}", self.group));
+        if self.group.is_empty()
+            || !self
+                .group
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return bad(
+                "group",
+                "a non-empty name of [A-Za-z0-9_-]",
+                format!("{:?}", self.group),
+            );
         }
         if self.segments == 0 || self.segments > 1000 {
             return bad("segments", "in 1..=1000", self.segments.to_string());
@@ -141,19 +153,31 @@ impl FiberNodeConfig {
             return bad("diameter_plus", "positive and finite", d.to_string());
         }
         if !(l > d && l.is_finite()) {
-            return bad("segment_length_plus", "greater than diameter_plus", l.to_string());
+            return bad(
+                "segment_length_plus",
+                "greater than diameter_plus",
+                l.to_string(),
+            );
         }
         if !(rho > 0.0 && rho.is_finite()) {
             return bad("density_ratio", "positive and finite", rho.to_string());
         }
         if !(self.bending_stiffness_plus >= 0.0 && self.bending_stiffness_plus.is_finite()) {
-            return bad("bending_stiffness_plus", ">= 0 and finite", self.bending_stiffness_plus.to_string());
+            return bad(
+                "bending_stiffness_plus",
+                ">= 0 and finite",
+                self.bending_stiffness_plus.to_string(),
+            );
         }
         if !(self.tikhonov >= 0.0 && self.tikhonov < 1.0) {
             return bad("tikhonov", "in [0, 1)", self.tikhonov.to_string());
         }
         if !(self.drag_coefficient >= 0.0 && self.drag_coefficient.is_finite()) {
-            return bad("drag_coefficient", ">= 0", self.drag_coefficient.to_string());
+            return bad(
+                "drag_coefficient",
+                ">= 0",
+                self.drag_coefficient.to_string(),
+            );
         }
         if self.metrics_every == 0 {
             return bad("metrics_every", ">= 1", "0".into());
@@ -171,12 +195,19 @@ impl FiberNodeConfig {
                 if !(*near_wall_plus >= half && *near_wall_plus < 0.5 * box_plus[1]) {
                     return bad(
                         "placement.near_wall_plus",
-                        &format!("in [{half}, {}) so the fibre starts inside the channel", 0.5 * box_plus[1]),
+                        &format!(
+                            "in [{half}, {}) so the fibre starts inside the channel",
+                            0.5 * box_plus[1]
+                        ),
                         near_wall_plus.to_string(),
                     );
                 }
                 if !(*next_plus >= half && *next_plus < 0.5 * box_plus[1]) {
-                    return bad("placement.next_plus", "inside the channel", next_plus.to_string());
+                    return bad(
+                        "placement.next_plus",
+                        "inside the channel",
+                        next_plus.to_string(),
+                    );
                 }
                 five_layers(box_plus, *per_layer, *near_wall_plus, *next_plus)
             }

@@ -66,53 +66,58 @@ pub fn serve(
         }
     };
     let dt = ann.dt_plus;
-    let publish_state = |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
-        let mut st = FiberGroupState {
-            schema_version: SCHEMA_VERSION,
-            group: name.clone(),
-            step,
-            t_plus: step as f64 * dt,
-            segments_per_fiber: Vec::with_capacity(group.fibres.len()),
-            segment_length: Vec::new(),
-            diameter: Vec::new(),
-            density_ratio: Vec::new(),
-            layer: layers.clone(),
-            centre: Vec::with_capacity(3 * group.segment_count()),
-            axis: Vec::with_capacity(3 * group.segment_count()),
-            velocity: Vec::with_capacity(3 * group.segment_count()),
-            angular_velocity: Vec::with_capacity(3 * group.segment_count()),
-        };
-        for f in &group.fibres {
-            st.segments_per_fiber.push(f.len() as u32);
-            st.segment_length.push(f.props[0].shape.length);
-            st.diameter.push(f.props[0].shape.diameter);
-            st.density_ratio.push(f.density);
-            for s in &f.segments {
-                st.centre.extend_from_slice(s.r.as_slice());
-                st.axis.extend_from_slice(s.z.as_slice());
-                st.velocity.extend_from_slice(s.v.as_slice());
-                st.angular_velocity.extend_from_slice(s.w.as_slice());
+    let publish_state =
+        |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
+            let mut st = FiberGroupState {
+                schema_version: SCHEMA_VERSION,
+                group: name.clone(),
+                step,
+                t_plus: step as f64 * dt,
+                segments_per_fiber: Vec::with_capacity(group.fibres.len()),
+                segment_length: Vec::new(),
+                diameter: Vec::new(),
+                density_ratio: Vec::new(),
+                layer: layers.clone(),
+                centre: Vec::with_capacity(3 * group.segment_count()),
+                axis: Vec::with_capacity(3 * group.segment_count()),
+                velocity: Vec::with_capacity(3 * group.segment_count()),
+                angular_velocity: Vec::with_capacity(3 * group.segment_count()),
+            };
+            for f in &group.fibres {
+                st.segments_per_fiber.push(f.len() as u32);
+                st.segment_length.push(f.props[0].shape.length);
+                st.diameter.push(f.props[0].shape.diameter);
+                st.density_ratio.push(f.density);
+                for s in &f.segments {
+                    st.centre.extend_from_slice(s.r.as_slice());
+                    st.axis.extend_from_slice(s.z.as_slice());
+                    st.velocity.extend_from_slice(s.v.as_slice());
+                    st.angular_velocity.extend_from_slice(s.w.as_slice());
+                }
             }
-        }
-        bus.publish(&t.fiber_state(&name), &encode(&st))
-    };
-    let publish_metrics = |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
-        let ms: Vec<_> = group.fibres.iter().map(metrics).collect();
-        let n = ms.len().max(1) as f64;
-        let m = FiberGroupMetrics {
-            schema_version: SCHEMA_VERSION,
-            group: name.clone(),
-            step,
-            t_plus: step as f64 * dt,
-            centre_of_mass: ms.iter().flat_map(|m| m.centre_of_mass.iter().copied().collect::<Vec<_>>()).collect(),
-            z1: ms.iter().map(|m| m.z1).collect(),
-            sigma2: ms.iter().map(|m| m.sigma2).collect(),
-            end_to_end: ms.iter().map(|m| m.end_to_end).collect(),
-            mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
-            mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
+            bus.publish(&t.fiber_state(&name), &encode(&st))
         };
-        bus.publish(&t.fiber_metrics(&name), &encode(&m))
-    };
+    let publish_metrics =
+        |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
+            let ms: Vec<_> = group.fibres.iter().map(metrics).collect();
+            let n = ms.len().max(1) as f64;
+            let m = FiberGroupMetrics {
+                schema_version: SCHEMA_VERSION,
+                group: name.clone(),
+                step,
+                t_plus: step as f64 * dt,
+                centre_of_mass: ms
+                    .iter()
+                    .flat_map(|m| m.centre_of_mass.iter().copied().collect::<Vec<_>>())
+                    .collect(),
+                z1: ms.iter().map(|m| m.z1).collect(),
+                sigma2: ms.iter().map(|m| m.sigma2).collect(),
+                end_to_end: ms.iter().map(|m| m.end_to_end).collect(),
+                mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
+                mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
+            };
+            bus.publish(&t.fiber_metrics(&name), &encode(&m))
+        };
     publish_state(&group, 0)?;
     publish_metrics(&group, 0)?;
     let step_timeout = Duration::from_secs_f64(timeout_s);

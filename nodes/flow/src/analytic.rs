@@ -12,7 +12,10 @@ pub enum AnalyticFlow {
     /// v = S x2 ê1 (shear rate S).
     SimpleShear { shear_rate: f64 },
     /// v = Uc (1 - (x2/h)²) ê1 between walls at x2 = ±h.
-    Poiseuille { centre_velocity: f64, half_height: f64 },
+    Poiseuille {
+        centre_velocity: f64,
+        half_height: f64,
+    },
     /// v = Ω × (r - c).
     SolidBodyRotation {
         angular_velocity: [f64; 3],
@@ -74,10 +77,18 @@ mod tests {
     #[test]
     fn gradients_match_finite_differences() {
         let flows = [
-            AnalyticFlow::Uniform { velocity: [1.0, 2.0, 3.0] },
+            AnalyticFlow::Uniform {
+                velocity: [1.0, 2.0, 3.0],
+            },
             AnalyticFlow::SimpleShear { shear_rate: 0.7 },
-            AnalyticFlow::Poiseuille { centre_velocity: 3.0, half_height: 2.0 },
-            AnalyticFlow::SolidBodyRotation { angular_velocity: [0.3, -0.2, 0.5], centre: [1.0, 0.0, -1.0] },
+            AnalyticFlow::Poiseuille {
+                centre_velocity: 3.0,
+                half_height: 2.0,
+            },
+            AnalyticFlow::SolidBodyRotation {
+                angular_velocity: [0.3, -0.2, 0.5],
+                centre: [1.0, 0.0, -1.0],
+            },
             AnalyticFlow::PureStrain { rate: 0.4 },
         ];
         let r = [0.3, -0.4, 0.8];
@@ -93,13 +104,21 @@ mod tests {
                 let (vm, _) = f.sample(rm);
                 for a in 0..3 {
                     let fd = (vp[a] - vm[a]) / (2.0 * h);
-                    assert!((fd - g[3 * a + b]).abs() < 1e-9, "{f:?} d{a}/d{b}: {fd} vs {}", g[3 * a + b]);
+                    assert!(
+                        (fd - g[3 * a + b]).abs() < 1e-9,
+                        "{f:?} d{a}/d{b}: {fd} vs {}",
+                        g[3 * a + b]
+                    );
                 }
             }
         }
         // solid-body rotation has zero strain and vorticity 2Ω
         let w = [0.3, -0.2, 0.5];
-        let (_, g) = AnalyticFlow::SolidBodyRotation { angular_velocity: w, centre: [0.0; 3] }.sample(r);
+        let (_, g) = AnalyticFlow::SolidBodyRotation {
+            angular_velocity: w,
+            centre: [0.0; 3],
+        }
+        .sample(r);
         for a in 0..3 {
             for b in 0..3 {
                 assert!((g[3 * a + b] + g[3 * b + a]).abs() < 1e-15);

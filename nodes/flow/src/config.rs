@@ -74,7 +74,9 @@ impl FlowNodeConfig {
             )));
         }
         if self.status_every == 0 {
-            return Err(FlowError::Config("flow.status_every must be >= 1 (got 0)".into()));
+            return Err(FlowError::Config(
+                "flow.status_every must be >= 1 (got 0)".into(),
+            ));
         }
         Ok(())
     }

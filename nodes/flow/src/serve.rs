@@ -42,7 +42,13 @@ pub struct ServeSummary {
     pub drops: DropCounter,
 }
 
-fn heartbeat(bus: &BusHandle, t: &Topics, state: u8, step: u64, dropped: u64) -> Result<(), FlowError> {
+fn heartbeat(
+    bus: &BusHandle,
+    t: &Topics,
+    state: u8,
+    step: u64,
+    dropped: u64,
+) -> Result<(), FlowError> {
     let hb = Heartbeat {
         schema_version: SCHEMA_VERSION,
         node: "flow".into(),
@@ -147,7 +153,9 @@ pub fn serve(
                 Ok(s) if s.step == k && run.groups.contains(&s.group) => {
                     pending.insert(s.group.clone(), s);
                 }
-                Ok(s) => tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring out-of-step state"),
+                Ok(s) => {
+                    tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring out-of-step state")
+                }
                 Err(e) => st_in.drops.drop_one(&topic, &e.to_string()),
             }
         }
@@ -161,7 +169,11 @@ pub fn serve(
                     Field::Analytic(a) => a.sample([p[0], p[1], p[2]]),
                     Field::Dns(solver, smp) => {
                         let re = solver.cfg.re_tau;
-                        let sm = smp.sample(&solver.grid, &solver.vel, [p[0] / re, p[1] / re, p[2] / re]);
+                        let sm = smp.sample(
+                            &solver.grid,
+                            &solver.vel,
+                            [p[0] / re, p[1] / re, p[2] / re],
+                        );
                         let mut g = sm.grad;
                         g.iter_mut().for_each(|x| *x /= re);
                         (sm.vel, g)
@@ -206,7 +218,11 @@ pub fn serve(
                     max_divergence: r.max_divergence,
                     bulk_velocity: r.bulk_velocity,
                     re_tau: if (k + 1) % cfg.status_every == 0 {
-                        fiberflow_dns::stats::wall_re_tau(&solver.grid, &solver.vel, solver.cfg.re_tau)
+                        fiberflow_dns::stats::wall_re_tau(
+                            &solver.grid,
+                            &solver.vel,
+                            solver.cfg.re_tau,
+                        )
                     } else {
                         f64::NAN
                     },

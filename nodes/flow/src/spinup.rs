@@ -94,9 +94,13 @@ pub fn run(
     }
     let ck_path = out_dir.join("flow.ckpt");
     let hist_path = out_dir.join("history.csv");
-    let mut hist = std::io::BufWriter::new(std::fs::File::create(&hist_path).map_err(io_err(&hist_path))?);
-    writeln!(hist, "step,t_plus,dt_plus,cfl,max_divergence,bulk_velocity,forcing,re_tau_wall")
-        .map_err(io_err(&hist_path))?;
+    let mut hist =
+        std::io::BufWriter::new(std::fs::File::create(&hist_path).map_err(io_err(&hist_path))?);
+    writeln!(
+        hist,
+        "step,t_plus,dt_plus,cfl,max_divergence,bulk_velocity,forcing,re_tau_wall"
+    )
+    .map_err(io_err(&hist_path))?;
     let t0 = solver.t_plus();
     let t_end = t0 + sp.duration_plus;
     let stats_from = t_end - sp.stats_window_plus;
@@ -116,11 +120,21 @@ pub fn run(
             writeln!(
                 hist,
                 "{},{:.4},{:.5},{:.4},{:.3e},{:.5},{:.5},{:.3}",
-                rep.step, rep.t_plus, rep.dt_plus, rep.cfl, rep.max_divergence, rep.bulk_velocity, rep.forcing, re_tau
+                rep.step,
+                rep.t_plus,
+                rep.dt_plus,
+                rep.cfl,
+                rep.max_divergence,
+                rep.bulk_velocity,
+                rep.forcing,
+                re_tau
             )
             .map_err(io_err(&hist_path))?;
         }
-        if sp.stats_window_plus > 0.0 && rep.t_plus >= stats_from && rep.step % sp.stats_every_steps == 0 {
+        if sp.stats_window_plus > 0.0
+            && rep.t_plus >= stats_from
+            && rep.step % sp.stats_every_steps == 0
+        {
             stats.add(&solver.grid, &solver.vel, rep.t_plus);
         }
         if rep.t_plus >= next_ck {

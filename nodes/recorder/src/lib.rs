@@ -8,7 +8,9 @@ pub mod recover;
 
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::topics::{type_of, Topics};
-use fiberflow_messages::{decode, encode, lifecycle, schema, FiberGroupState, Heartbeat, SCHEMA_VERSION};
+use fiberflow_messages::{
+    decode, encode, lifecycle, schema, FiberGroupState, Heartbeat, SCHEMA_VERSION,
+};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
@@ -82,7 +84,10 @@ impl Out {
                 let s = self
                     .w
                     .add_schema(type_name, "ros2msg", schema::text(type_name).as_bytes())
-                    .map_err(|source| RecorderError::Mcap { path: self.path.clone(), source })?;
+                    .map_err(|source| RecorderError::Mcap {
+                        path: self.path.clone(),
+                        source,
+                    })?;
                 self.schemas.insert(type_name, s);
                 s
             }
@@ -92,7 +97,10 @@ impl Out {
         let c = self
             .w
             .add_channel(sid, topic, "cdr", &meta)
-            .map_err(|source| RecorderError::Mcap { path: self.path.clone(), source })?;
+            .map_err(|source| RecorderError::Mcap {
+                path: self.path.clone(),
+                source,
+            })?;
         self.channels.insert(topic.to_string(), c);
         Ok(c)
     }
@@ -135,9 +143,15 @@ pub fn record(
     let t = Topics::new(run_id);
     let pstr = path.display().to_string();
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| RecorderError::Io { path: pstr.clone(), source })?;
+        std::fs::create_dir_all(dir).map_err(|source| RecorderError::Io {
+            path: pstr.clone(),
+            source,
+        })?;
     }
-    let file = std::fs::File::create(path).map_err(|source| RecorderError::Io { path: pstr.clone(), source })?;
+    let file = std::fs::File::create(path).map_err(|source| RecorderError::Io {
+        path: pstr.clone(),
+        source,
+    })?;
     let opts = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .chunk_size(Some(4 * 1024 * 1024))
@@ -145,7 +159,10 @@ pub fn record(
         .library(format!("fiberflow {}", meta.software_version));
     let w = opts
         .create(BufWriter::new(file))
-        .map_err(|source| RecorderError::Mcap { path: pstr.clone(), source })?;
+        .map_err(|source| RecorderError::Mcap {
+            path: pstr.clone(),
+            source,
+        })?;
     let mut out = Out {
         w,
         path: pstr.clone(),
@@ -195,7 +212,9 @@ pub fn record(
             continue;
         };
         let Some(type_name) = type_of(&topic) else {
-            inbox.drops.drop_one(&topic, "topic carries no known message type");
+            inbox
+                .drops
+                .drop_one(&topic, "topic carries no known message type");
             continue;
         };
         if let Err(e) = schema::validate(type_name, &bytes) {
@@ -265,7 +284,10 @@ pub fn record(
 fn write_provenance(out: &mut Out, meta: &RunMetadata) -> Result<(), RecorderError> {
     let mut m = BTreeMap::new();
     m.insert("run_id".to_string(), meta.run_id.clone());
-    m.insert("software_version".to_string(), meta.software_version.clone());
+    m.insert(
+        "software_version".to_string(),
+        meta.software_version.clone(),
+    );
     m.insert("git_commit".to_string(), meta.git_commit.clone());
     m.insert("schema_version".to_string(), SCHEMA_VERSION.to_string());
     m.insert("transport".to_string(), meta.transport.clone());

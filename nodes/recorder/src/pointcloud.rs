@@ -50,10 +50,21 @@ pub fn from_state(s: &FiberGroupState) -> Vec<u8> {
             count += 1;
         };
         for i in 0..n {
-            let (c, z) = (&s.centre[3 * (seg + i)..3 * (seg + i) + 3], &s.axis[3 * (seg + i)..3 * (seg + i) + 3]);
-            push([c[0] - 0.5 * l * z[0], c[1] - 0.5 * l * z[1], c[2] - 0.5 * l * z[2]]);
+            let (c, z) = (
+                &s.centre[3 * (seg + i)..3 * (seg + i) + 3],
+                &s.axis[3 * (seg + i)..3 * (seg + i) + 3],
+            );
+            push([
+                c[0] - 0.5 * l * z[0],
+                c[1] - 0.5 * l * z[1],
+                c[2] - 0.5 * l * z[2],
+            ]);
             if i + 1 == n {
-                push([c[0] + 0.5 * l * z[0], c[1] + 0.5 * l * z[1], c[2] + 0.5 * l * z[2]]);
+                push([
+                    c[0] + 0.5 * l * z[0],
+                    c[1] + 0.5 * l * z[1],
+                    c[2] + 0.5 * l * z[2],
+                ]);
             }
         }
         seg += n;

@@ -85,7 +85,9 @@ fn decompress(kind: &str, data: &[u8], size: u64) -> Result<Vec<u8>, std::io::Er
     match kind {
         "" => Ok(data.to_vec()),
         "zstd" => zstd_decode(data, size),
-        other => Err(std::io::Error::other(format!("compression {other} not supported"))),
+        other => Err(std::io::Error::other(format!(
+            "compression {other} not supported"
+        ))),
     }
 }
 
@@ -116,7 +118,12 @@ pub fn recover(src: &Path, dst: &Path) -> Result<u64, Box<dyn std::error::Error>
                     Some(s) => w.add_schema(&s.name, &s.encoding, &s.data)?,
                     None => 0,
                 };
-                let id = w.add_channel(sid, &m.channel.topic, &m.channel.message_encoding, &m.channel.metadata)?;
+                let id = w.add_channel(
+                    sid,
+                    &m.channel.topic,
+                    &m.channel.message_encoding,
+                    &m.channel.metadata,
+                )?;
                 chan_map.insert(m.channel.id, id);
                 id
             }

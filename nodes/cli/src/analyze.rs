@@ -1,0 +1,32 @@
+//! `analyze` and `flow-report`.
+
+use anyhow::{Context, Result};
+use std::path::Path;
+
+/// Fibre analysis; writes `summary.md` and returns the table.
+pub fn fibres(mcap: &Path, out: &Path) -> Result<String> {
+    let s = fiberflow_analysis::fibres::analyse(mcap, out)
+        .with_context(|| format!("analysing {}", mcap.display()))?;
+    let table = fiberflow_analysis::fibres::summary_table(&s);
+    let md = format!(
+        "# Fibre analysis of {}\n\nMSD_23 slope: least squares of log MSD against log lag over the fit window.\n\
+         Ramp time: first time <|z1|> covers 1 - 1/e of the way from its initial value to its mean over the last 10% of the run.\n\n{table}\n\
+         Figures: msd23.png, abs_z1.png, sigma2.png and per case <case>_abs_z1_layers.png, <case>_signed_z1_near_wall.png, <case>_trajectories_x3x2.png.\n",
+        mcap.display()
+    );
+    std::fs::write(out.join("summary.md"), &md)
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!("analysis written to {}", out.display());
+    Ok(table)
+}
+
+/// Flow validation report against the reference data.
+pub fn flow(stats: &Path, reference: &Path, out: &Path) -> Result<String> {
+    let refs = vec![
+        fiberflow_analysis::reference::mkm(reference)?,
+        fiberflow_analysis::reference::hoyas_jimenez(&reference.join("HJ_Re180.prof"))?,
+    ];
+    let md = fiberflow_analysis::flow_validation::report(stats, &refs, out, 150.0)?;
+    std::fs::write(out.join("flow_validation.md"), &md)?;
+    Ok(md)
+}

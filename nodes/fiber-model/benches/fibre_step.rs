@@ -1,0 +1,65 @@
+//! Fibre-step throughput for N = 7 with all hydrodynamics (viscous + inertial drag):
+//! 1, 10³ and 10⁵ fibres, on one thread and on all threads.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use fiberflow_fiber_model::fibre::Fibre;
+use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::{DragModel, FluidSample, ModelParams};
+use nalgebra::{Matrix3, Vector3};
+
+fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
+    let params = ModelParams {
+        drag: DragModel {
+            viscosity: 1.0,
+            fluid_density: 1.0,
+            drag_coefficient: 1.0,
+        },
+        gravity: Vector3::zeros(),
+        bending_stiffness: 0.0,
+        tikhonov: 0.0,
+        wall_half_height: Some(150.0),
+    };
+    let fibres: Vec<Fibre> = (0..n)
+        .map(|i| {
+            let a = i as f64 * 0.37;
+            Fibre::straight(
+                Vector3::new(i as f64, (a.sin()) * 100.0, 3.0 * i as f64),
+                Vector3::new(a.cos(), 1.0, a.sin()),
+                &[3.0; 7],
+                &[0.232; 7],
+                1150.0,
+            )
+            .expect("valid fibre")
+        })
+        .collect();
+    let g = FibreGroup::new(params, fibres);
+    let fluid: Vec<FluidSample> = g
+        .segment_centres()
+        .iter()
+        .map(|r| FluidSample {
+            vel: Vector3::new(0.1 * r.y + 10.0, 0.3, -0.2),
+            grad: Matrix3::new(0.01, 0.1, 0.0, 0.0, -0.02, 0.03, 0.01, 0.0, 0.01),
+        })
+        .collect();
+    (g, fluid)
+}
+
+fn bench(c: &mut Criterion) {
+    let mut grp = c.benchmark_group("fibre_step_n7");
+    grp.sample_size(10);
+    for n in [1usize, 1_000, 100_000] {
+        let (mut g, fluid) = group(n);
+        grp.throughput(Throughput::Elements(n as u64));
+        grp.bench_with_input(BenchmarkId::new("one_thread", n), &n, |b, _| {
+            b.iter(|| g.step_serial(&fluid, 0.01).expect("step"))
+        });
+        let (mut g, fluid) = group(n);
+        grp.bench_with_input(BenchmarkId::new("all_threads", n), &n, |b, _| {
+            b.iter(|| g.step(&fluid, 0.01).expect("step"))
+        });
+    }
+    grp.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
