@@ -17,12 +17,23 @@ fn bench_step(c: &mut Criterion) {
             Ok(s) => s,
             Err(e) => panic!("solver: {e}"),
         };
-        // let the perturbations develop a little so the field is not trivially smooth
-        for _ in 0..20 {
-            if let Err(e) = s.step() {
-                panic!("warm-up: {e}");
+        // developed turbulence from a checkpoint when given (FIBERFLOW_BENCH_CKPT_<NX>),
+        // else let the initial perturbations develop a little
+        match std::env::var(format!("FIBERFLOW_BENCH_CKPT_{nx}")) {
+            Ok(p) => {
+                if let Err(e) = s.read_checkpoint(std::path::Path::new(&p)) {
+                    panic!("checkpoint {p}: {e}");
+                }
+            }
+            Err(_) => {
+                for _ in 0..20 {
+                    if let Err(e) = s.step() {
+                        panic!("warm-up: {e}");
+                    }
+                }
             }
         }
+        eprintln!("{name}: dt+ = {:.4} at CFL {}", s.next_dt() * s.cfg.re_tau, s.cfg.cfl);
         group.throughput(Throughput::Elements(s.grid.cells() as u64));
         group.bench_function(name, |b| {
             b.iter(|| {
