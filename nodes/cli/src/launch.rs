@@ -108,6 +108,10 @@ pub fn launch(
         if lf.run.analyze {
             let table = crate::analyze::fibres(m, &out_dir.join("analysis"))?;
             println!("{table}");
+            let rrd = out_dir.join("run.rrd");
+            fiberflow_viewer::view(m, &fiberflow_viewer::Sink::Save(rrd.clone()), 1)
+                .with_context(|| format!("writing {}", rrd.display()))?;
+            println!("Rerun scene: {} (rerun {})", rrd.display(), rrd.display());
         }
     }
     Ok(LaunchOutcome {

@@ -70,6 +70,22 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Show a recording in Rerun: channel box, fibres coloured by coiling, plots per case.
+    View {
+        mcap: PathBuf,
+        /// Write an .rrd file instead of opening a viewer.
+        #[arg(long)]
+        save: Option<PathBuf>,
+        /// Spawn a Rerun viewer (needs `rerun` 0.36.3 on PATH: pip install rerun-sdk==0.36.3).
+        #[arg(long)]
+        spawn: bool,
+        /// Stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy.
+        #[arg(long)]
+        connect: Option<String>,
+        /// Show every n-th step.
+        #[arg(long, default_value_t = 1)]
+        every: u64,
+    },
     /// Compare DNS statistics (stats.csv from a spin-up) with the reference DNS data.
     FlowReport {
         stats: PathBuf,
@@ -139,6 +155,15 @@ fn main() -> Result<()> {
             let table = analyze::fibres(&mcap, &out)?;
             println!("{table}");
             Ok(())
+        }
+        Cmd::View { mcap, save, spawn, connect, every } => {
+            let sink = match (save, spawn, connect) {
+                (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
+                (None, _, Some(u)) => fiberflow_viewer::Sink::Connect(u),
+                (None, _, None) => fiberflow_viewer::Sink::Spawn,
+                _ => anyhow::bail!("choose one of --save, --spawn, --connect"),
+            };
+            fiberflow_viewer::view(&mcap, &sink, every.max(1)).with_context(|| format!("viewing {}", mcap.display()))
         }
         Cmd::FlowReport {
             stats,
