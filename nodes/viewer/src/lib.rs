@@ -66,7 +66,7 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
         Sink::Spawn => builder.spawn().map_err(err)?,
         Sink::Connect(url) => builder.connect_grpc_opts(url.clone()).map_err(err)?,
     };
-    send_blueprint(&rec)?;
+    send_blueprint(&rec, &states.keys().cloned().collect::<Vec<_>>())?;
     let h = 0.5 * box_plus[1];
     rec.log_static(
         "world/channel",
@@ -141,7 +141,7 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
 }
 
 /// Layout for a first open: the 3-D scene with the legend beside the three time series.
-fn send_blueprint(rec: &rerun::RecordingStream) -> Result<(), ViewerError> {
+fn send_blueprint(rec: &rerun::RecordingStream, groups: &[String]) -> Result<(), ViewerError> {
     use rerun::blueprint::{
         Blueprint, BlueprintActivation, ContainerLike, Horizontal, Spatial3DView, TextDocumentView,
         TimePanel, TimeSeriesView, Vertical,
@@ -150,7 +150,10 @@ fn send_blueprint(rec: &rerun::RecordingStream) -> Result<(), ViewerError> {
         Spatial3DView::new("Fibres (colour: coiling σ²)")
             .with_origin("world")
             // trails exist under world/<case>/trails; hidden at first open so fibres stand out
-            .with_contents(["+ /world/**", "- /world/*/trails"])
+            .with_contents(
+                std::iter::once("+ /world/**".to_string())
+                    .chain(groups.iter().map(|g| format!("- /world/{g}/trails"))),
+            )
             .into(),
         TextDocumentView::new("Legend").with_origin("legend").into(),
     ];
