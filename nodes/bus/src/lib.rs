@@ -2,6 +2,7 @@
 //! iceoryx2 — see `Transport`), and the plumbing every node shares: decoding with drop
 //! counting so garbage on a topic is dropped, counted and logged once, never a panic.
 
+pub mod iceoryx2_bus;
 pub mod inbox;
 pub mod inproc;
 pub mod zenoh_bus;

@@ -96,10 +96,7 @@ pub fn launch(
     );
     match transport.as_str() {
         "inproc" => run_inproc(&base, &nodes, stop)?,
-        "zenoh" => run_processes(&base, &nodes, stop)?,
-        "iceoryx2" => {
-            bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)")
-        }
+        "zenoh" | "iceoryx2" => run_processes(&base, &nodes, stop)?,
         other => bail!("--transport must be inproc, zenoh or iceoryx2 (got {other:?})"),
     }
     let mcap = lf.recorder.enabled.then(|| out_dir.join("run.mcap"));
@@ -194,17 +191,25 @@ fn signal_group(pgid: i32, sig: i32) {
 }
 
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<()> {
-    let port = free_port()?;
-    let rendezvous = format!("tcp/127.0.0.1:{port}");
+    let zenoh = base.transport == "zenoh";
+    let rendezvous = if zenoh {
+        let r = format!("tcp/127.0.0.1:{}", free_port()?);
+        println!("zenoh rendezvous {r} (loopback only, multicast scouting off)");
+        r
+    } else {
+        println!("iceoryx2 shared memory, services fiberflow/{}/...", base.launch.run.id);
+        "iceoryx2".to_string()
+    };
     std::fs::write(base.out_dir.join("endpoint.txt"), &rendezvous)?;
-    println!("zenoh rendezvous {rendezvous} (loopback only, multicast scouting off)");
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
     for n in nodes {
         let mut spec = base.clone();
         spec.node = n.clone();
-        if n == "flow" {
+        if !zenoh {
+            // shared memory: nothing to configure
+        } else if n == "flow" {
             spec.zenoh_listen = vec![rendezvous.clone()];
         } else {
             spec.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
@@ -238,8 +243,10 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     // the launcher's own bus connection, for the progress bar
     let mut me = base.clone();
     me.node = "launcher".into();
-    me.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
-    me.zenoh_connect = vec![rendezvous];
+    if zenoh {
+        me.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
+        me.zenoh_connect = vec![rendezvous];
+    }
     let bus = open_bus(&me)?;
     let finished = Arc::new(AtomicBool::new(false));
     let prog = progress_thread(bus, &base.launch, finished.clone())?;

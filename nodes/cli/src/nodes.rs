@@ -29,6 +29,22 @@ pub struct NodeSpec {
     pub out_dir: PathBuf,
 }
 
+/// Every topic a run uses (iceoryx2 has no wildcard subscriptions).
+pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
+    let t = fiberflow_messages::topics::Topics::new(&lf.run.id);
+    let mut v = vec![t.announce(), t.flow_status()];
+    for n in ["flow", "recorder", "launcher"] {
+        v.push(t.heartbeat(n));
+    }
+    for g in lf.groups() {
+        v.push(t.heartbeat(&g));
+        v.push(t.flow_samples(&g));
+        v.push(t.fiber_state(&g));
+        v.push(t.fiber_metrics(&g));
+    }
+    v
+}
+
 pub fn digest(text: &str) -> String {
     let h = sha2::Sha256::digest(text.as_bytes());
     h.iter().map(|b| format!("{b:02x}")).collect()
@@ -52,9 +68,13 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
             ))
         }
         Transport::Inproc => Ok(Arc::new(InprocBus::new())),
-        Transport::Iceoryx2 => {
-            bail!("transport iceoryx2 is not available yet in this build (use zenoh or inproc)")
-        }
+        Transport::Iceoryx2 => Ok(Arc::new(
+            fiberflow_bus::iceoryx2_bus::Iceoryx2Bus::open(
+                &spec.launch.run.id,
+                run_topics(&spec.launch),
+            )
+            .context("opening iceoryx2 shared-memory bus")?,
+        )),
     }
 }
 
