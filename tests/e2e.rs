@@ -281,16 +281,28 @@ fn ctrl_c_stops_everything_cleanly() {
 fn shortened_quick_run_produces_sane_analysis() {
     let dir = scratch("quick");
     let text = std::fs::read_to_string(root().join("launch/quick.toml")).unwrap();
-    let text = text
-        .replace("steps = 324", "steps = 24")
-        .replace("../recordings/samples/", &format!("{}/recordings/samples/", root().display()));
+    let text = text.replace("steps = 324", "steps = 24").replace(
+        "../recordings/samples/",
+        &format!("{}/recordings/samples/", root().display()),
+    );
     let file = dir.join("quick-short.toml");
     std::fs::write(&file, text).unwrap();
     let out = dir.join("run");
     let stdout = launch(&file, &out, "zenoh");
-    assert!(stdout.contains("| case1 |"), "summary table not printed:\n{stdout}");
+    assert!(
+        stdout.contains("| case1 |"),
+        "summary table not printed:\n{stdout}"
+    );
     let a = out.join("analysis");
-    for f in ["summary.md", "msd23.png", "abs_z1.png", "sigma2.png", "case1_msd23.csv", "case6_abs_z1.csv", "case3_fibres.csv"] {
+    for f in [
+        "summary.md",
+        "msd23.png",
+        "abs_z1.png",
+        "sigma2.png",
+        "case1_msd23.csv",
+        "case6_abs_z1.csv",
+        "case3_fibres.csv",
+    ] {
         assert!(a.join(f).exists(), "missing {f}");
     }
     for c in 1..=6 {
@@ -301,7 +313,10 @@ fn shortened_quick_run_produces_sane_analysis() {
             assert!(v.iter().all(|x| x.is_finite()), "non-finite row {l}");
             assert!(v[3].abs() <= 1.0 + 1e-12, "|z1| > 1: {l}");
             assert!(v[4] >= 0.0, "sigma² < 0: {l}");
-            assert!(v[6].abs() <= 150.0 + 1e-9, "centre of mass outside the channel: {l}");
+            assert!(
+                v[6].abs() <= 150.0 + 1e-9,
+                "centre of mass outside the channel: {l}"
+            );
             rows += 1;
         }
         assert_eq!(rows, 25 * 50, "case{c}: 25 states of 50 fibres");

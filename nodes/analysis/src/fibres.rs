@@ -31,6 +31,8 @@ pub struct GroupSummary {
     pub msd_slope: f64,
     pub fit_window: (f64, f64),
     pub ramp_time: f64,
+    /// Ramp time per initial layer: near wall, next, middle.
+    pub ramp_by_layer: [f64; 3],
     pub final_abs_z1: f64,
     pub final_sigma2: f64,
     pub segment_length: f64,
@@ -350,6 +352,7 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
             msd_slope: slope,
             fit_window: window,
             ramp_time: ramp_time(&all),
+            ramp_by_layer: [0u8, 1, 2].map(|l| ramp_time(&abs_z1(g, Some(l)))),
             final_abs_z1: all.last().map(|x| x.1).unwrap_or(f64::NAN),
             final_sigma2: s2.last().map(|x| x.1).unwrap_or(f64::NAN),
             segment_length: g.segment_length,
@@ -394,13 +397,13 @@ fn write(dir: &Path, name: &str, text: &str) -> Result<(), AnalysisError> {
 /// The summary table (markdown) with the paper's values beside ours.
 pub fn summary_table(s: &[GroupSummary]) -> String {
     let mut md = String::from(
-        "| case | l+ | rho_s/rho_f | fibres | MSD_23 slope (fit window t+) | paper slope | |z1| ramp time t+ | paper ramp | final <|z1|> | final <sigma^2> |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | l+ | rho_s/rho_f | fibres | MSD_23 slope (fit window t+) | paper slope | |z1| ramp time t+: all (near wall / next / middle) | paper ramp | final <|z1|> | final <sigma^2> |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for g in s {
         let paper = if g.group == "case1" { "1.926" } else { "~1.9" };
         let _ = writeln!(
             md,
-            "| {} | {:.2} | {:.0} | {} | {:.3} ({:.1}–{:.1}) | {} | {:.1} | ~13 | {:.3} | {:.4} |",
+            "| {} | {:.2} | {:.0} | {} | {:.3} ({:.1}–{:.1}) | {} | {:.1} ({:.1} / {:.1} / {:.1}) | ~13 | {:.3} | {:.4} |",
             g.group,
             g.segment_length,
             g.density_ratio,
@@ -410,6 +413,9 @@ pub fn summary_table(s: &[GroupSummary]) -> String {
             g.fit_window.1,
             paper,
             g.ramp_time,
+            g.ramp_by_layer[0],
+            g.ramp_by_layer[1],
+            g.ramp_by_layer[2],
             g.final_abs_z1,
             g.final_sigma2
         );

@@ -47,7 +47,11 @@ impl Iceoryx2Bus {
         match ready_rx.recv_timeout(Duration::from_secs(20)) {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(BusError::Transport(format!("iceoryx2: {e}"))),
-            Err(_) => return Err(BusError::Transport("iceoryx2 bus thread did not start".into())),
+            Err(_) => {
+                return Err(BusError::Transport(
+                    "iceoryx2 bus thread did not start".into(),
+                ))
+            }
         }
         Ok(Self {
             tx: Mutex::new(tx),
@@ -101,7 +105,8 @@ impl Bus for Iceoryx2Bus {
     }
 }
 
-type PubSub = iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>;
+type PubSub =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, [u8], ()>;
 
 fn service(node: &Node<ipc::Service>, topic: &str) -> Result<PubSub, String> {
     let name: ServiceName = topic.try_into().map_err(terr)?;
@@ -131,7 +136,10 @@ fn bus_thread(
         }
         CallbackProgression::Continue
     });
-    let wake_name: ServiceName = format!("fiberflow/{run}/_wake").as_str().try_into().map_err(terr)?;
+    let wake_name: ServiceName = format!("fiberflow/{run}/_wake")
+        .as_str()
+        .try_into()
+        .map_err(terr)?;
     let wake = node
         .service_builder(&wake_name)
         .event()

@@ -197,7 +197,10 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         println!("zenoh rendezvous {r} (loopback only, multicast scouting off)");
         r
     } else {
-        println!("iceoryx2 shared memory, services fiberflow/{}/...", base.launch.run.id);
+        println!(
+            "iceoryx2 shared memory, services fiberflow/{}/...",
+            base.launch.run.id
+        );
         "iceoryx2".to_string()
     };
     std::fs::write(base.out_dir.join("endpoint.txt"), &rendezvous)?;

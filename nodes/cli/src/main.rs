@@ -156,14 +156,21 @@ fn main() -> Result<()> {
             println!("{table}");
             Ok(())
         }
-        Cmd::View { mcap, save, spawn, connect, every } => {
+        Cmd::View {
+            mcap,
+            save,
+            spawn,
+            connect,
+            every,
+        } => {
             let sink = match (save, spawn, connect) {
                 (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
                 (None, _, Some(u)) => fiberflow_viewer::Sink::Connect(u),
                 (None, _, None) => fiberflow_viewer::Sink::Spawn,
                 _ => anyhow::bail!("choose one of --save, --spawn, --connect"),
             };
-            fiberflow_viewer::view(&mcap, &sink, every.max(1)).with_context(|| format!("viewing {}", mcap.display()))
+            fiberflow_viewer::view(&mcap, &sink, every.max(1))
+                .with_context(|| format!("viewing {}", mcap.display()))
         }
         Cmd::FlowReport {
             stats,

@@ -33,7 +33,11 @@ fn bench_step(c: &mut Criterion) {
                 }
             }
         }
-        eprintln!("{name}: dt+ = {:.4} at CFL {}", s.next_dt() * s.cfg.re_tau, s.cfg.cfl);
+        eprintln!(
+            "{name}: dt+ = {:.4} at CFL {}",
+            s.next_dt() * s.cfg.re_tau,
+            s.cfg.cfl
+        );
         group.throughput(Throughput::Elements(s.grid.cells() as u64));
         group.bench_function(name, |b| {
             b.iter(|| {

@@ -29,8 +29,16 @@ pub enum Sink {
 /// Colour map for σ² in [0, 1.5]: dark blue (straight) -> teal -> yellow (coiled).
 pub fn sigma2_colour(s2: f64) -> [u8; 3] {
     let t = (s2 / 1.5).clamp(0.0, 1.0);
-    let stops = [(0.0, [68.0, 1.0, 84.0]), (0.5, [33.0, 145.0, 140.0]), (1.0, [253.0, 231.0, 37.0])];
-    let (a, b) = if t < 0.5 { (stops[0], stops[1]) } else { (stops[1], stops[2]) };
+    let stops = [
+        (0.0, [68.0, 1.0, 84.0]),
+        (0.5, [33.0, 145.0, 140.0]),
+        (1.0, [253.0, 231.0, 37.0]),
+    ];
+    let (a, b) = if t < 0.5 {
+        (stops[0], stops[1])
+    } else {
+        (stops[1], stops[2])
+    };
     let f = (t - a.0) / (b.0 - a.0);
     let c = |i: usize| (a.1[i] + f * (b.1[i] - a.1[i])).round() as u8;
     [c(0), c(1), c(2)]
@@ -42,10 +50,16 @@ fn err<E: std::fmt::Display>(e: E) -> ViewerError {
 
 /// Logs the recording at `mcap` to `sink`. `every` thins the steps shown (1 = all).
 pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
-    let bytes = std::fs::read(mcap).map_err(|e| ViewerError::Read { path: mcap.display().to_string(), reason: e.to_string() })?;
+    let bytes = std::fs::read(mcap).map_err(|e| ViewerError::Read {
+        path: mcap.display().to_string(),
+        reason: e.to_string(),
+    })?;
     let mut states: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
     let mut box_plus = [942.48, 300.0, 471.24];
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ViewerError::Read { path: mcap.display().to_string(), reason: e.to_string() })?;
+    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ViewerError::Read {
+        path: mcap.display().to_string(),
+        reason: e.to_string(),
+    })?;
     for m in stream {
         let Ok(m) = m else { break };
         if m.channel.topic.ends_with("/state") {
@@ -88,7 +102,9 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
     )
     .map_err(err)?;
     for (gi, (group, steps)) in states.iter().enumerate() {
-        let Some(first) = steps.values().next() else { continue };
+        let Some(first) = steps.values().next() else {
+            continue;
+        };
         let com0 = coms(first);
         let mut trails: Vec<Vec<[f32; 3]>> = vec![Vec::new(); com0.len()];
         for (k, s) in steps {
@@ -100,7 +116,11 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
             rec.log(
                 format!("world/{group}/fibres"),
                 &rerun::LineStrips3D::new(strips)
-                    .with_colors(colours.iter().map(|c| rerun::Color::from_rgb(c[0], c[1], c[2])))
+                    .with_colors(
+                        colours
+                            .iter()
+                            .map(|c| rerun::Color::from_rgb(c[0], c[1], c[2])),
+                    )
                     .with_radii([rerun::Radius::new_scene_units(1.2)]),
             )
             .map_err(err)?;
@@ -130,9 +150,21 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
                 .map(|(a, b)| (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2))
                 .sum::<f64>()
                 / n;
-            rec.log(format!("plots/abs_z1/{group}"), &rerun::Scalars::single(z1.iter().map(|z| z.abs()).sum::<f64>() / n)).map_err(err)?;
-            rec.log(format!("plots/sigma2/{group}"), &rerun::Scalars::single(s2.iter().sum::<f64>() / n)).map_err(err)?;
-            rec.log(format!("plots/msd23_from_start/{group}"), &rerun::Scalars::single(msd)).map_err(err)?;
+            rec.log(
+                format!("plots/abs_z1/{group}"),
+                &rerun::Scalars::single(z1.iter().map(|z| z.abs()).sum::<f64>() / n),
+            )
+            .map_err(err)?;
+            rec.log(
+                format!("plots/sigma2/{group}"),
+                &rerun::Scalars::single(s2.iter().sum::<f64>() / n),
+            )
+            .map_err(err)?;
+            rec.log(
+                format!("plots/msd23_from_start/{group}"),
+                &rerun::Scalars::single(msd),
+            )
+            .map_err(err)?;
             let _ = gi;
         }
     }
@@ -158,9 +190,15 @@ fn send_blueprint(rec: &rerun::RecordingStream, groups: &[String]) -> Result<(),
         TextDocumentView::new("Legend").with_origin("legend").into(),
     ];
     let right: Vec<ContainerLike> = vec![
-        TimeSeriesView::new("mean |z1| (alignment)").with_origin("plots/abs_z1").into(),
-        TimeSeriesView::new("mean σ² (coiling)").with_origin("plots/sigma2").into(),
-        TimeSeriesView::new("MSD_23 from t = 0").with_origin("plots/msd23_from_start").into(),
+        TimeSeriesView::new("mean |z1| (alignment)")
+            .with_origin("plots/abs_z1")
+            .into(),
+        TimeSeriesView::new("mean σ² (coiling)")
+            .with_origin("plots/sigma2")
+            .into(),
+        TimeSeriesView::new("MSD_23 from t = 0")
+            .with_origin("plots/msd23_from_start")
+            .into(),
     ];
     let root = Horizontal::new([
         Vertical::new(left).with_row_shares([0.8, 0.2]).into(),
@@ -195,7 +233,11 @@ fn coms(s: &FiberGroupState) -> Vec<[f64; 3]> {
 }
 
 fn wrap(c: [f64; 3], b: [f64; 3]) -> [f32; 3] {
-    [c[0].rem_euclid(b[0]) as f32, c[1] as f32, c[2].rem_euclid(b[2]) as f32]
+    [
+        c[0].rem_euclid(b[0]) as f32,
+        c[1] as f32,
+        c[2].rem_euclid(b[2]) as f32,
+    ]
 }
 
 /// Breaks trails where they wrap around the periodic box.
@@ -205,7 +247,9 @@ fn split_wrapped(trails: &[Vec<[f32; 3]>], b: [f64; 3]) -> Vec<Vec<[f32; 3]>> {
         let mut cur: Vec<[f32; 3]> = Vec::new();
         for p in t {
             if let Some(q) = cur.last() {
-                if ((p[0] - q[0]).abs() as f64) > 0.5 * b[0] || ((p[2] - q[2]).abs() as f64) > 0.5 * b[2] {
+                if ((p[0] - q[0]).abs() as f64) > 0.5 * b[0]
+                    || ((p[2] - q[2]).abs() as f64) > 0.5 * b[2]
+                {
                     out.push(std::mem::take(&mut cur));
                 }
             }
@@ -218,7 +262,13 @@ fn split_wrapped(trails: &[Vec<[f32; 3]>], b: [f64; 3]) -> Vec<Vec<[f32; 3]>> {
     out
 }
 
-type FibreScene = (Vec<Vec<[f32; 3]>>, Vec<[u8; 3]>, Vec<[f32; 3]>, Vec<f64>, Vec<f64>);
+type FibreScene = (
+    Vec<Vec<[f32; 3]>>,
+    Vec<[u8; 3]>,
+    Vec<[f32; 3]>,
+    Vec<f64>,
+    Vec<f64>,
+);
 
 /// Line strips (joints, shifted so the fibre's centre of mass lies in the box), colours by
 /// σ², all joints, σ² and z1 per fibre.
@@ -240,8 +290,14 @@ fn fibres(s: &FiberGroupState, b: [f64; 3]) -> FibreScene {
                 zs[a] += s.axis[3 * i + a];
             }
         }
-        let shift = [com[0].rem_euclid(b[0]) - com[0], 0.0, com[2].rem_euclid(b[2]) - com[2]];
-        let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2]).sqrt().max(1e-300);
+        let shift = [
+            com[0].rem_euclid(b[0]) - com[0],
+            0.0,
+            com[2].rem_euclid(b[2]) - com[2],
+        ];
+        let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
+            .sqrt()
+            .max(1e-300);
         let mut s2 = 0.0;
         let mut strip = Vec::with_capacity(n + 1);
         for i in seg..seg + n {
@@ -250,10 +306,18 @@ fn fibres(s: &FiberGroupState, b: [f64; 3]) -> FibreScene {
             for a in 0..3 {
                 s2 += (z[a] - zs[a] / norm).powi(2);
             }
-            let start = [c[0] - 0.5 * l * z[0] + shift[0], c[1] - 0.5 * l * z[1], c[2] - 0.5 * l * z[2] + shift[2]];
+            let start = [
+                c[0] - 0.5 * l * z[0] + shift[0],
+                c[1] - 0.5 * l * z[1],
+                c[2] - 0.5 * l * z[2] + shift[2],
+            ];
             strip.push([start[0] as f32, start[1] as f32, start[2] as f32]);
             if i + 1 == seg + n {
-                let end = [c[0] + 0.5 * l * z[0] + shift[0], c[1] + 0.5 * l * z[1], c[2] + 0.5 * l * z[2] + shift[2]];
+                let end = [
+                    c[0] + 0.5 * l * z[0] + shift[0],
+                    c[1] + 0.5 * l * z[1],
+                    c[2] + 0.5 * l * z[2] + shift[2],
+                ];
                 strip.push([end[0] as f32, end[1] as f32, end[2] as f32]);
             }
         }
@@ -278,7 +342,11 @@ mod tests {
         let mut prev = -1.0;
         for i in 0..=30 {
             let l = lum(sigma2_colour(i as f64 * 0.05));
-            assert!(l >= prev, "luminance not monotone at σ² = {}", i as f64 * 0.05);
+            assert!(
+                l >= prev,
+                "luminance not monotone at σ² = {}",
+                i as f64 * 0.05
+            );
             prev = l;
         }
     }
