@@ -64,7 +64,7 @@ impl Grid {
         lz: f64,
         gamma: f64,
     ) -> Result<Self, DnsError> {
-        if nx < 4 || nz < 4 || nx % 2 != 0 || nz % 2 != 0 {
+        if nx < 4 || nz < 4 || !nx.is_multiple_of(2) || !nz.is_multiple_of(2) {
             return Err(DnsError::Config(format!(
                 "grid.nx and grid.nz must be even and >= 4 (got nx = {nx}, nz = {nz})"
             )));
@@ -181,7 +181,16 @@ mod tests {
 
     #[test]
     fn first_centre_matches_target() {
-        let g = Grid::new(64, 64, 64, 6.283, 3.14, 150.0, Some(0.33)).unwrap();
+        let g = Grid::new(
+            64,
+            64,
+            64,
+            std::f64::consts::TAU,
+            std::f64::consts::PI,
+            150.0,
+            Some(0.33),
+        )
+        .unwrap();
         let y1_plus = g.first_centre_distance() * 150.0;
         assert!((y1_plus - 0.33).abs() < 1e-9, "y1+ = {y1_plus}");
         assert!((g.yf[0] + 1.0).abs() < 1e-15 && (g.yf[64] - 1.0).abs() < 1e-15);

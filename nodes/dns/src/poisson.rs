@@ -172,7 +172,7 @@ impl Poisson {
                         let (cur, next) = blk.split_at_mut((j + 1) * nz);
                         let cur = &mut cur[j * nz..];
                         for kz in 0..nz {
-                            cur[kz] = cur[kz] - next[kz] * cp[base + j * nz + kz];
+                            cur[kz] -= next[kz] * cp[base + j * nz + kz];
                         }
                     }
                     inv_z.process_with_scratch(blk, scratch);
