@@ -87,6 +87,51 @@ pub struct FiberNodeConfig {
     /// Publish metrics every this many steps.
     #[serde(default = "default_metrics_every")]
     pub metrics_every: u64,
+    /// Fibre properties in physical units instead of wall units (overrides the `_plus`
+    /// values and the case preset for the quantities it gives).
+    #[serde(default)]
+    pub physical: Option<PhysicalProperties>,
+}
+
+/// Fibre and fluid properties in SI units, converted to wall units with ν and u_tau:
+/// length+ = L u_tau / ν, density ratio = ρ_s / ρ_f.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicalProperties {
+    /// Kinematic viscosity of the fluid, m²/s (air at 20 °C: 1.5e-5).
+    pub kinematic_viscosity_m2_s: f64,
+    /// Friction velocity of the channel flow, m/s.
+    pub friction_velocity_m_s: f64,
+    /// Fluid density, kg/m³ (air: 1.2).
+    pub fluid_density_kg_m3: f64,
+    #[serde(default)]
+    pub segment_length_m: Option<f64>,
+    #[serde(default)]
+    pub diameter_m: Option<f64>,
+    #[serde(default)]
+    pub density_kg_m3: Option<f64>,
+}
+
+impl PhysicalProperties {
+    fn check(&self, group: &str) -> Result<(), FibreError> {
+        for (k, v) in [
+            ("kinematic_viscosity_m2_s", self.kinematic_viscosity_m2_s),
+            ("friction_velocity_m_s", self.friction_velocity_m_s),
+            ("fluid_density_kg_m3", self.fluid_density_kg_m3),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(FibreError::Config(format!(
+                    "fibers[{group}].physical.{k} must be positive and finite (got {v})"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Wall-unit length of a physical length.
+    pub fn length_plus(&self, metres: f64) -> f64 {
+        metres * self.friction_velocity_m_s / self.kinematic_viscosity_m2_s
+    }
 }
 
 fn default_segments() -> usize {
@@ -116,13 +161,24 @@ pub struct BuiltGroup {
 }
 
 impl FiberNodeConfig {
-    fn resolved(&self) -> (f64, f64, f64) {
+    /// (segment length+, diameter+, density ratio) after presets and unit conversion.
+    pub fn resolved(&self) -> (f64, f64, f64) {
         let (lc, rc) = self.case.map(|c| c.parameters()).unwrap_or((3.0, 1150.0));
-        (
-            self.segment_length_plus.unwrap_or(lc),
-            self.diameter_plus.unwrap_or_else(paper_diameter_plus),
-            self.density_ratio.unwrap_or(rc),
-        )
+        let mut l = self.segment_length_plus.unwrap_or(lc);
+        let mut d = self.diameter_plus.unwrap_or_else(paper_diameter_plus);
+        let mut r = self.density_ratio.unwrap_or(rc);
+        if let Some(p) = &self.physical {
+            if let Some(x) = p.segment_length_m {
+                l = p.length_plus(x);
+            }
+            if let Some(x) = p.diameter_m {
+                d = p.length_plus(x);
+            }
+            if let Some(x) = p.density_kg_m3 {
+                r = x / p.fluid_density_kg_m3;
+            }
+        }
+        (l, d, r)
     }
 
     /// Validates and builds the group for a channel box (wall units).
@@ -144,6 +200,9 @@ impl FiberNodeConfig {
                 "a non-empty name of [A-Za-z0-9_-]",
                 format!("{:?}", self.group),
             );
+        }
+        if let Some(p) = &self.physical {
+            p.check(&self.group)?;
         }
         if self.segments == 0 || self.segments > 1000 {
             return bad("segments", "in 1..=1000", self.segments.to_string());
@@ -252,5 +311,48 @@ impl FiberNodeConfig {
             group: FibreGroup::new(params, fibres),
             layers,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> FiberNodeConfig {
+        toml::from_str("group = \"g\"\ncase = \"case1\"").unwrap()
+    }
+
+    /// Physical units convert to the same wall-unit fibre as the preset: air (ν = 1.5e-5 m²/s,
+    /// ρ = 1.2 kg/m³), u_tau = 0.5 m/s, l = 90 µm, d = 6.96 µm, ρ_s = 1380 kg/m³.
+    #[test]
+    fn physical_units_convert() {
+        let mut c = base();
+        c.physical = Some(PhysicalProperties {
+            kinematic_viscosity_m2_s: 1.5e-5,
+            friction_velocity_m_s: 0.5,
+            fluid_density_kg_m3: 1.2,
+            segment_length_m: Some(90e-6),
+            diameter_m: Some(6.96e-6),
+            density_kg_m3: Some(1380.0),
+        });
+        let (l, d, r) = c.resolved();
+        assert!((l - 3.0).abs() < 1e-12 && (d - 0.232).abs() < 1e-12 && (r - 1150.0).abs() < 1e-9);
+        c.physical.as_mut().unwrap().friction_velocity_m_s = -1.0;
+        let e = c.build([942.0, 300.0, 471.0]).err().unwrap().to_string();
+        assert!(e.contains("physical.friction_velocity_m_s"), "{e}");
+    }
+
+    #[test]
+    fn bad_values_name_the_key() {
+        let mut c = base();
+        c.density_ratio = Some(-1.0);
+        let e = c.build([942.0, 300.0, 471.0]).err().unwrap().to_string();
+        assert!(e.contains("fibers[g].density_ratio"), "{e}");
+        let mut c = base();
+        c.segments = 0;
+        assert!(c.build([942.0, 300.0, 471.0]).err().unwrap().to_string().contains("segments"));
+        let mut c = base();
+        c.diameter_plus = Some(f64::NAN);
+        assert!(c.build([942.0, 300.0, 471.0]).err().unwrap().to_string().contains("diameter_plus"));
     }
 }
