@@ -16,6 +16,7 @@ fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
         },
         gravity: Vector3::zeros(),
         bending_stiffness: 0.0,
+        twisting_stiffness: 0.0,
         tikhonov: 0.0,
         wall_half_height: Some(150.0),
     };

@@ -16,6 +16,8 @@ pub struct Segment {
     pub v: Vector3<f64>,
     /// Angular velocity ω_i.
     pub w: Vector3<f64>,
+    /// Material normal n_i ⊥ ẑ_i, carried with the segment's rotation; it measures twist.
+    pub n: Vector3<f64>,
 }
 
 /// Fixed properties of one segment.
@@ -109,6 +111,13 @@ impl Fibre {
             ));
         }
         let z = axis / norm;
+        // any unit vector normal to the axis (the same for every segment: no initial twist)
+        let helper = if z.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let normal = (helper - z * z.dot(&helper)).normalize();
         let total: f64 = lengths.iter().sum();
         let mut s = -0.5 * total;
         let mut segments = Vec::with_capacity(n);
@@ -118,6 +127,7 @@ impl Fibre {
                 z,
                 v: Vector3::zeros(),
                 w: Vector3::zeros(),
+                n: normal,
             });
             s += l;
         }
@@ -184,8 +194,33 @@ impl Fibre {
         }
     }
 
+    /// Twist angle across joint k (between segments k and k+1): the angle about ẑ_{k+1}
+    /// between n_{k+1} and n_k parallel-transported onto segment k+1.
+    pub fn twist(&self, k: usize) -> f64 {
+        let (a, b) = (&self.segments[k], &self.segments[k + 1]);
+        let moved = parallel_transport(&a.z, &b.z, &a.n);
+        let t = moved.cross(&b.n).dot(&b.z);
+        t.atan2(moved.dot(&b.n))
+    }
+
     /// Total mass.
     pub fn mass(&self) -> f64 {
         self.props.iter().map(|p| p.mass).sum()
     }
+}
+
+/// Rotates `v` by the minimal rotation that takes unit vector `from` onto `to`.
+pub fn parallel_transport(
+    from: &Vector3<f64>,
+    to: &Vector3<f64>,
+    v: &Vector3<f64>,
+) -> Vector3<f64> {
+    let axis = from.cross(to);
+    let s = axis.norm();
+    let c = from.dot(to);
+    if s < 1e-15 {
+        return *v;
+    }
+    let k = axis / s;
+    v * c + k.cross(v) * s + k * (k.dot(v) * (1.0 - c))
 }

@@ -62,6 +62,9 @@ pub struct ModelParams {
     pub gravity: Vector3<f64>,
     /// Joint bending stiffness k_b: restoring moment k_b ẑ_i × ẑ_{i+1} (0 = fully flexible).
     pub bending_stiffness: f64,
+    /// Joint twisting stiffness k_t: restoring moment −k_t φ t about the joint's mean axis t
+    /// for a twist angle φ (0 = free to twist). Explicit, like the bending moment.
+    pub twisting_stiffness: f64,
     /// Relative Tikhonov parameter (0 = exact block-Thomas solve).
     pub tikhonov: f64,
     /// Walls at x2 = ±wall_half_height (None: unbounded).
@@ -159,6 +162,26 @@ fn step_inner(
                 bend += p.bending_stiffness * s.z.cross(&f.segments[i - 1].z);
             }
         }
+        if p.twisting_stiffness != 0.0 {
+            // joint k twist φ_k: +k_t φ t on segment k, −k_t φ t on segment k+1
+            let mean_axis = |a: &Vector3<f64>, b: &Vector3<f64>| {
+                let t = a + b;
+                let nt = t.norm();
+                if nt > 1e-12 {
+                    t / nt
+                } else {
+                    *a
+                }
+            };
+            if i + 1 < n {
+                let t = mean_axis(&s.z, &f.segments[i + 1].z);
+                bend += p.twisting_stiffness * f.twist(i) * t;
+            }
+            if i > 0 {
+                let t = mean_axis(&f.segments[i - 1].z, &s.z);
+                bend -= p.twisting_stiffness * f.twist(i - 1) * t;
+            }
+        }
         let b_t = inertia / dt * s.w - gyroscopic + r.c * omega + r.h_g + bend;
         let h = 0.5 * pr.shape.length;
         let zx = s.z.cross_matrix();
@@ -243,6 +266,8 @@ fn step_inner(
     for s in f.segments.iter_mut() {
         s.r += dt * s.v;
         s.z = rotate(&s.z, &(dt * s.w));
+        let n = rotate(&s.n, &(dt * s.w));
+        s.n = (n - s.z * s.z.dot(&n)).normalize();
     }
     f.rechain();
     if let Some(hh) = p.wall_half_height {

@@ -74,6 +74,9 @@ pub struct FiberNodeConfig {
     pub initial_velocity: InitialVelocity,
     #[serde(default)]
     pub bending_stiffness_plus: f64,
+    /// Joint twisting stiffness in wall units (0: joints twist freely, as in the paper).
+    #[serde(default)]
+    pub twisting_stiffness_plus: f64,
     #[serde(default)]
     pub gravity_plus: [f64; 3],
     #[serde(default)]
@@ -228,6 +231,13 @@ impl FiberNodeConfig {
                 self.bending_stiffness_plus.to_string(),
             );
         }
+        if !(self.twisting_stiffness_plus >= 0.0 && self.twisting_stiffness_plus.is_finite()) {
+            return bad(
+                "twisting_stiffness_plus",
+                ">= 0 and finite",
+                self.twisting_stiffness_plus.to_string(),
+            );
+        }
         if !(self.tikhonov >= 0.0 && self.tikhonov < 1.0) {
             return bad("tikhonov", "in [0, 1)", self.tikhonov.to_string());
         }
@@ -304,6 +314,7 @@ impl FiberNodeConfig {
             },
             gravity: Vector3::from(self.gravity_plus),
             bending_stiffness: self.bending_stiffness_plus,
+            twisting_stiffness: self.twisting_stiffness_plus,
             tikhonov: self.tikhonov,
             wall_half_height: self.wall_contact.then_some(0.5 * box_plus[1]),
         };
@@ -350,9 +361,19 @@ mod tests {
         assert!(e.contains("fibers[g].density_ratio"), "{e}");
         let mut c = base();
         c.segments = 0;
-        assert!(c.build([942.0, 300.0, 471.0]).err().unwrap().to_string().contains("segments"));
+        assert!(c
+            .build([942.0, 300.0, 471.0])
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("segments"));
         let mut c = base();
         c.diameter_plus = Some(f64::NAN);
-        assert!(c.build([942.0, 300.0, 471.0]).err().unwrap().to_string().contains("diameter_plus"));
+        assert!(c
+            .build([942.0, 300.0, 471.0])
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("diameter_plus"));
     }
 }
