@@ -74,6 +74,23 @@ fn long_launch(dir: &std::path::Path, steps: u64) -> std::path::PathBuf {
     p
 }
 
+/// Starts a zenoh launch in the background; returns it with its rendezvous endpoint.
+fn spawn_launch(file: &std::path::Path, out: &std::path::Path) -> (std::process::Child, String) {
+    let child = Command::new(fiberflow())
+        .arg("launch")
+        .arg(file)
+        .arg("--out")
+        .arg(out)
+        .arg("--transport")
+        .arg("zenoh")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("launch");
+    let endpoint = wait_for(&out.join("endpoint.txt"), 20);
+    (child, endpoint)
+}
+
 fn wait_for(path: &std::path::Path, secs: u64) -> String {
     let t0 = Instant::now();
     while t0.elapsed() < Duration::from_secs(secs) {
@@ -96,18 +113,7 @@ fn garbage_on_every_topic_is_dropped_and_counted() {
     let clean = dir.join("clean");
     launch(&file, &clean, "inproc");
     let dirty = dir.join("dirty");
-    let mut child = Command::new(fiberflow())
-        .arg("launch")
-        .arg(&file)
-        .arg("--out")
-        .arg(&dirty)
-        .arg("--transport")
-        .arg("zenoh")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("launch");
-    let endpoint = wait_for(&dirty.join("endpoint.txt"), 20);
+    let (mut child, endpoint) = spawn_launch(&file, &dirty);
     // wait until the run is stepping (the recorder has joined)
     std::thread::sleep(Duration::from_secs(2));
     let topics = [
@@ -179,18 +185,7 @@ fn killed_recorder_is_recoverable() {
     let dir = scratch("kill");
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
-    let mut child = Command::new(fiberflow())
-        .arg("launch")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--transport")
-        .arg("zenoh")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("launch");
-    wait_for(&out.join("endpoint.txt"), 20);
+    let (mut child, _) = spawn_launch(&file, &out);
     std::thread::sleep(Duration::from_secs(4));
     let spec = out.join("config/recorder.toml").display().to_string();
     let pids = pids_with(&spec);
@@ -241,18 +236,7 @@ fn ctrl_c_stops_everything_cleanly() {
     let dir = scratch("ctrlc");
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
-    let mut child = Command::new(fiberflow())
-        .arg("launch")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .arg("--transport")
-        .arg("zenoh")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("launch");
-    wait_for(&out.join("endpoint.txt"), 20);
+    let (mut child, _) = spawn_launch(&file, &out);
     std::thread::sleep(Duration::from_secs(3));
     let t0 = Instant::now();
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
