@@ -311,3 +311,56 @@ fn shortened_quick_run_produces_sane_analysis() {
         }
     }
 }
+
+/// `replay` republishes a recording on the bus: a listener (`echo`) receives every bus
+/// message of the recording (the derived PointCloud2 channels are not bus topics).
+#[test]
+fn replay_republishes_the_recording() {
+    let out = scratch("replay");
+    launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let echo = Command::new(fiberflow())
+        .args([
+            "echo",
+            "fiberflow/analytic-shear/**",
+            "--listen",
+            &ep,
+            "--idle-s",
+            "5",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(800));
+    let r = Command::new(fiberflow())
+        .arg("replay")
+        .arg(out.join("run.mcap"))
+        .args(["--speed", "0", "--connect", &ep])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let o = echo.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    // every state of both groups arrives, in step order per group
+    for g in ["case1", "stiff"] {
+        let line = format!("total fiberflow/analytic-shear/fibers/{g}/state 201");
+        assert!(
+            text.contains(&line),
+            "missing {line}:\n{}",
+            text.lines()
+                .filter(|l| l.starts_with("total"))
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+    }
+    assert!(
+        !text.contains("/points"),
+        "derived point clouds must not be replayed"
+    );
+}

@@ -62,6 +62,24 @@ enum Cmd {
         /// zenoh endpoint to connect to.
         #[arg(long)]
         connect: Vec<String>,
+        /// zenoh endpoint to listen on (default: an ephemeral loopback port).
+        #[arg(long)]
+        listen: Vec<String>,
+    },
+    /// Print what arrives on the bus (zenoh) under a topic pattern.
+    Echo {
+        /// Topic or prefix pattern, e.g. fiberflow/quick/** .
+        pattern: String,
+        #[arg(long)]
+        connect: Vec<String>,
+        #[arg(long)]
+        listen: Vec<String>,
+        /// Stop after this many messages.
+        #[arg(long)]
+        count: Option<u64>,
+        /// Stop after this many seconds without a message.
+        #[arg(long, default_value_t = 10.0)]
+        idle_s: f64,
     },
     /// Fibre analysis of a recording: MSD, alignment, coiling (CSV, PNG, summary.md).
     Analyze {
@@ -145,7 +163,15 @@ fn main() -> Result<()> {
             mcap,
             speed,
             connect,
-        } => recording::replay_cmd(&mcap, speed, connect),
+            listen,
+        } => recording::replay_cmd(&mcap, speed, connect, listen),
+        Cmd::Echo {
+            pattern,
+            connect,
+            listen,
+            count,
+            idle_s,
+        } => recording::echo_cmd(&pattern, connect, listen, count, idle_s),
         Cmd::Analyze { mcap, out } => {
             let out = out.unwrap_or_else(|| {
                 mcap.parent()

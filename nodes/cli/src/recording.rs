@@ -44,21 +44,31 @@ pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
     Ok(())
 }
 
-fn zenoh(connect: Vec<String>) -> Result<ZenohBus> {
+fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
+    let listen = if listen.is_empty() {
+        vec!["tcp/127.0.0.1:0".into()]
+    } else {
+        listen
+    };
     let s = ZenohSettings {
-        listen: vec!["tcp/127.0.0.1:0".into()],
+        listen,
         connect,
         multicast_scouting: false,
     };
     ZenohBus::open(&s).context("opening zenoh session")
 }
 
-pub fn replay_cmd(path: &Path, speed: f64, connect: Vec<String>) -> Result<()> {
+pub fn replay_cmd(
+    path: &Path,
+    speed: f64,
+    connect: Vec<String>,
+    listen: Vec<String>,
+) -> Result<()> {
     if !(speed >= 0.0 && speed.is_finite()) {
         bail!("--speed must be >= 0 (got {speed})");
     }
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let bus = zenoh(connect)?;
+    let bus = zenoh(connect, listen)?;
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
@@ -92,7 +102,7 @@ pub fn inject_cmd(
     count: u64,
     seed: u64,
 ) -> Result<()> {
-    let bus = zenoh(connect)?;
+    let bus = zenoh(connect, vec![])?;
     std::thread::sleep(Duration::from_millis(500));
     let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut next = || {
@@ -115,5 +125,34 @@ pub fn inject_cmd(
         "injected {count} random payloads on each of {} topics",
         topics.len()
     );
+    Ok(())
+}
+
+/// Prints `<topic> <bytes>` for every message under `pattern`, then a per-topic count.
+pub fn echo_cmd(
+    pattern: &str,
+    connect: Vec<String>,
+    listen: Vec<String>,
+    count: Option<u64>,
+    idle_s: f64,
+) -> Result<()> {
+    let bus = zenoh(connect, listen)?;
+    let sub = bus.subscribe(pattern)?;
+    let mut n = 0u64;
+    let mut by: std::collections::BTreeMap<String, u64> = Default::default();
+    while let Ok((topic, bytes)) = sub
+        .rx
+        .recv_timeout(Duration::from_secs_f64(idle_s.max(0.1)))
+    {
+        println!("{topic} {}", bytes.len());
+        *by.entry(topic).or_insert(0) += 1;
+        n += 1;
+        if count.is_some_and(|c| n >= c) {
+            break;
+        }
+    }
+    for (t, c) in by {
+        println!("total {t} {c}");
+    }
     Ok(())
 }
