@@ -109,7 +109,7 @@ fn wait_for(path: &std::path::Path, secs: u64) -> String {
 #[test]
 fn garbage_on_every_topic_is_dropped_and_counted() {
     let dir = scratch("garbage");
-    let file = long_launch(&dir, 4000);
+    let file = long_launch(&dir, 8000);
     let clean = dir.join("clean");
     launch(&file, &clean, "inproc");
     let dirty = dir.join("dirty");
