@@ -38,6 +38,7 @@ macro_rules! message {
 }
 message!(RunAnnouncement);
 message!(FlowStatus);
+message!(FlowProfiles);
 message!(FlowSamples);
 message!(FiberGroupState);
 message!(FiberGroupMetrics);

@@ -25,6 +25,9 @@ impl Topics {
     pub fn flow_status(&self) -> String {
         format!("fiberflow/{}/flow/status", self.run)
     }
+    pub fn flow_profiles(&self) -> String {
+        format!("fiberflow/{}/flow/profiles", self.run)
+    }
     pub fn flow_samples(&self, group: &str) -> String {
         format!("fiberflow/{}/flow/samples/{group}", self.run)
     }
@@ -50,6 +53,7 @@ pub fn type_of(topic: &str) -> Option<&'static str> {
         ("control", 4) if parts[3] == "announce" => Some("fiberflow_msgs/msg/RunAnnouncement"),
         ("control", 5) if parts[3] == "heartbeat" => Some("fiberflow_msgs/msg/Heartbeat"),
         ("flow", 4) if parts[3] == "status" => Some("fiberflow_msgs/msg/FlowStatus"),
+        ("flow", 4) if parts[3] == "profiles" => Some("fiberflow_msgs/msg/FlowProfiles"),
         ("flow", 5) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
         ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
         ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),

@@ -32,6 +32,30 @@ pub struct FlowStatus {
     pub re_tau: f64,
 }
 
+/// Running flow statistics (paper figs. 3–4), half channel in wall units, averaged over
+/// x–z planes and time since the run started.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlowProfiles {
+    pub schema_version: u32,
+    pub step: u64,
+    pub t_plus: f64,
+    pub samples: u64,
+    pub t_plus_span: f64,
+    /// From the mean wall shear.
+    pub re_tau: f64,
+    pub bulk_velocity: f64,
+    pub y_plus: Vec<f64>,
+    pub u_mean: Vec<f64>,
+    pub u_rms: Vec<f64>,
+    pub v_rms: Vec<f64>,
+    pub w_rms: Vec<f64>,
+    pub uv: Vec<f64>,
+    pub omega_z_mean: Vec<f64>,
+    pub omega_x_rms: Vec<f64>,
+    pub omega_y_rms: Vec<f64>,
+    pub omega_z_rms: Vec<f64>,
+}
+
 /// Fluid velocity and velocity gradient at a group's segment centres (state of `step`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FlowSamples {

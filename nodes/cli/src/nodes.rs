@@ -32,7 +32,7 @@ pub struct NodeSpec {
 /// Every topic a run uses (iceoryx2 has no wildcard subscriptions).
 pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     let t = fiberflow_messages::topics::Topics::new(&lf.run.id);
-    let mut v = vec![t.announce(), t.flow_status()];
+    let mut v = vec![t.announce(), t.flow_status(), t.flow_profiles()];
     for n in ["flow", "recorder", "launcher"] {
         v.push(t.heartbeat(n));
     }

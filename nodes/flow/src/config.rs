@@ -41,6 +41,10 @@ pub struct FlowNodeConfig {
     /// Publish a status message every this many coupling steps.
     #[serde(default = "default_status_every")]
     pub status_every: u64,
+    /// Publish running flow statistics (FlowProfiles) every this many coupling steps
+    /// (a statistics sample is taken every `status_every` steps).
+    #[serde(default = "default_profiles_every")]
+    pub profiles_every: u64,
 }
 
 fn default_dt() -> f64 {
@@ -48,6 +52,9 @@ fn default_dt() -> f64 {
 }
 fn default_join_timeout() -> f64 {
     30.0
+}
+fn default_profiles_every() -> u64 {
+    100
 }
 fn default_status_every() -> u64 {
     10
@@ -72,6 +79,11 @@ impl FlowNodeConfig {
                 "flow.join_timeout_s must be in (0, 3600] (got {})",
                 self.join_timeout_s
             )));
+        }
+        if self.profiles_every == 0 {
+            return Err(FlowError::Config(
+                "flow.profiles_every must be >= 1 (got 0)".into(),
+            ));
         }
         if self.status_every == 0 {
             return Err(FlowError::Config(

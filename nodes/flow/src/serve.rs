@@ -10,8 +10,8 @@ use fiberflow_dns::sample::Sampler;
 use fiberflow_dns::Solver;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
-    encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, Heartbeat, RunAnnouncement,
-    SCHEMA_VERSION,
+    encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowStatus, Heartbeat,
+    RunAnnouncement, SCHEMA_VERSION,
 };
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
@@ -124,6 +124,13 @@ pub fn serve(
     tracing::info!(groups = ?run.groups, steps = run.steps, "run announced");
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
     let mut pending: BTreeMap<String, FiberGroupState> = BTreeMap::new();
+    // running plane/time statistics of the served field, published as FlowProfiles
+    let mut stats = match &field {
+        Field::Dns(solver, _) => fiberflow_dns::stats::RunningStats::new(&solver.grid),
+        Field::Analytic(_) => fiberflow_dns::stats::RunningStats::new(
+            &fiberflow_dns::Grid::with_stretch(4, 4, 4, 1.0, 1.0, 0.0)?,
+        ),
+    };
     for k in 0..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -209,6 +216,37 @@ pub fn serve(
             },
             Field::Dns(solver, _) => {
                 let r = solver.step()?;
+                if (k + 1) % cfg.status_every == 0 {
+                    stats.add(&solver.grid, &solver.vel, r.t_plus);
+                }
+                if (k + 1) % cfg.profiles_every == 0 || k + 1 == run.steps {
+                    if stats.samples > 0 {
+                        let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
+                        let col = |f: fn(&fiberflow_dns::stats::ProfileRow) -> f64| {
+                            p.rows.iter().map(f).collect::<Vec<_>>()
+                        };
+                        let msg = FlowProfiles {
+                            schema_version: SCHEMA_VERSION,
+                            step: k + 1,
+                            t_plus: (k + 1) as f64 * cfg.dt_plus,
+                            samples: p.samples,
+                            t_plus_span: p.t_plus_span,
+                            re_tau: p.re_tau,
+                            bulk_velocity: p.bulk_velocity,
+                            y_plus: col(|r| r.y_plus),
+                            u_mean: col(|r| r.u_mean),
+                            u_rms: col(|r| r.u_rms),
+                            v_rms: col(|r| r.v_rms),
+                            w_rms: col(|r| r.w_rms),
+                            uv: col(|r| r.uv),
+                            omega_z_mean: col(|r| r.omega_z_mean),
+                            omega_x_rms: col(|r| r.omega_x_rms),
+                            omega_y_rms: col(|r| r.omega_y_rms),
+                            omega_z_rms: col(|r| r.omega_z_rms),
+                        };
+                        bus.publish(&t.flow_profiles(), &encode(&msg))?;
+                    }
+                }
                 FlowStatus {
                     schema_version: SCHEMA_VERSION,
                     step: k + 1,
