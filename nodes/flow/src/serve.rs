@@ -219,33 +219,31 @@ pub fn serve(
                 if (k + 1) % cfg.status_every == 0 {
                     stats.add(&solver.grid, &solver.vel, r.t_plus);
                 }
-                if (k + 1) % cfg.profiles_every == 0 || k + 1 == run.steps {
-                    if stats.samples > 0 {
-                        let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
-                        let col = |f: fn(&fiberflow_dns::stats::ProfileRow) -> f64| {
-                            p.rows.iter().map(f).collect::<Vec<_>>()
-                        };
-                        let msg = FlowProfiles {
-                            schema_version: SCHEMA_VERSION,
-                            step: k + 1,
-                            t_plus: (k + 1) as f64 * cfg.dt_plus,
-                            samples: p.samples,
-                            t_plus_span: p.t_plus_span,
-                            re_tau: p.re_tau,
-                            bulk_velocity: p.bulk_velocity,
-                            y_plus: col(|r| r.y_plus),
-                            u_mean: col(|r| r.u_mean),
-                            u_rms: col(|r| r.u_rms),
-                            v_rms: col(|r| r.v_rms),
-                            w_rms: col(|r| r.w_rms),
-                            uv: col(|r| r.uv),
-                            omega_z_mean: col(|r| r.omega_z_mean),
-                            omega_x_rms: col(|r| r.omega_x_rms),
-                            omega_y_rms: col(|r| r.omega_y_rms),
-                            omega_z_rms: col(|r| r.omega_z_rms),
-                        };
-                        bus.publish(&t.flow_profiles(), &encode(&msg))?;
-                    }
+                if ((k + 1) % cfg.profiles_every == 0 || k + 1 == run.steps) && stats.samples > 0 {
+                    let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
+                    let col = |f: fn(&fiberflow_dns::stats::ProfileRow) -> f64| {
+                        p.rows.iter().map(f).collect::<Vec<_>>()
+                    };
+                    let msg = FlowProfiles {
+                        schema_version: SCHEMA_VERSION,
+                        step: k + 1,
+                        t_plus: (k + 1) as f64 * cfg.dt_plus,
+                        samples: p.samples,
+                        t_plus_span: p.t_plus_span,
+                        re_tau: p.re_tau,
+                        bulk_velocity: p.bulk_velocity,
+                        y_plus: col(|r| r.y_plus),
+                        u_mean: col(|r| r.u_mean),
+                        u_rms: col(|r| r.u_rms),
+                        v_rms: col(|r| r.v_rms),
+                        w_rms: col(|r| r.w_rms),
+                        uv: col(|r| r.uv),
+                        omega_z_mean: col(|r| r.omega_z_mean),
+                        omega_x_rms: col(|r| r.omega_x_rms),
+                        omega_y_rms: col(|r| r.omega_y_rms),
+                        omega_z_rms: col(|r| r.omega_z_rms),
+                    };
+                    bus.publish(&t.flow_profiles(), &encode(&msg))?;
                 }
                 FlowStatus {
                     schema_version: SCHEMA_VERSION,
