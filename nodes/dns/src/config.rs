@@ -59,6 +59,9 @@ pub struct DnsConfig {
     pub implicit_y: bool,
     #[serde(default = "default_forcing")]
     pub forcing: Forcing,
+    /// Check max |div u| every this many steps (a full pass over the field).
+    #[serde(default = "default_check_every")]
+    pub check_every: u64,
     #[serde(default = "default_init")]
     pub init: InitialField,
 }
@@ -83,6 +86,9 @@ fn default_dt_max_plus() -> f64 {
 }
 fn default_true() -> bool {
     true
+}
+fn default_check_every() -> u64 {
+    10
 }
 fn default_forcing() -> Forcing {
     Forcing::PressureGradient
@@ -119,6 +125,7 @@ impl DnsConfig {
             dt_fixed_plus: None,
             implicit_y: true,
             forcing: default_forcing(),
+            check_every: default_check_every(),
             init: default_init(),
         }
     }
@@ -162,6 +169,9 @@ impl DnsConfig {
             if !(dt > 0.0 && dt.is_finite()) {
                 return bad("dt_fixed_plus", "positive", dt.to_string());
             }
+        }
+        if self.check_every == 0 {
+            return bad("check_every", ">= 1", "0".into());
         }
         if let Forcing::FlowRate { bulk_velocity } = self.forcing {
             if !(bulk_velocity > 0.0 && bulk_velocity.is_finite()) {
