@@ -26,67 +26,95 @@ pub fn plane_rhs(
     let dzi2 = dzi * dzi;
     let y_visc = if implicit_y { 0.0 } else { 1.0 };
     let c = k * plane;
+    // a padded row of one field at (j, k) shifted by `dj` rows and `dk` planes; whole-row
+    // slices let the compiler drop bounds checks and vectorise the i loops
+    // a padded row of one field at (j, k) shifted by `dj` rows and `dk` planes; whole-row
+    // slices let the compiler drop bounds checks and vectorise the i loops
+    fn shifted(f: &[f64], start: usize, px: usize, plane: usize, dj: isize, dk: isize) -> &[f64] {
+        let s = (start as isize + dj * px as isize + dk * plane as isize) as usize;
+        &f[s..s + px]
+    }
     for j in 1..=ny {
         let dyfi = 1.0 / g.dyf[j];
         let dycp = 1.0 / g.dyc[j];
         let dycm = 1.0 / g.dyc[j - 1];
-        let row = c + j * px;
-        let (jp, jm, kp, km) = (px, px, plane, plane);
+        let (uc, un, us, uf, ub) = (
+            shifted(u, c + j * px, px, plane, 0, 0),
+            shifted(u, c + j * px, px, plane, 1, 0),
+            shifted(u, c + j * px, px, plane, -1, 0),
+            shifted(u, c + j * px, px, plane, 0, 1),
+            shifted(u, c + j * px, px, plane, 0, -1),
+        );
+        let (vc, vs, vf, vsf) = (
+            shifted(v, c + j * px, px, plane, 0, 0),
+            shifted(v, c + j * px, px, plane, -1, 0),
+            shifted(v, c + j * px, px, plane, 0, 1),
+            shifted(v, c + j * px, px, plane, -1, 1),
+        );
+        let (wc, wn, ws, wf, wb) = (
+            shifted(w, c + j * px, px, plane, 0, 0),
+            shifted(w, c + j * px, px, plane, 1, 0),
+            shifted(w, c + j * px, px, plane, -1, 0),
+            shifted(w, c + j * px, px, plane, 0, 1),
+            shifted(w, c + j * px, px, plane, 0, -1),
+        );
+        let ru_row = &mut ru[j * px..(j + 1) * px];
+        let rw_row = &mut rw[j * px..(j + 1) * px];
         for i in 1..=nx {
-            let n = row + i;
-            let lo = j * px + i;
             // ---- u at (i+1/2, j, k)
-            let u0 = u[n];
-            let uuip = 0.25 * (u[n + 1] + u0) * (u[n + 1] + u0);
-            let uuim = 0.25 * (u0 + u[n - 1]) * (u0 + u[n - 1]);
-            let uvjp = 0.25 * (u[n + jp] + u0) * (v[n + 1] + v[n]);
-            let uvjm = 0.25 * (u0 + u[n - jm]) * (v[n + 1 - jm] + v[n - jm]);
-            let uwkp = 0.25 * (u[n + kp] + u0) * (w[n + 1] + w[n]);
-            let uwkm = 0.25 * (u0 + u[n - km]) * (w[n + 1 - km] + w[n - km]);
+            let u0 = uc[i];
+            let uuip = 0.25 * (uc[i + 1] + u0) * (uc[i + 1] + u0);
+            let uuim = 0.25 * (u0 + uc[i - 1]) * (u0 + uc[i - 1]);
+            let uvjp = 0.25 * (un[i] + u0) * (vc[i + 1] + vc[i]);
+            let uvjm = 0.25 * (u0 + us[i]) * (vs[i + 1] + vs[i]);
+            let uwkp = 0.25 * (uf[i] + u0) * (wc[i + 1] + wc[i]);
+            let uwkm = 0.25 * (u0 + ub[i]) * (wb[i + 1] + wb[i]);
             let conv_u = (uuip - uuim) * dxi + (uvjp - uvjm) * dyfi + (uwkp - uwkm) * dzi;
-            let diff_u = (u[n + 1] - 2.0 * u0 + u[n - 1]) * dxi2
-                + (u[n + kp] - 2.0 * u0 + u[n - km]) * dzi2
-                + y_visc * ((u[n + jp] - u0) * dycp - (u0 - u[n - jm]) * dycm) * dyfi;
-            ru[lo] = nu * diff_u - conv_u;
+            let diff_u = (uc[i + 1] - 2.0 * u0 + uc[i - 1]) * dxi2
+                + (uf[i] - 2.0 * u0 + ub[i]) * dzi2
+                + y_visc * ((un[i] - u0) * dycp - (u0 - us[i]) * dycm) * dyfi;
+            ru_row[i] = nu * diff_u - conv_u;
             // ---- w at (i, j, k+1/2)
-            let w0 = w[n];
-            let uwip = 0.25 * (w[n + 1] + w0) * (u[n + kp] + u[n]);
-            let uwim = 0.25 * (w0 + w[n - 1]) * (u[n + kp - 1] + u[n - 1]);
-            let vwjp = 0.25 * (w[n + jp] + w0) * (v[n + kp] + v[n]);
-            let vwjm = 0.25 * (w0 + w[n - jm]) * (v[n + kp - jm] + v[n - jm]);
-            let wwkp = 0.25 * (w[n + kp] + w0) * (w[n + kp] + w0);
-            let wwkm = 0.25 * (w0 + w[n - km]) * (w0 + w[n - km]);
+            let w0 = wc[i];
+            let uwip = 0.25 * (wc[i + 1] + w0) * (uf[i] + uc[i]);
+            let uwim = 0.25 * (w0 + wc[i - 1]) * (uf[i - 1] + uc[i - 1]);
+            let vwjp = 0.25 * (wn[i] + w0) * (vf[i] + vc[i]);
+            let vwjm = 0.25 * (w0 + ws[i]) * (vsf[i] + vs[i]);
+            let wwkp = 0.25 * (wf[i] + w0) * (wf[i] + w0);
+            let wwkm = 0.25 * (w0 + wb[i]) * (w0 + wb[i]);
             let conv_w = (uwip - uwim) * dxi + (vwjp - vwjm) * dyfi + (wwkp - wwkm) * dzi;
-            let diff_w = (w[n + 1] - 2.0 * w0 + w[n - 1]) * dxi2
-                + (w[n + kp] - 2.0 * w0 + w[n - km]) * dzi2
-                + y_visc * ((w[n + jp] - w0) * dycp - (w0 - w[n - jm]) * dycm) * dyfi;
-            rw[lo] = nu * diff_w - conv_w;
+            let diff_w = (wc[i + 1] - 2.0 * w0 + wc[i - 1]) * dxi2
+                + (wf[i] - 2.0 * w0 + wb[i]) * dzi2
+                + y_visc * ((wn[i] - w0) * dycp - (w0 - ws[i]) * dycm) * dyfi;
+            rw_row[i] = nu * diff_w - conv_w;
         }
+        let rv_row = &mut rv[j * px..(j + 1) * px];
         if j < ny {
             // ---- v at (i, j+1/2 face j, k): interior faces 1..ny-1
             let dyci = 1.0 / g.dyc[j];
             let dyfp = 1.0 / g.dyf[j + 1];
             let dyfm = 1.0 / g.dyf[j];
+            let (vn, vb) = (
+                shifted(v, c + j * px, px, plane, 1, 0),
+                shifted(v, c + j * px, px, plane, 0, -1),
+            );
+            let wnb = shifted(w, c + j * px, px, plane, 1, -1);
             for i in 1..=nx {
-                let n = row + i;
-                let lo = j * px + i;
-                let v0 = v[n];
-                let uvip = 0.25 * (v[n + 1] + v0) * (u[n + jp] + u[n]);
-                let uvim = 0.25 * (v0 + v[n - 1]) * (u[n + jp - 1] + u[n - 1]);
-                let vvjp = 0.25 * (v[n + jp] + v0) * (v[n + jp] + v0);
-                let vvjm = 0.25 * (v0 + v[n - jm]) * (v0 + v[n - jm]);
-                let vwkp = 0.25 * (v[n + kp] + v0) * (w[n + jp] + w[n]);
-                let vwkm = 0.25 * (v0 + v[n - km]) * (w[n + jp - km] + w[n - km]);
+                let v0 = vc[i];
+                let uvip = 0.25 * (vc[i + 1] + v0) * (un[i] + uc[i]);
+                let uvim = 0.25 * (v0 + vc[i - 1]) * (un[i - 1] + uc[i - 1]);
+                let vvjp = 0.25 * (vn[i] + v0) * (vn[i] + v0);
+                let vvjm = 0.25 * (v0 + vs[i]) * (v0 + vs[i]);
+                let vwkp = 0.25 * (vf[i] + v0) * (wn[i] + wc[i]);
+                let vwkm = 0.25 * (v0 + vb[i]) * (wnb[i] + wb[i]);
                 let conv_v = (uvip - uvim) * dxi + (vvjp - vvjm) * dyci + (vwkp - vwkm) * dzi;
-                let diff_v = (v[n + 1] - 2.0 * v0 + v[n - 1]) * dxi2
-                    + (v[n + kp] - 2.0 * v0 + v[n - km]) * dzi2
-                    + y_visc * ((v[n + jp] - v0) * dyfp - (v0 - v[n - jm]) * dyfm) * dyci;
-                rv[lo] = nu * diff_v - conv_v;
+                let diff_v = (vc[i + 1] - 2.0 * v0 + vc[i - 1]) * dxi2
+                    + (vf[i] - 2.0 * v0 + vb[i]) * dzi2
+                    + y_visc * ((vn[i] - v0) * dyfp - (v0 - vs[i]) * dyfm) * dyci;
+                rv_row[i] = nu * diff_v - conv_v;
             }
         } else {
-            for i in 1..=nx {
-                rv[j * px + i] = 0.0;
-            }
+            rv_row[1..=nx].iter_mut().for_each(|x| *x = 0.0);
         }
     }
 }
