@@ -172,7 +172,7 @@ impl Solver {
         }
         // the divergence check is a full pass: every `check_every` steps (NaN is caught
         // every step by the Courant rate and the bulk velocity)
-        if self.step % self.cfg.check_every == 0 {
+        if self.step.is_multiple_of(self.cfg.check_every) {
             self.last_divergence = correct::max_divergence(&self.grid, &self.vel);
         }
         let max_div = self.last_divergence;
