@@ -58,7 +58,7 @@ pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
 /// Fibre-state payloads per group, ordered by step (read with the Rust mcap reader).
 pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
     let bytes = std::fs::read(mcap_path).expect("reading mcap");
-    let mut out: BTreeMap<String, Vec<(u64, Vec<u8>)>> = BTreeMap::new();
+    let mut out: BTreeMap<String, Vec<Vec<u8>>> = BTreeMap::new();
     for m in mcap::MessageStream::new(&bytes).expect("mcap stream") {
         let m = m.expect("mcap message");
         if m.channel.topic.ends_with("/state") {
@@ -69,15 +69,11 @@ pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
                 .nth(1)
                 .unwrap_or_default()
                 .to_string();
-            // step is the first u64 after schema_version and the group string (CDR layout)
-            out.entry(group)
-                .or_default()
-                .push((m.sequence as u64, m.data.to_vec()));
+            // the file holds each group's states in publication (step) order
+            out.entry(group).or_default().push(m.data.to_vec());
         }
     }
-    out.into_iter()
-        .map(|(g, v)| (g, v.into_iter().map(|(_, d)| d).collect()))
-        .collect()
+    out
 }
 
 /// Metadata records of a recording by name.

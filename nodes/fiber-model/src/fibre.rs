@@ -47,13 +47,6 @@ impl SegmentProps {
         self.inertia_perp * Matrix3::identity()
             + (self.inertia_axial - self.inertia_perp) * (z * z.transpose())
     }
-
-    /// Time derivative of the inertia tensor of a body spinning at ω: İ = [ω]× I − I [ω]×.
-    pub fn inertia_rate(&self, z: &Vector3<f64>, w: &Vector3<f64>) -> Matrix3<f64> {
-        let i = self.inertia(z);
-        let wx = w.cross_matrix();
-        wx * i - i * wx
-    }
 }
 
 /// One fibre: its segments and their properties.

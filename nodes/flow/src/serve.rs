@@ -125,12 +125,7 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
     let mut pending: BTreeMap<String, FiberGroupState> = BTreeMap::new();
     // running plane/time statistics of the served field, published as FlowProfiles
-    let mut stats = match &field {
-        Field::Dns(solver, _) => fiberflow_dns::stats::RunningStats::new(&solver.grid),
-        Field::Analytic(_) => fiberflow_dns::stats::RunningStats::new(
-            &fiberflow_dns::Grid::with_stretch(4, 4, 4, 1.0, 1.0, 0.0)?,
-        ),
-    };
+    let mut stats: Option<fiberflow_dns::stats::RunningStats> = None;
     for k in 0..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -216,6 +211,9 @@ pub fn serve(
             },
             Field::Dns(solver, _) => {
                 let r = solver.step()?;
+                // the DNS branch always has statistics; the analytic one has none
+                let stats = stats
+                    .get_or_insert_with(|| fiberflow_dns::stats::RunningStats::new(&solver.grid));
                 if (k + 1) % cfg.status_every == 0 {
                     stats.add(&solver.grid, &solver.vel, r.t_plus);
                 }

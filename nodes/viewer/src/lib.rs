@@ -101,7 +101,7 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
         ),
     )
     .map_err(err)?;
-    for (gi, (group, steps)) in states.iter().enumerate() {
+    for (group, steps) in &states {
         let Some(first) = steps.values().next() else {
             continue;
         };
@@ -165,7 +165,6 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
                 &rerun::Scalars::single(msd),
             )
             .map_err(err)?;
-            let _ = gi;
         }
     }
     rec.flush_blocking().map_err(err)?;
