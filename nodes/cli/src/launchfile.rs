@@ -158,3 +158,42 @@ impl LaunchFile {
         self.fibers.iter().map(|f| f.group.clone()).collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write_launch(dir: &Path, flow_extra: &str) -> PathBuf {
+        let text = format!(
+            "[run]\nid = \"t\"\nsteps = 10\ndt_plus = 0.25\n\n[flow]\n{flow_extra}\n\n\
+             [flow.source]\nkind = \"analytic\"\nflow = {{ kind = \"simple_shear\", shear_rate = 0.1 }}\n"
+        );
+        let p = dir.join("t.toml");
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn interpolation_key_parses_and_bad_values_are_named() {
+        let dir = std::env::temp_dir().join(format!("ff-lf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (lf, _) =
+            LaunchFile::load(&write_launch(&dir, "interpolation = \"tricubic\"")).unwrap();
+        assert_eq!(
+            lf.flow.interpolation,
+            fiberflow_dns::sample::Interpolation::Tricubic
+        );
+        let (lf, _) = LaunchFile::load(&write_launch(&dir, "")).unwrap();
+        assert_eq!(
+            lf.flow.interpolation,
+            fiberflow_dns::sample::Interpolation::Trilinear
+        );
+        let err = LaunchFile::load(&write_launch(&dir, "interpolation = \"quintic\"")).unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(
+            msg.contains("interpolation") && msg.contains("tricubic"),
+            "{msg}"
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -28,8 +28,6 @@ pub fn plane_rhs(
     let c = k * plane;
     // a padded row of one field at (j, k) shifted by `dj` rows and `dk` planes; whole-row
     // slices let the compiler drop bounds checks and vectorise the i loops
-    // a padded row of one field at (j, k) shifted by `dj` rows and `dk` planes; whole-row
-    // slices let the compiler drop bounds checks and vectorise the i loops
     fn shifted(f: &[f64], start: usize, px: usize, plane: usize, dj: isize, dk: isize) -> &[f64] {
         let s = (start as isize + dj * px as isize + dk * plane as isize) as usize;
         &f[s..s + px]
@@ -99,14 +97,20 @@ pub fn plane_rhs(
                 shifted(v, c + j * px, px, plane, 0, -1),
             );
             let wnb = shifted(w, c + j * px, px, plane, 1, -1);
+            // The v control volume is the upper half of cell j plus the lower half of
+            // cell j+1, so the mass flux through its x and z faces weights u and w by the
+            // half-cell heights; a plain average would make convection produce energy on a
+            // stretched grid (symmetry-preserving form, see the energy test).
+            let wt_lo = 0.5 * g.dyf[j] / (0.5 * (g.dyf[j] + g.dyf[j + 1]));
+            let wt_hi = 0.5 * g.dyf[j + 1] / (0.5 * (g.dyf[j] + g.dyf[j + 1]));
             for i in 1..=nx {
                 let v0 = vc[i];
-                let uvip = 0.25 * (vc[i + 1] + v0) * (un[i] + uc[i]);
-                let uvim = 0.25 * (v0 + vc[i - 1]) * (un[i - 1] + uc[i - 1]);
+                let uvip = 0.5 * (vc[i + 1] + v0) * (wt_hi * un[i] + wt_lo * uc[i]);
+                let uvim = 0.5 * (v0 + vc[i - 1]) * (wt_hi * un[i - 1] + wt_lo * uc[i - 1]);
                 let vvjp = 0.25 * (vn[i] + v0) * (vn[i] + v0);
                 let vvjm = 0.25 * (v0 + vs[i]) * (v0 + vs[i]);
-                let vwkp = 0.25 * (vf[i] + v0) * (wn[i] + wc[i]);
-                let vwkm = 0.25 * (v0 + vb[i]) * (wnb[i] + wb[i]);
+                let vwkp = 0.5 * (vf[i] + v0) * (wt_hi * wn[i] + wt_lo * wc[i]);
+                let vwkm = 0.5 * (v0 + vb[i]) * (wt_hi * wnb[i] + wt_lo * wb[i]);
                 let conv_v = (uvip - uvim) * dxi + (vvjp - vvjm) * dyci + (vwkp - vwkm) * dzi;
                 let diff_v = (vc[i + 1] - 2.0 * v0 + vc[i - 1]) * dxi2
                     + (vf[i] - 2.0 * v0 + vb[i]) * dzi2

@@ -1,11 +1,30 @@
 //! Sampling of velocity and velocity gradient at arbitrary points (what the fibre nodes
-//! need: v, G and Ω of paper eq. 4). Trilinear interpolation of each quantity from its
-//! natural staggered location; periodic in x and z (positions are wrapped), wall values
-//! enforced in y. Exact for fields that are multilinear between the nodes (uniform flow,
-//! simple shear); second-order accurate otherwise.
+//! need: v, G and Ω of paper eq. 4); periodic in x and z (positions are wrapped), wall
+//! values enforced in y. Two schemes:
+//!
+//! - [`Interpolation::Trilinear`]: each quantity from its natural staggered location, the
+//!   gradient from the solver's own staggered differences. Exact for fields that are
+//!   multilinear between the nodes (uniform flow, simple shear); second order otherwise.
+//! - [`Interpolation::Tricubic`]: 4×4×4-point Lagrange interpolation of u, v, w (the
+//!   y-stencil uses the true, stretched node positions and the wall nodes, shifted
+//!   one-sided at the walls); the gradient is the derivative of the same interpolant.
+//!   Exact (value and gradient) for fields that are cubic in each direction; fourth order
+//!   in the value, third in the gradient.
 
 use crate::field::Velocity;
 use crate::grid::Grid;
+use serde::{Deserialize, Serialize};
+
+/// Interpolation scheme of the fibre-position sampler.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Interpolation {
+    /// Trilinear from the staggered locations (8 nodes per quantity).
+    #[default]
+    Trilinear,
+    /// Tricubic Lagrange (64 nodes per component), gradient from the interpolant.
+    Tricubic,
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Hx {
@@ -30,16 +49,23 @@ pub struct Sample {
     pub grad: [f64; 9],
 }
 
-/// Node positions in y for each location kind.
+/// Node positions in y for each location kind, and the scheme.
 #[derive(Debug, Clone)]
 pub struct Sampler {
     centre: Vec<f64>,
     face: Vec<f64>,
     mid: Vec<f64>,
+    scheme: Interpolation,
 }
 
 impl Sampler {
+    /// A trilinear sampler.
     pub fn new(g: &Grid) -> Self {
+        Self::with_scheme(g, Interpolation::Trilinear)
+    }
+
+    /// A sampler with the given interpolation scheme.
+    pub fn with_scheme(g: &Grid, scheme: Interpolation) -> Self {
         let ny = g.ny;
         let mut centre = Vec::with_capacity(ny + 2);
         centre.push(g.yf[0]);
@@ -52,7 +78,16 @@ impl Sampler {
             mid.push(0.5 * (g.yc[j] + g.yc[j + 1]));
         }
         mid.push(g.yf[ny]);
-        Self { centre, face, mid }
+        Self {
+            centre,
+            face,
+            mid,
+            scheme,
+        }
+    }
+
+    pub fn scheme(&self) -> Interpolation {
+        self.scheme
     }
 
     fn nodes(&self, y: Vy) -> &[f64] {
@@ -65,6 +100,61 @@ impl Sampler {
 
     /// Samples velocity and gradient at `p` (x and z wrapped; y clamped to the channel).
     pub fn sample(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
+        match self.scheme {
+            Interpolation::Trilinear => self.sample_trilinear(g, vel, p),
+            Interpolation::Tricubic => self.sample_tricubic(g, vel, p),
+        }
+    }
+
+    fn sample_tricubic(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
+        let (px, plane, ny) = (g.px, g.plane(), g.ny);
+        let at = |i: usize, j: usize, k: usize| i + px * j + plane * k;
+        let mut s = Sample::default();
+        // (component, x location, y nodes, z location)
+        let comps: [(&[f64], Hx, Vy, Hx); 3] = [
+            (&vel.u, Hx::Face, Vy::Centre, Hx::Centre),
+            (&vel.v, Hx::Centre, Vy::Face, Hx::Centre),
+            (&vel.w, Hx::Centre, Vy::Centre, Hx::Face),
+        ];
+        for (a, (f, hx, vy, hz)) in comps.into_iter().enumerate() {
+            let sx = periodic_stencil(p[0], g.dx, g.nx, hx);
+            let sz = periodic_stencil(p[2], g.dz, g.nz, hz);
+            let sy = wall_stencil(self.nodes(vy), p[1]);
+            // wall nodes of the centre lists hold the no-slip value 0; face lists store it
+            let val = |i: usize, jn: usize, k: usize| -> f64 {
+                if vy == Vy::Centre && (jn == 0 || jn == ny + 1) {
+                    0.0
+                } else {
+                    f[at(i, jn, k)]
+                }
+            };
+            let (mut v0, mut dx, mut dy, mut dz) = (0.0, 0.0, 0.0, 0.0);
+            for c in 0..4 {
+                let k = sz.idx[c];
+                for b in 0..4 {
+                    let j = sy.idx[b];
+                    // x-contractions of one row: value and x-derivative
+                    let (mut r, mut rx) = (0.0, 0.0);
+                    for q in 0..4 {
+                        let x = val(sx.idx[q], j, k);
+                        r += sx.w[q] * x;
+                        rx += sx.dw[q] * x;
+                    }
+                    v0 += sy.w[b] * sz.w[c] * r;
+                    dx += sy.w[b] * sz.w[c] * rx;
+                    dy += sy.dw[b] * sz.w[c] * r;
+                    dz += sy.w[b] * sz.dw[c] * r;
+                }
+            }
+            s.vel[a] = v0;
+            s.grad[3 * a] = dx;
+            s.grad[3 * a + 1] = dy;
+            s.grad[3 * a + 2] = dz;
+        }
+        s
+    }
+
+    fn sample_trilinear(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
         let (u, v, w) = (&vel.u, &vel.v, &vel.w);
         let px = g.px;
         let plane = g.plane();
@@ -180,6 +270,70 @@ fn periodic_bracket(x: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
         f = f.clamp(0.0, 1.0);
     }
     (m as usize, f)
+}
+
+/// A 4-point Lagrange stencil: node indices, weights and derivative weights (d/dx).
+#[derive(Debug, Clone, Copy)]
+struct Stencil {
+    idx: [usize; 4],
+    w: [f64; 4],
+    dw: [f64; 4],
+}
+
+/// Cubic stencil in a periodic uniform direction: nodes m-1..m+2 around the bracket.
+fn periodic_stencil(x: f64, d: f64, n: usize, h: Hx) -> Stencil {
+    let (m, t) = periodic_bracket(x, d, n, h);
+    let mut idx = [0; 4];
+    for (o, slot) in idx.iter_mut().enumerate() {
+        // node m + o - 1 wrapped into 1..=n
+        *slot = (m + n + o - 2) % n + 1;
+    }
+    let offsets = [-1.0, 0.0, 1.0, 2.0];
+    let (w, dw) = lagrange(&offsets, t);
+    Stencil {
+        idx,
+        w,
+        dw: dw.map(|v| v / d),
+    }
+}
+
+/// Cubic stencil on a sorted, non-uniform node list, shifted one-sided at the ends and
+/// clamped to the channel.
+fn wall_stencil(nodes: &[f64], y: f64) -> Stencil {
+    let n = nodes.len();
+    let y = y.clamp(nodes[0], nodes[n - 1]);
+    let (j, _) = bracket(nodes, y);
+    let first = j.saturating_sub(1).min(n - 4);
+    let idx = [first, first + 1, first + 2, first + 3];
+    let pos = idx.map(|q| nodes[q]);
+    let (w, dw) = lagrange(&pos, y);
+    Stencil { idx, w, dw }
+}
+
+/// Lagrange weights and their derivatives for 4 distinct nodes at point `x`.
+fn lagrange(nodes: &[f64; 4], x: f64) -> ([f64; 4], [f64; 4]) {
+    let mut w = [0.0; 4];
+    let mut dw = [0.0; 4];
+    for a in 0..4 {
+        let mut den = 1.0;
+        for b in 0..4 {
+            if b != a {
+                den *= nodes[a] - nodes[b];
+            }
+        }
+        let mut num = 1.0;
+        let mut dnum = 0.0;
+        for b in 0..4 {
+            if b != a {
+                // product rule: d(num·(x-x_b)) = dnum·(x-x_b) + num
+                dnum = dnum * (x - nodes[b]) + num;
+                num *= x - nodes[b];
+            }
+        }
+        w[a] = num / den;
+        dw[a] = dnum / den;
+    }
+    (w, dw)
 }
 
 /// Lower node index and fraction in a sorted node list (clamped to the ends).

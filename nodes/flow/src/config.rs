@@ -3,6 +3,7 @@
 use crate::analytic::AnalyticFlow;
 use crate::error::FlowError;
 use crate::spinup::SpinupConfig;
+use fiberflow_dns::sample::Interpolation;
 use fiberflow_dns::DnsConfig;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -45,6 +46,10 @@ pub struct FlowNodeConfig {
     /// (a statistics sample is taken every `status_every` steps).
     #[serde(default = "default_profiles_every")]
     pub profiles_every: u64,
+    /// How DNS velocity and gradient are interpolated to fibre positions:
+    /// `"trilinear"` (default) or `"tricubic"`.
+    #[serde(default)]
+    pub interpolation: Interpolation,
 }
 
 fn default_dt() -> f64 {

@@ -78,7 +78,7 @@ pub fn serve(
             if let Some(r) = restart {
                 s.read_checkpoint(r)?;
             }
-            let smp = Sampler::new(&s.grid);
+            let smp = Sampler::with_scheme(&s.grid, cfg.interpolation);
             Field::Dns(Box::new(s), smp)
         }
     };
