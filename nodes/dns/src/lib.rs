@@ -13,6 +13,7 @@ pub mod grid;
 pub mod implicit;
 pub mod init;
 pub mod poisson;
+pub mod regrid;
 pub mod rhs;
 pub mod sample;
 pub mod solver;

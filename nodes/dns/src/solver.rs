@@ -313,4 +313,16 @@ impl Solver {
         self.forcing = h.forcing;
         Ok(())
     }
+
+    /// Restores from a checkpoint written on another grid over the same box: the velocity
+    /// is interpolated (tricubic) and projected; time, step and forcing carry over.
+    pub fn read_checkpoint_regridded(&mut self, path: &std::path::Path) -> Result<(), DnsError> {
+        let (vel, h) = crate::regrid::read_onto(path, &self.grid)?;
+        self.vel = vel;
+        self.time = h.time;
+        self.step = h.step;
+        self.forcing = h.forcing;
+        self.project(1.0);
+        Ok(())
+    }
 }

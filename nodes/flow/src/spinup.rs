@@ -27,6 +27,10 @@ pub struct SpinupConfig {
     /// Start from this checkpoint instead of the initial field.
     #[serde(default)]
     pub restart: Option<PathBuf>,
+    /// The restart checkpoint may be on another grid (same box): interpolate it
+    /// (tricubic) onto this one and project. Off by default, so a grid mismatch is an error.
+    #[serde(default)]
+    pub regrid: bool,
 }
 
 fn default_stats_every() -> u64 {
@@ -89,7 +93,11 @@ pub fn run(
     std::fs::create_dir_all(out_dir).map_err(io_err(out_dir))?;
     let mut solver = Solver::new(dns.clone())?;
     if let Some(r) = &sp.restart {
-        solver.read_checkpoint(r)?;
+        if sp.regrid {
+            solver.read_checkpoint_regridded(r)?;
+        } else {
+            solver.read_checkpoint(r)?;
+        }
         tracing::info!(path = %r.display(), t_plus = solver.t_plus(), "restarted from checkpoint");
     }
     let ck_path = out_dir.join("flow.ckpt");
