@@ -42,41 +42,49 @@ impl Velocity {
 
 /// Fills the halo layer of one padded field.
 pub fn update_halo(grid: &Grid, f: &mut [f64], comp: Component) {
-    let (nx, ny, nz, px, py) = (grid.nx, grid.ny, grid.nz, grid.px, grid.py);
     let plane = grid.plane();
     // y walls and x periodicity, per k-plane (interior k only; z halo copies whole planes).
     f.par_chunks_mut(plane)
         .enumerate()
-        .filter(|(k, _)| *k >= 1 && *k <= nz)
-        .for_each(|(_, p)| {
-            for j in 0..py {
-                let row = &mut p[j * px..(j + 1) * px];
-                row[0] = row[nx];
-                row[nx + 1] = row[1];
+        .filter(|(k, _)| *k >= 1 && *k <= grid.nz)
+        .for_each(|(_, p)| fill_plane_halo(grid, p, comp));
+    copy_z_halo(grid, f);
+}
+
+/// The x-periodic copies and the wall ghosts of one k-plane (`px*py` values).
+pub fn fill_plane_halo(grid: &Grid, p: &mut [f64], comp: Component) {
+    let (nx, ny, px, py) = (grid.nx, grid.ny, grid.px, grid.py);
+    for j in 0..py {
+        let row = &mut p[j * px..(j + 1) * px];
+        row[0] = row[nx];
+        row[nx + 1] = row[1];
+    }
+    match comp {
+        Component::Tangential => {
+            for i in 0..px {
+                p[i] = -p[px + i];
+                p[(ny + 1) * px + i] = -p[ny * px + i];
             }
-            match comp {
-                Component::Tangential => {
-                    for i in 0..px {
-                        p[i] = -p[px + i];
-                        p[(ny + 1) * px + i] = -p[ny * px + i];
-                    }
-                }
-                Component::Normal => {
-                    for i in 0..px {
-                        p[i] = 0.0;
-                        p[ny * px + i] = 0.0;
-                        p[(ny + 1) * px + i] = 0.0;
-                    }
-                }
-                Component::Scalar => {
-                    for i in 0..px {
-                        p[i] = p[px + i];
-                        p[(ny + 1) * px + i] = p[ny * px + i];
-                    }
-                }
+        }
+        Component::Normal => {
+            for i in 0..px {
+                p[i] = 0.0;
+                p[ny * px + i] = 0.0;
+                p[(ny + 1) * px + i] = 0.0;
             }
-        });
-    // z periodicity: whole planes.
+        }
+        Component::Scalar => {
+            for i in 0..px {
+                p[i] = p[px + i];
+                p[(ny + 1) * px + i] = p[ny * px + i];
+            }
+        }
+    }
+}
+
+/// z periodicity: copies the first and last interior planes into the opposite halo.
+pub fn copy_z_halo(grid: &Grid, f: &mut [f64]) {
+    let (plane, nz) = (grid.plane(), grid.nz);
     let (first, rest) = f.split_at_mut(plane);
     let (mid, last) = rest.split_at_mut(nz * plane);
     first.copy_from_slice(&mid[(nz - 1) * plane..nz * plane]);

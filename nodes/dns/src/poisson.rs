@@ -2,11 +2,16 @@
 //! solve in y per wavenumber pair (modified wavenumbers of the second-order stencil, so the
 //! discrete projection is exact to round-off). Homogeneous Neumann conditions at the walls.
 
+use crate::field::Velocity;
 use crate::grid::Grid;
 use rayon::prelude::*;
 use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
 use rustfft::{num_complex::Complex64, Fft, FftPlanner};
 use std::sync::Arc;
+
+/// Wavenumbers (or planes) per parallel task in the transposes: 4 complex values fill a
+/// 64-byte cache line.
+const BLOCK: usize = 4;
 
 /// Plans, eigenvalues and factorised tridiagonals for one grid.
 pub struct Poisson {
@@ -113,6 +118,29 @@ impl Poisson {
     /// Solves `L phi = rhs` where both are padded cell-centred arrays; the halo of `phi`
     /// is not touched. The (0,0) mode is pinned so that phi at the first cell is zero.
     pub fn solve(&mut self, g: &Grid, rhs: &[f64], phi: &mut [f64]) {
+        let (plane, px, nx) = (g.plane(), g.px, g.nx);
+        self.solve_rows(g, phi, |k, j, row| {
+            let src = (k + 1) * plane + (j + 1) * px + 1;
+            row.copy_from_slice(&rhs[src..src + nx]);
+        });
+    }
+
+    /// Solves `L phi = scale · div(u)` with the divergence formed on the fly in the first
+    /// pass (the same arithmetic as [`crate::correct::divergence`], without the array).
+    pub fn solve_divergence(&mut self, g: &Grid, vel: &Velocity, scale: f64, phi: &mut [f64]) {
+        self.solve_rows(g, phi, |k, j, row| {
+            crate::correct::divergence_row(g, vel, scale, k + 1, j + 1, row)
+        });
+    }
+
+    /// The solver proper; `fill(k, j, row)` writes the right-hand side of interior row
+    /// (j, k) (0-based) into `row` (nx values).
+    fn solve_rows(
+        &mut self,
+        g: &Grid,
+        phi: &mut [f64],
+        fill: impl Fn(usize, usize, &mut [f64]) + Sync,
+    ) {
         let (nx, ny, nz, nxh) = (self.nx, self.ny, self.nz, self.nxh);
         let plane = g.plane();
         let px = g.px;
@@ -126,8 +154,7 @@ impl Poisson {
                     || (vec![0.0; nx], r2c.make_scratch_vec()),
                     |(inp, scratch), (k, out)| {
                         for j in 0..ny {
-                            let src = (k + 1) * plane + (j + 1) * px + 1;
-                            inp.copy_from_slice(&rhs[src..src + nx]);
+                            fill(k, j, inp);
                             // length mismatch cannot happen: buffers sized from the plan
                             let _ = r2c.process_with_scratch(
                                 inp,
@@ -138,7 +165,9 @@ impl Poisson {
                     },
                 );
         }
-        // 2. transpose rows -> spec (kz fastest), then FFT along z, tridiagonal along y
+        // 2. transpose rows -> spec (kz fastest), then FFT along z, tridiagonal along y.
+        // Each task takes BLOCK consecutive kx so every cache line of `rows` it touches is
+        // used whole (the transpose reads are strided by nxh*ny).
         {
             let rows = &self.rows;
             let fwd_z = &self.fwd_z;
@@ -146,62 +175,84 @@ impl Poisson {
             let a = &self.a;
             let inv_den = &self.inv_den;
             let cp = &self.cp;
-            self.spec.par_chunks_mut(ny * nz).enumerate().for_each_init(
-                || vec![Complex64::new(0.0, 0.0); fwd_z.get_inplace_scratch_len().max(1)],
-                |scratch, (kx, blk)| {
-                    for j in 0..ny {
+            self.spec
+                .par_chunks_mut(BLOCK * ny * nz)
+                .enumerate()
+                .for_each_init(
+                    || vec![Complex64::new(0.0, 0.0); fwd_z.get_inplace_scratch_len().max(1)],
+                    |scratch, (kb, blks)| {
+                        let kx0 = kb * BLOCK;
+                        let nb = blks.len() / (ny * nz);
                         for k in 0..nz {
-                            blk[j * nz + k] = rows[kx + nxh * (j + ny * k)];
+                            for j in 0..ny {
+                                let src = kx0 + nxh * (j + ny * k);
+                                for (b, r) in rows[src..src + nb].iter().enumerate() {
+                                    blks[b * ny * nz + j * nz + k] = *r;
+                                }
+                            }
                         }
-                    }
-                    fwd_z.process_with_scratch(blk, scratch);
-                    let base = ny * nz * kx;
-                    // forward sweep, vectorised over kz
-                    for kz in 0..nz {
-                        blk[kz] *= inv_den[base + kz];
-                    }
-                    for j in 1..ny {
-                        let (prev, cur) = blk.split_at_mut(j * nz);
-                        let prev = &prev[(j - 1) * nz..];
-                        let aj = a[j];
-                        for kz in 0..nz {
-                            cur[kz] = (cur[kz] - prev[kz] * aj) * inv_den[base + j * nz + kz];
+                        for (b, blk) in blks.chunks_mut(ny * nz).enumerate() {
+                            fwd_z.process_with_scratch(blk, scratch);
+                            let base = ny * nz * (kx0 + b);
+                            // forward sweep, vectorised over kz
+                            for kz in 0..nz {
+                                blk[kz] *= inv_den[base + kz];
+                            }
+                            for j in 1..ny {
+                                let (prev, cur) = blk.split_at_mut(j * nz);
+                                let prev = &prev[(j - 1) * nz..];
+                                let aj = a[j];
+                                let id = &inv_den[base + j * nz..base + (j + 1) * nz];
+                                for ((c, p), d) in cur[..nz].iter_mut().zip(prev).zip(id) {
+                                    *c = (*c - p * aj) * d;
+                                }
+                            }
+                            for j in (0..ny - 1).rev() {
+                                let (cur, next) = blk.split_at_mut((j + 1) * nz);
+                                let cur = &mut cur[j * nz..];
+                                let cj = &cp[base + j * nz..base + (j + 1) * nz];
+                                for ((c, n), q) in cur.iter_mut().zip(&next[..nz]).zip(cj) {
+                                    *c -= n * q;
+                                }
+                            }
+                            inv_z.process_with_scratch(blk, scratch);
                         }
-                    }
-                    for j in (0..ny - 1).rev() {
-                        let (cur, next) = blk.split_at_mut((j + 1) * nz);
-                        let cur = &mut cur[j * nz..];
-                        for kz in 0..nz {
-                            cur[kz] -= next[kz] * cp[base + j * nz + kz];
-                        }
-                    }
-                    inv_z.process_with_scratch(blk, scratch);
-                },
-            );
+                    },
+                );
         }
-        // 3. transpose back and inverse real FFT in x
+        // 3. transpose back (BLOCK planes per task, for the same cache reason) and inverse
+        // real FFT in x
         {
             let spec = &self.spec;
             let c2r = &self.c2r;
             let norm = 1.0 / (nx * nz) as f64;
             self.rows
-                .par_chunks_mut(nxh * ny)
-                .zip(phi[plane..(nz + 1) * plane].par_chunks_mut(plane))
+                .par_chunks_mut(BLOCK * nxh * ny)
+                .zip(phi[plane..(nz + 1) * plane].par_chunks_mut(BLOCK * plane))
                 .enumerate()
                 .for_each_init(
                     || (vec![0.0; nx], c2r.make_scratch_vec()),
-                    |(outr, scratch), (k, (blk, pl))| {
+                    |(outr, scratch), (kb, (blks, pls))| {
+                        let k0 = kb * BLOCK;
+                        let nb = blks.len() / (nxh * ny);
                         for j in 0..ny {
-                            let row = &mut blk[j * nxh..(j + 1) * nxh];
-                            for (kx, r) in row.iter_mut().enumerate() {
-                                *r = spec[k + nz * (j + ny * kx)];
+                            for kx in 0..nxh {
+                                let src = k0 + nz * (j + ny * kx);
+                                for (b, v) in spec[src..src + nb].iter().enumerate() {
+                                    blks[b * nxh * ny + j * nxh + kx] = *v;
+                                }
                             }
-                            row[0].im = 0.0;
-                            row[nxh - 1].im = 0.0;
-                            let _ = c2r.process_with_scratch(row, outr, scratch);
-                            let dst = (j + 1) * px + 1;
-                            for (d, s) in pl[dst..dst + nx].iter_mut().zip(outr.iter()) {
-                                *d = s * norm;
+                        }
+                        for (blk, pl) in blks.chunks_mut(nxh * ny).zip(pls.chunks_mut(plane)) {
+                            for j in 0..ny {
+                                let row = &mut blk[j * nxh..(j + 1) * nxh];
+                                row[0].im = 0.0;
+                                row[nxh - 1].im = 0.0;
+                                let _ = c2r.process_with_scratch(row, outr, scratch);
+                                let dst = (j + 1) * px + 1;
+                                for (d, s) in pl[dst..dst + nx].iter_mut().zip(outr.iter()) {
+                                    *d = s * norm;
+                                }
                             }
                         }
                     },

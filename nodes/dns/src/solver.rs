@@ -4,7 +4,7 @@
 use crate::config::{DnsConfig, Forcing};
 use crate::correct;
 use crate::error::DnsError;
-use crate::field::{bulk_mean, update_halo, Component, Velocity};
+use crate::field::{bulk_mean, copy_z_halo, fill_plane_halo, update_halo, Component, Velocity};
 use crate::grid::Grid;
 use crate::implicit::YTridiag;
 use crate::init;
@@ -42,7 +42,8 @@ pub struct Solver {
     pub step: u64,
     rhs_new: Velocity,
     rhs_old: Velocity,
-    div: Vec<f64>,
+    /// Second velocity buffer: each substep writes the updated field here, then swaps.
+    vel_next: Velocity,
     poisson: Poisson,
     /// Current mean body force (flow-rate mode adjusts it).
     forcing: f64,
@@ -71,7 +72,7 @@ impl Solver {
         let mut s = Self {
             rhs_new: Velocity::zeros(&grid),
             rhs_old: Velocity::zeros(&grid),
-            div: vec![0.0; n],
+            vel_next: Velocity::zeros(&grid),
             phi: vec![0.0; n],
             poisson,
             grid,
@@ -101,8 +102,8 @@ impl Solver {
     /// Makes the field divergence-free (`scale` only sets the size of `phi`).
     pub fn project(&mut self, scale: f64) {
         let g = &self.grid;
-        correct::divergence(g, &self.vel, 1.0 / scale, &mut self.div);
-        self.poisson.solve(g, &self.div, &mut self.phi);
+        self.poisson
+            .solve_divergence(g, &self.vel, 1.0 / scale, &mut self.phi);
         update_halo(g, &mut self.phi, Component::Scalar);
         correct::project(g, &mut self.vel, &self.phi, scale);
         self.vel.update_halos(g);
@@ -211,6 +212,10 @@ impl Solver {
         let (px, nx, ny) = (g.px, g.nx, g.ny);
         let new = &mut self.rhs_new;
         let old = &mut self.rhs_old;
+        let next = &mut self.vel_next;
+        // One pass per k-plane: explicit terms, RK combination, implicit y-solve, and the
+        // updated velocity (with its in-plane halo) into the second buffer; `old` ends up
+        // holding the increment, `new` this substep's explicit terms.
         new.u
             .par_chunks_mut(plane)
             .zip(new.v.par_chunks_mut(plane))
@@ -218,57 +223,62 @@ impl Solver {
             .zip(old.u.par_chunks_mut(plane))
             .zip(old.v.par_chunks_mut(plane))
             .zip(old.w.par_chunks_mut(plane))
+            .zip(next.u.par_chunks_mut(plane))
+            .zip(next.v.par_chunks_mut(plane))
+            .zip(next.w.par_chunks_mut(plane))
             .enumerate()
             .filter(|(k, _)| *k >= 1 && *k <= g.nz)
-            .for_each(|(k, (((((nu_, nv_), nw_), ou), ov), ow))| {
-                rhs::plane_rhs(g, vel, nu, implicit, k, nu_, nv_, nw_);
-                let a = dt * gamma;
-                let b = dt * zeta;
-                let f = alpha * dt * fx;
-                for j in 1..=ny {
-                    let r = j * px + 1..j * px + 1 + nx;
-                    for ((o, n), _) in ou[r.clone()].iter_mut().zip(&nu_[r.clone()]).zip(0..) {
-                        *o = a * n + b * *o + f;
-                    }
-                    for (o, n) in ow[r.clone()].iter_mut().zip(&nw_[r.clone()]) {
-                        *o = a * n + b * *o;
-                    }
-                    if j < ny {
-                        for (o, n) in ov[r.clone()].iter_mut().zip(&nv_[r.clone()]) {
+            .for_each(
+                |(k, ((((((((nu_, nv_), nw_), ou), ov), ow), xu), xv), xw))| {
+                    rhs::plane_rhs(g, vel, nu, implicit, k, nu_, nv_, nw_);
+                    let a = dt * gamma;
+                    let b = dt * zeta;
+                    let f = alpha * dt * fx;
+                    for j in 1..=ny {
+                        let r = j * px + 1..j * px + 1 + nx;
+                        for (o, n) in ou[r.clone()].iter_mut().zip(&nu_[r.clone()]) {
+                            *o = a * n + b * *o + f;
+                        }
+                        for (o, n) in ow[r.clone()].iter_mut().zip(&nw_[r.clone()]) {
                             *o = a * n + b * *o;
                         }
-                    }
-                }
-                if implicit {
-                    let s = alpha * dt * nu;
-                    rhs::add_lyy_tangential(g, &vel.u, k, s, ou);
-                    rhs::add_lyy_tangential(g, &vel.w, k, s, ow);
-                    rhs::add_lyy_normal(g, &vel.v, k, s, ov);
-                    tri_t.solve_plane(g, ou);
-                    tri_t.solve_plane(g, ow);
-                    tri_n.solve_plane(g, ov);
-                }
-            });
-        // u += du (du is in `old`), then make `old` hold this substep's explicit terms
-        let upd = |f: &mut Vec<f64>, d: &Vec<f64>, jmax: usize| {
-            f.par_chunks_mut(plane)
-                .zip(d.par_chunks(plane))
-                .enumerate()
-                .filter(|(k, _)| *k >= 1 && *k <= g.nz)
-                .for_each(|(_, (pf, pd))| {
-                    for j in 1..=jmax {
-                        let r = j * px + 1..j * px + 1 + nx;
-                        for (x, y) in pf[r.clone()].iter_mut().zip(&pd[r]) {
-                            *x += y;
+                        if j < ny {
+                            for (o, n) in ov[r.clone()].iter_mut().zip(&nv_[r.clone()]) {
+                                *o = a * n + b * *o;
+                            }
                         }
                     }
-                });
-        };
-        upd(&mut self.vel.u, &self.rhs_old.u, ny);
-        upd(&mut self.vel.v, &self.rhs_old.v, ny - 1);
-        upd(&mut self.vel.w, &self.rhs_old.w, ny);
+                    if implicit {
+                        let s = alpha * dt * nu;
+                        rhs::add_lyy_tangential(g, &vel.u, k, s, ou);
+                        rhs::add_lyy_tangential(g, &vel.w, k, s, ow);
+                        rhs::add_lyy_normal(g, &vel.v, k, s, ov);
+                        tri_t.solve_plane(g, ou);
+                        tri_t.solve_plane(g, ow);
+                        tri_n.solve_plane(g, ov);
+                    }
+                    let c = k * plane;
+                    for (x, cur, d, jmax, comp) in [
+                        (xu, &vel.u, &*ou, ny, Component::Tangential),
+                        (xv, &vel.v, &*ov, ny - 1, Component::Normal),
+                        (xw, &vel.w, &*ow, ny, Component::Tangential),
+                    ] {
+                        for j in 1..=jmax {
+                            let r = j * px + 1..j * px + 1 + nx;
+                            let cur_row = &cur[c + r.start..c + r.end];
+                            for ((y, v0), dv) in x[r.clone()].iter_mut().zip(cur_row).zip(&d[r]) {
+                                *y = v0 + dv;
+                            }
+                        }
+                        fill_plane_halo(g, x, comp);
+                    }
+                },
+            );
+        for f in [&mut next.u, &mut next.v, &mut next.w] {
+            copy_z_halo(g, f);
+        }
+        std::mem::swap(&mut self.vel, &mut self.vel_next);
         std::mem::swap(&mut self.rhs_new, &mut self.rhs_old);
-        self.vel.update_halos(&self.grid);
         self.project(alpha * dt);
     }
 }
