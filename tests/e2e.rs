@@ -364,3 +364,121 @@ fn replay_republishes_the_recording() {
         "derived point clouds must not be replayed"
     );
 }
+
+/// Writes certificates (launch/make-certs.sh) and a two-host version of the analytic-shear
+/// launch whose worker uses the identity `worker_cert`; returns the launch file.
+fn two_host_launch(
+    dir: &std::path::Path,
+    worker_cert: &str,
+    extra_flow: &str,
+) -> std::path::PathBuf {
+    let st = Command::new(root().join("launch/make-certs.sh"))
+        .arg(dir.join("certs"))
+        .args(["head", "worker", "intruder"])
+        .stdout(Stdio::null())
+        .status()
+        .expect("running launch/make-certs.sh (needs openssl)");
+    assert!(st.success(), "make-certs.sh failed");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let base = std::fs::read_to_string(root().join("launch/analytic-shear.toml")).unwrap();
+    let text = base.replacen(
+        "[flow.source]",
+        &format!("[flow]\n{extra_flow}\n\n[flow.source]"),
+        1,
+    ) + &format!(
+        r#"
+[network]
+rendezvous = "tls/localhost:{port}"
+listen = "tls/127.0.0.1:{port}"
+root_ca_certificate = "certs/ca.pem"
+allowed_common_names = ["fiberflow-head", "fiberflow-worker"]
+
+[[network.hosts]]
+name = "head"
+nodes = ["flow", "recorder", "case1"]
+certificate = "certs/head.pem"
+private_key = "certs/head-key.pem"
+
+[[network.hosts]]
+name = "worker"
+nodes = ["stiff"]
+certificate = "certs/{worker_cert}.pem"
+private_key = "certs/{worker_cert}-key.pem"
+"#
+    );
+    let file = dir.join("two-hosts.toml");
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+fn launch_host(file: &std::path::Path, host: &str, out: &std::path::Path) -> std::process::Child {
+    Command::new(fiberflow())
+        .arg("launch")
+        .arg(file)
+        .args(["--host", host, "--out"])
+        .arg(out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starting fiberflow launch --host")
+}
+
+/// A run split over two "hosts" (two launchers, zenoh router + clients over mutual TLS on
+/// loopback) records the same bits as the in-process run; a peer whose certificate is
+/// signed by the run's CA but whose common name is not allowed is shut out by access
+/// control, and the flow node's join timeout names the group that never arrived.
+#[test]
+fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
+    let dir = scratch("two-hosts");
+    let file = two_host_launch(&dir, "worker", "");
+    let head = launch_host(&file, "head", &dir.join("head"));
+    std::thread::sleep(Duration::from_millis(500));
+    let worker = launch_host(&file, "worker", &dir.join("worker"));
+    for (name, c) in [("head", head), ("worker", worker)] {
+        let o = c.wait_with_output().unwrap();
+        assert!(
+            o.status.success(),
+            "{name} failed:\n{}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let inproc = scratch("two-hosts-ref");
+    launch(
+        &root().join("launch/analytic-shear.toml"),
+        &inproc,
+        "inproc",
+    );
+    let a = states(&inproc.join("run.mcap"));
+    let b = states(&dir.join("head/run.mcap"));
+    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
+    for (g, v) in &a {
+        assert_eq!(v.len(), b[g].len(), "group {g}: state count");
+        assert!(
+            v == &b[g],
+            "group {g}: states differ between inproc and two hosts"
+        );
+    }
+
+    let bad_dir = scratch("two-hosts-acl");
+    let file = two_host_launch(&bad_dir, "intruder", "join_timeout_s = 6");
+    let head = launch_host(&file, "head", &bad_dir.join("head"));
+    std::thread::sleep(Duration::from_millis(500));
+    let mut worker = launch_host(&file, "worker", &bad_dir.join("worker"));
+    let o = head.wait_with_output().unwrap();
+    assert!(
+        !o.status.success(),
+        "the head must fail when a group cannot join"
+    );
+    let flow_log = std::fs::read_to_string(bad_dir.join("head/logs/flow.log")).unwrap();
+    assert!(
+        flow_log.contains("join timeout") && flow_log.contains("stiff"),
+        "flow log should name the missing group:\n{flow_log}"
+    );
+    let _ = worker.kill();
+    let _ = worker.wait();
+}

@@ -4,6 +4,7 @@
 use crate::{Envelope, Subscription};
 use fiberflow_messages::Message;
 use std::collections::BTreeMap;
+use std::sync::mpsc::RecvTimeoutError;
 use std::time::Duration;
 
 /// Per-topic drop counts.
@@ -46,7 +47,15 @@ impl Inbox {
 
     /// Next raw envelope, or None on timeout / disconnect.
     pub fn recv_raw(&mut self, timeout: Duration) -> Option<Envelope> {
-        self.sub.rx.recv_timeout(timeout).ok()
+        match self.sub.rx.recv_timeout(timeout) {
+            Ok(m) => Some(m),
+            Err(RecvTimeoutError::Timeout) => None,
+            // the transport went away: wait out the timeout instead of spinning callers
+            Err(RecvTimeoutError::Disconnected) => {
+                std::thread::sleep(timeout);
+                None
+            }
+        }
     }
 
     /// Next message that decodes as `M` within `timeout`; garbage is dropped and counted.
@@ -54,7 +63,7 @@ impl Inbox {
         let deadline = std::time::Instant::now() + timeout;
         loop {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
-            let (topic, bytes) = self.sub.rx.recv_timeout(left).ok()?;
+            let (topic, bytes) = self.recv_raw(left)?;
             match fiberflow_messages::decode::<M>(&bytes) {
                 Ok(m) => return Some((topic, m)),
                 Err(e) => self.drops.drop_one(&topic, &e.to_string()),

@@ -1,5 +1,8 @@
 //! zenoh transport (peer mode). Secure defaults: listens on loopback only, multicast
 //! scouting off; peers find each other by connecting to the run's rendezvous endpoint.
+//! Multi-host runs add TLS (mutual: every peer presents a certificate signed by the run's
+//! CA) and zenoh access control (only peers whose certificate common name is listed may
+//! publish or subscribe under the run's key prefix; everything else is denied).
 
 use crate::{Bus, BusError, Subscription};
 use std::sync::mpsc::channel;
@@ -14,6 +17,41 @@ pub struct ZenohSettings {
     pub connect: Vec<String>,
     /// Multicast scouting (off by default: nothing is announced on the LAN).
     pub multicast_scouting: bool,
+    /// TLS certificates for `tls/...` endpoints.
+    pub tls: Option<TlsFiles>,
+    /// Access control: who may use which key expressions.
+    pub access: Option<AccessControl>,
+    /// Session role: peers mesh on one host; across hosts one router and clients.
+    pub mode: ZenohMode,
+}
+
+/// The zenoh session role.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ZenohMode {
+    #[default]
+    Peer,
+    Router,
+    Client,
+}
+
+/// PEM files of one peer's TLS identity.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TlsFiles {
+    /// The CA that signed every peer's certificate.
+    pub root_ca_certificate: String,
+    /// This peer's certificate (used both when listening and when connecting).
+    pub certificate: String,
+    pub private_key: String,
+    /// Require a client certificate from connecting peers (mutual TLS).
+    pub mutual: bool,
+}
+
+/// zenoh access control for one run: deny by default, allow put/delete/subscribe under
+/// `key_prefix/**` to peers whose TLS certificate common name is in `common_names`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AccessControl {
+    pub key_prefix: String,
+    pub common_names: Vec<String>,
 }
 
 impl Default for ZenohSettings {
@@ -22,7 +60,29 @@ impl Default for ZenohSettings {
             listen: vec!["tcp/127.0.0.1:0".into()],
             connect: vec![],
             multicast_scouting: false,
+            tls: None,
+            access: None,
+            mode: ZenohMode::Peer,
         }
+    }
+}
+
+impl AccessControl {
+    /// The `access_control` block of the zenoh configuration (JSON).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "enabled": true,
+            "default_permission": "deny",
+            "rules": [{
+                "id": "run",
+                "permission": "allow",
+                "flows": ["ingress", "egress"],
+                "messages": ["put", "delete", "declare_subscriber"],
+                "key_exprs": [format!("{}/**", self.key_prefix)],
+            }],
+            "subjects": [{ "id": "members", "cert_common_names": self.common_names }],
+            "policies": [{ "id": "members-run", "rules": ["run"], "subjects": ["members"] }],
+        })
     }
 }
 
@@ -39,7 +99,12 @@ impl ZenohBus {
     pub fn open(s: &ZenohSettings) -> Result<Self, BusError> {
         let mut c = zenoh::Config::default();
         let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
-        c.insert_json5("mode", "\"peer\"").map_err(terr)?;
+        let mode = match s.mode {
+            ZenohMode::Peer => "\"peer\"",
+            ZenohMode::Router => "\"router\"",
+            ZenohMode::Client => "\"client\"",
+        };
+        c.insert_json5("mode", mode).map_err(terr)?;
         c.insert_json5("listen/endpoints", &list(&s.listen))
             .map_err(terr)?;
         c.insert_json5("connect/endpoints", &list(&s.connect))
@@ -53,6 +118,28 @@ impl ZenohBus {
             },
         )
         .map_err(terr)?;
+        if let Some(t) = &s.tls {
+            let q = |v: &str| serde_json::to_string(v).unwrap_or_else(|_| "\"\"".into());
+            for (key, val) in [
+                ("root_ca_certificate", &t.root_ca_certificate),
+                ("listen_certificate", &t.certificate),
+                ("listen_private_key", &t.private_key),
+                ("connect_certificate", &t.certificate),
+                ("connect_private_key", &t.private_key),
+            ] {
+                c.insert_json5(&format!("transport/link/tls/{key}"), &q(val))
+                    .map_err(terr)?;
+            }
+            c.insert_json5(
+                "transport/link/tls/enable_mtls",
+                if t.mutual { "true" } else { "false" },
+            )
+            .map_err(terr)?;
+        }
+        if let Some(a) = &s.access {
+            c.insert_json5("access_control", &a.to_json().to_string())
+                .map_err(terr)?;
+        }
         let session = zenoh::open(c).wait().map_err(terr)?;
         Ok(Self { session })
     }

@@ -32,6 +32,7 @@ pub fn launch(
     file: &Path,
     out: Option<PathBuf>,
     transport: Option<String>,
+    host: Option<String>,
 ) -> Result<LaunchOutcome> {
     // a spin-up file has only a [flow] table with [flow.spinup]
     let raw =
@@ -73,6 +74,26 @@ pub fn launch(
     if lf.recorder.enabled {
         nodes.push("recorder".into());
     }
+    match (&lf.network, &host) {
+        (Some(net), None) => bail!(
+            "this launch file spans several hosts ({}): pass --host NAME",
+            net.hosts
+                .iter()
+                .map(|h| h.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        (Some(_), Some(h)) => {
+            if transport != "zenoh" {
+                bail!("multi-host runs use zenoh (got --transport {transport})");
+            }
+            let mine = &lf.host(h)?.nodes;
+            nodes.retain(|n| mine.contains(n));
+        }
+        (None, Some(_)) => bail!("--host is only for launch files with a [network] section"),
+        (None, None) => {}
+    }
+    let records_here = nodes.iter().any(|n| n == "recorder");
     let launch_file_name = file
         .file_name()
         .map(|s| s.to_string_lossy().to_string())
@@ -85,6 +106,7 @@ pub fn launch(
         transport: transport.clone(),
         zenoh_listen: vec![],
         zenoh_connect: vec![],
+        host: host.clone(),
         out_dir: out_dir.clone(),
     };
     println!(
@@ -99,7 +121,7 @@ pub fn launch(
         "zenoh" | "iceoryx2" => run_processes(&base, &nodes, stop)?,
         other => bail!("--transport must be inproc, zenoh or iceoryx2 (got {other:?})"),
     }
-    let mcap = lf.recorder.enabled.then(|| out_dir.join("run.mcap"));
+    let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.join("run.mcap"));
     if let Some(m) = &mcap {
         println!("recording: {}", m.display());
         if lf.run.analyze {
@@ -192,7 +214,15 @@ fn signal_group(pgid: i32, sig: i32) {
 
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<()> {
     let zenoh = base.transport == "zenoh";
-    let rendezvous = if zenoh {
+    let rendezvous = if let (Some(net), Some(h)) = (&base.launch.network, &base.host) {
+        println!(
+            "host {h}: nodes {}; zenoh over mutual TLS via {} (access control: {})",
+            nodes.join(", "),
+            net.rendezvous,
+            net.allowed_common_names.join(", ")
+        );
+        net.rendezvous.clone()
+    } else if zenoh {
         let r = format!("tcp/127.0.0.1:{}", free_port()?);
         println!("zenoh rendezvous {r} (loopback only, multicast scouting off)");
         r

@@ -55,6 +55,38 @@ impl Default for RecorderSection {
     }
 }
 
+/// `[network]`: one run spread over several hosts. zenoh only, always over TLS with
+/// mutual authentication and access control. The host that runs the flow node is the
+/// zenoh router every other node connects to; `fiberflow launch FILE --host NAME` starts
+/// one host's share of the nodes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkSection {
+    /// The endpoint every node connects to, e.g. `tls/head.example.org:7447`.
+    pub rendezvous: String,
+    /// Where the flow node's host binds (default: the rendezvous endpoint), e.g.
+    /// `tls/0.0.0.0:7447`.
+    #[serde(default)]
+    pub listen: Option<String>,
+    /// PEM of the CA that signed every host's certificate.
+    pub root_ca_certificate: PathBuf,
+    /// Certificate common names allowed to publish and subscribe under the run's topics
+    /// (zenoh access control, deny by default).
+    pub allowed_common_names: Vec<String>,
+    pub hosts: Vec<HostSection>,
+}
+
+/// `[[network.hosts]]`: the nodes one host runs and its TLS identity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostSection {
+    pub name: String,
+    /// Node names: `flow`, `recorder`, fibre group names.
+    pub nodes: Vec<String>,
+    pub certificate: PathBuf,
+    pub private_key: PathBuf,
+}
+
 /// The whole launch file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -65,6 +97,8 @@ pub struct LaunchFile {
     pub fibers: Vec<FiberNodeConfig>,
     #[serde(default)]
     pub recorder: RecorderSection,
+    #[serde(default)]
+    pub network: Option<NetworkSection>,
 }
 
 impl LaunchFile {
@@ -92,6 +126,13 @@ impl LaunchFile {
         if let Some(sp) = lf.flow.spinup.as_mut() {
             if let Some(r) = sp.restart.as_mut() {
                 fix(r);
+            }
+        }
+        if let Some(n) = lf.network.as_mut() {
+            fix(&mut n.root_ca_certificate);
+            for h in &mut n.hosts {
+                fix(&mut h.certificate);
+                fix(&mut h.private_key);
             }
         }
         lf.flow.dt_plus = lf.run.dt_plus;
@@ -137,7 +178,76 @@ impl LaunchFile {
                 );
             }
         }
+        if let Some(n) = &self.network {
+            self.validate_network(n)?;
+        }
         Ok(())
+    }
+
+    fn validate_network(&self, n: &NetworkSection) -> Result<()> {
+        for (key, ep) in [
+            ("network.rendezvous", Some(&n.rendezvous)),
+            ("network.listen", n.listen.as_ref()),
+        ] {
+            if let Some(ep) = ep {
+                if !ep.starts_with("tls/") {
+                    bail!("{key} must be a tls/<host>:<port> endpoint: multi-host runs are always encrypted (got {ep:?})");
+                }
+            }
+        }
+        if n.allowed_common_names.is_empty() {
+            bail!("network.allowed_common_names must list the certificate names of the hosts");
+        }
+        let mut all = vec!["flow".to_string()];
+        all.extend(self.groups());
+        if self.recorder.enabled {
+            all.push("recorder".into());
+        }
+        let mut seen = std::collections::BTreeMap::new();
+        for h in &n.hosts {
+            for node in &h.nodes {
+                if !all.contains(node) {
+                    bail!(
+                        "network.hosts[{}].nodes: {node:?} is not a node of this run (nodes: {})",
+                        h.name,
+                        all.join(", ")
+                    );
+                }
+                if let Some(other) = seen.insert(node.clone(), h.name.clone()) {
+                    bail!(
+                        "network.hosts: node {node:?} is on both {other} and {}",
+                        h.name
+                    );
+                }
+            }
+        }
+        let missing: Vec<_> = all
+            .iter()
+            .filter(|x| !seen.contains_key(*x))
+            .cloned()
+            .collect();
+        if !missing.is_empty() {
+            bail!("network.hosts: no host runs {}", missing.join(", "));
+        }
+        Ok(())
+    }
+
+    /// The host section called `name` (multi-host runs).
+    pub fn host(&self, name: &str) -> Result<&HostSection> {
+        let n = self
+            .network
+            .as_ref()
+            .context("--host is only for launch files with a [network] section")?;
+        n.hosts.iter().find(|h| h.name == name).with_context(|| {
+            format!(
+                "--host {name:?}: the launch file's hosts are {}",
+                n.hosts
+                    .iter()
+                    .map(|h| h.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })
     }
 
     /// The channel box in wall units.

@@ -34,6 +34,9 @@ enum Cmd {
         /// inproc | zenoh | iceoryx2 (default: the launch file's run.transport).
         #[arg(long)]
         transport: Option<String>,
+        /// Multi-host launch files: run this host's nodes (a `[[network.hosts]]` name).
+        #[arg(long)]
+        host: Option<String>,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -130,10 +133,16 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
+    // behave like other command-line tools when piped into `head`: exit quietly on EPIPE
+    // SAFETY: resetting a signal disposition to its default before any thread starts
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+                // zenoh's session chatter is noise next to the run's own messages
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,zenoh=warn")),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -143,8 +152,9 @@ fn main() -> Result<()> {
             file,
             out,
             transport,
+            host,
         } => {
-            let o = launch::launch(&file, out, transport)
+            let o = launch::launch(&file, out, transport, host)
                 .with_context(|| format!("launch {} failed", file.display()))?;
             if let (Some(lf), Some(m)) = (&o.launch, &o.mcap) {
                 println!(

@@ -3,8 +3,8 @@
 
 use crate::launchfile::LaunchFile;
 use anyhow::{bail, Context, Result};
-use fiberflow_bus::zenoh_bus::{ZenohBus, ZenohSettings};
-use fiberflow_bus::{inproc::InprocBus, BusHandle, Transport};
+use fiberflow_bus::zenoh_bus::{AccessControl, TlsFiles, ZenohBus, ZenohMode, ZenohSettings};
+use fiberflow_bus::{inproc::InprocBus, BusHandle, Inbox, Transport};
 use fiberflow_flow::serve::RunInfo;
 use fiberflow_recorder::RunMetadata;
 use serde::{Deserialize, Serialize};
@@ -26,6 +26,9 @@ pub struct NodeSpec {
     pub zenoh_listen: Vec<String>,
     #[serde(default)]
     pub zenoh_connect: Vec<String>,
+    /// Multi-host runs: the `[[network.hosts]]` entry this node runs on.
+    #[serde(default)]
+    pub host: Option<String>,
     pub out_dir: PathBuf,
 }
 
@@ -45,6 +48,41 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     v
 }
 
+/// zenoh settings of a node: a loopback peer, or on a multi-host run the router (flow
+/// node) or a client, over mutual TLS with access control.
+pub fn zenoh_settings(spec: &NodeSpec) -> Result<ZenohSettings> {
+    let mut s = ZenohSettings {
+        listen: spec.zenoh_listen.clone(),
+        connect: spec.zenoh_connect.clone(),
+        ..ZenohSettings::default()
+    };
+    let (Some(net), Some(host)) = (&spec.launch.network, &spec.host) else {
+        return Ok(s);
+    };
+    let h = spec.launch.host(host)?;
+    let path = |p: &Path| p.to_string_lossy().to_string();
+    s.tls = Some(TlsFiles {
+        root_ca_certificate: path(&net.root_ca_certificate),
+        certificate: path(&h.certificate),
+        private_key: path(&h.private_key),
+        mutual: true,
+    });
+    s.access = Some(AccessControl {
+        key_prefix: fiberflow_messages::topics::Topics::new(&spec.launch.run.id).prefix(),
+        common_names: net.allowed_common_names.clone(),
+    });
+    if spec.node == "flow" {
+        s.mode = ZenohMode::Router;
+        s.listen = vec![net.listen.clone().unwrap_or_else(|| net.rendezvous.clone())];
+        s.connect = vec![];
+    } else {
+        s.mode = ZenohMode::Client;
+        s.listen = vec![];
+        s.connect = vec![net.rendezvous.clone()];
+    }
+    Ok(s)
+}
+
 pub fn digest(text: &str) -> String {
     let h = sha2::Sha256::digest(text.as_bytes());
     h.iter().map(|b| format!("{b:02x}")).collect()
@@ -58,11 +96,7 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
         .map_err(|e: String| anyhow::anyhow!(e))?;
     match t {
         Transport::Zenoh => {
-            let s = ZenohSettings {
-                listen: spec.zenoh_listen.clone(),
-                connect: spec.zenoh_connect.clone(),
-                multicast_scouting: false,
-            };
+            let s = zenoh_settings(spec)?;
             Ok(Arc::new(
                 ZenohBus::open(&s).context("opening zenoh session")?,
             ))
@@ -97,9 +131,26 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 box_plus: lf.box_plus(),
                 step_timeout_s: lf.run.step_timeout_s,
             };
+            // on a multi-host run the flow node is the zenoh router: everything the other
+            // nodes send after its last step (final states, DONE) passes through it, so it
+            // stays up until every node has said DONE
+            let router = lf.network.is_some() && spec.host.is_some();
+            let hb_topic = format!(
+                "{}/control/heartbeat/**",
+                fiberflow_messages::topics::Topics::new(&lf.run.id).prefix()
+            );
+            let mut hb = if router {
+                Some(Inbox::new(bus.subscribe(&hb_topic)?))
+            } else {
+                None
+            };
+            let expected_done = info.expected_nodes.clone();
             let s = fiberflow_flow::serve::serve(&lf.flow, bus, &info, |_| {})?;
             tracing::info!(steps = s.steps, dropped = s.drops.total(), "flow node done");
             report_drops("flow", &s.drops);
+            if let Some(hb) = hb.as_mut() {
+                linger_until_done(hb, &expected_done, lf.run.step_timeout_s);
+            }
         }
         "recorder" => {
             let mut meta = RunMetadata {
@@ -141,6 +192,25 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
         }
     }
     Ok(())
+}
+
+/// Waits (up to `timeout_s`) until every node in `expected` has sent a DONE or FAILED
+/// heartbeat; logs the ones that did not.
+fn linger_until_done(hb: &mut Inbox, expected: &[String], timeout_s: f64) {
+    use fiberflow_messages::{lifecycle, Heartbeat};
+    let mut waiting: std::collections::BTreeSet<String> = expected.iter().cloned().collect();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs_f64(timeout_s);
+    while !waiting.is_empty() && std::time::Instant::now() < deadline {
+        if let Some((_, h)) = hb.recv::<Heartbeat>(std::time::Duration::from_millis(100)) {
+            if h.state == lifecycle::DONE || h.state == lifecycle::FAILED {
+                waiting.remove(&h.node);
+            }
+        }
+    }
+    if !waiting.is_empty() {
+        let missing: Vec<_> = waiting.into_iter().collect();
+        tracing::warn!(nodes = %missing.join(", "), "router closing without their DONE");
+    }
 }
 
 /// Prints drop counts as `dropped <node> <topic> <count>` lines (parsed by tests).

@@ -53,7 +53,7 @@ fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
     let s = ZenohSettings {
         listen,
         connect,
-        multicast_scouting: false,
+        ..ZenohSettings::default()
     };
     ZenohBus::open(&s).context("opening zenoh session")
 }

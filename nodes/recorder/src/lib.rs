@@ -278,6 +278,17 @@ pub fn record(
         .map_err(out.err())?;
     out.w.finish().map_err(out.err())?;
     summary.drops = inbox.drops.clone();
+    // the file is complete: tell the run (a zenoh router waits for this before closing)
+    let hb = Heartbeat {
+        schema_version: SCHEMA_VERSION,
+        node: "recorder".into(),
+        state: lifecycle::DONE,
+        step: 0,
+        dropped: inbox.drops.total(),
+    };
+    if let Err(e) = bus.publish(&t.heartbeat("recorder"), &encode(&hb)) {
+        tracing::warn!(error = %e, "could not announce the finished recording");
+    }
     Ok(summary)
 }
 
