@@ -18,12 +18,14 @@ pub fn fiberflow() -> PathBuf {
     bin
 }
 
-/// The repository root.
+/// The repository root. Read at run time (cargo sets CARGO_MANIFEST_DIR for test
+/// processes): a compile-time path goes stale when a shared target directory serves
+/// checkouts at different paths.
 pub fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("repo root")
-        .to_path_buf()
+    let manifest = std::env::var_os("CARGO_MANIFEST_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
+    manifest.parent().expect("repo root").to_path_buf()
 }
 
 /// A fresh scratch folder.
