@@ -1,38 +1,43 @@
 //! Flow-step throughput: cell-updates per second and wall seconds per viscous time unit.
 //! Run with `cargo bench -p fiberflow-dns`; RAYON_NUM_THREADS selects the thread count.
+//! `FIBERFLOW_BENCH_CKPT_<NX>=path/flow.ckpt` starts from a developed field (else the
+//! initial perturbations are stepped a little first).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_dns::{DnsConfig, InitialField, Solver};
+
+fn solver(nx: usize) -> Solver {
+    let mut cfg = DnsConfig::with_cells(nx, 64, 64);
+    cfg.init = InitialField::Turbulent {
+        amplitude: 0.25,
+        seed: 1,
+    };
+    let mut s = match Solver::new(cfg) {
+        Ok(s) => s,
+        Err(e) => panic!("solver: {e}"),
+    };
+    match std::env::var(format!("FIBERFLOW_BENCH_CKPT_{nx}")) {
+        Ok(p) => {
+            if let Err(e) = s.read_checkpoint(std::path::Path::new(&p)) {
+                panic!("checkpoint {p}: {e}");
+            }
+        }
+        Err(_) => {
+            for _ in 0..20 {
+                if let Err(e) = s.step() {
+                    panic!("warm-up: {e}");
+                }
+            }
+        }
+    }
+    s
+}
 
 fn bench_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("flow_step");
     group.sample_size(10);
     for (name, nx) in [("coarse_64x64x64", 64usize), ("fine_192x64x64", 192)] {
-        let mut cfg = DnsConfig::with_cells(nx, 64, 64);
-        cfg.init = InitialField::Turbulent {
-            amplitude: 0.25,
-            seed: 1,
-        };
-        let mut s = match Solver::new(cfg) {
-            Ok(s) => s,
-            Err(e) => panic!("solver: {e}"),
-        };
-        // developed turbulence from a checkpoint when given (FIBERFLOW_BENCH_CKPT_<NX>),
-        // else let the initial perturbations develop a little
-        match std::env::var(format!("FIBERFLOW_BENCH_CKPT_{nx}")) {
-            Ok(p) => {
-                if let Err(e) = s.read_checkpoint(std::path::Path::new(&p)) {
-                    panic!("checkpoint {p}: {e}");
-                }
-            }
-            Err(_) => {
-                for _ in 0..20 {
-                    if let Err(e) = s.step() {
-                        panic!("warm-up: {e}");
-                    }
-                }
-            }
-        }
+        let mut s = solver(nx);
         eprintln!(
             "{name}: dt+ = {:.4} at CFL {}",
             s.next_dt() * s.cfg.re_tau,
@@ -46,6 +51,30 @@ fn bench_step(c: &mut Criterion) {
                 }
             })
         });
+        // the figure users plan with: wall seconds per viscous time unit, from a plain
+        // timed loop at two Courant numbers on the same developed field
+        for cfl in [1.2, 1.5] {
+            let mut s = solver(nx);
+            s.cfg.cfl = cfl;
+            let n = 20;
+            let t0 = std::time::Instant::now();
+            let mut t_plus = 0.0;
+            for _ in 0..n {
+                match s.step() {
+                    Ok(r) => t_plus += r.dt_plus,
+                    Err(e) => panic!("step: {e}"),
+                }
+            }
+            let secs = t0.elapsed().as_secs_f64();
+            eprintln!(
+                "{name}: Courant {cfl}: {:.1} ms per step, mean dt+ {:.3} -> {:.3} s per t+, \
+                 {:.1} M cell-updates/s",
+                1e3 * secs / n as f64,
+                t_plus / n as f64,
+                secs / t_plus,
+                (s.grid.cells() * n) as f64 / secs / 1e6
+            );
+        }
     }
     group.finish();
 }
