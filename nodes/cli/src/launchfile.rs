@@ -306,4 +306,48 @@ mod tests {
         );
         std::fs::remove_dir_all(&dir).ok();
     }
+
+    #[test]
+    fn network_section_is_checked() {
+        let dir = std::env::temp_dir().join(format!("ff-net-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let net = |rendezvous: &str, head: &str, worker: &str| {
+            format!(
+                "\n[[fibers]]\ngroup = \"g1\"\ncase = \"case1\"\n\n[network]\n\
+                 rendezvous = \"{rendezvous}\"\nroot_ca_certificate = \"ca.pem\"\n\
+                 allowed_common_names = [\"a\"]\n\
+                 [[network.hosts]]\nname = \"head\"\nnodes = [{head}]\n\
+                 certificate = \"h.pem\"\nprivate_key = \"h-key.pem\"\n\
+                 [[network.hosts]]\nname = \"worker\"\nnodes = [{worker}]\n\
+                 certificate = \"w.pem\"\nprivate_key = \"w-key.pem\"\n"
+            )
+        };
+        let load = |extra: String| {
+            let p = write_launch(&dir, "");
+            let mut text = std::fs::read_to_string(&p).unwrap();
+            text.push_str(&extra);
+            std::fs::write(&p, text).unwrap();
+            LaunchFile::load(&p).map_err(|e| format!("{e:#}"))
+        };
+        let ok = load(net("tls/h:7447", "\"flow\", \"recorder\"", "\"g1\"")).unwrap();
+        assert_eq!(ok.0.host("worker").unwrap().nodes, vec!["g1".to_string()]);
+        assert!(ok.0.host("w2").is_err());
+        let e = load(net("tcp/h:7447", "\"flow\", \"recorder\"", "\"g1\"")).unwrap_err();
+        assert!(
+            e.contains("network.rendezvous") && e.contains("tls/"),
+            "{e}"
+        );
+        let e = load(net(
+            "tls/h:7447",
+            "\"flow\", \"g1\"",
+            "\"g1\", \"recorder\"",
+        ))
+        .unwrap_err();
+        assert!(e.contains("both"), "{e}");
+        let e = load(net("tls/h:7447", "\"flow\"", "\"g1\"")).unwrap_err();
+        assert!(e.contains("no host runs recorder"), "{e}");
+        let e = load(net("tls/h:7447", "\"flow\", \"recorder\"", "\"g2\"")).unwrap_err();
+        assert!(e.contains("not a node of this run"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
