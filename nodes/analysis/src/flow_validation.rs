@@ -32,6 +32,19 @@ impl Ours {
     fn col(&self, i: usize) -> &[f64] {
         &self.cols[i]
     }
+
+    /// The Re_tau the statistics are scaled with: y+ / (y/h), from the row nearest the
+    /// centre (the largest y/h, least affected by rounding in the CSV).
+    pub fn re_tau(&self) -> f64 {
+        let (y, yp) = (self.col(0), self.col(1));
+        let mut best = (0.0, f64::NAN);
+        for (a, b) in y.iter().zip(yp) {
+            if *a > best.0 {
+                best = (*a, b / a);
+            }
+        }
+        best.1
+    }
 }
 
 /// The acceptance numbers.
@@ -79,14 +92,10 @@ pub fn compare(ours: &Ours, r: &Reference) -> Comparison {
 
 /// Writes `flow_u_mean.png`, `flow_rms.png`, `flow_vorticity_rms.png` and returns a
 /// markdown table against each reference.
-pub fn report(
-    stats_csv: &Path,
-    refs: &[Reference],
-    out: &Path,
-    re_tau: f64,
-) -> Result<String, AnalysisError> {
+pub fn report(stats_csv: &Path, refs: &[Reference], out: &Path) -> Result<String, AnalysisError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
     let ours = Ours::read(stats_csv)?;
+    let re_tau = ours.re_tau();
     let yp = ours.col(1).to_vec();
     let pts = |c: usize| {
         yp.iter()
@@ -213,4 +222,23 @@ pub fn report(
         ));
     }
     Ok(md)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The report's Re_tau is read from the statistics (y+ over y/h), not assumed.
+    #[test]
+    fn re_tau_comes_from_the_statistics() {
+        let dir = std::env::temp_dir().join(format!("ff-flowval-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("stats.csv");
+        let row = |y: f64| format!("{y},{},1,1,1,1,-0.5,-1,0.1,0.1,0.1\n", y * 178.12);
+        let text = format!("header\n{}{}", row(0.002), row(0.95));
+        std::fs::write(&p, text).unwrap();
+        let ours = Ours::read(&p).unwrap();
+        assert!((ours.re_tau() - 178.12).abs() < 1e-9, "{}", ours.re_tau());
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

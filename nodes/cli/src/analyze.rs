@@ -26,7 +26,7 @@ pub fn flow(stats: &Path, reference: &Path, out: &Path) -> Result<String> {
         fiberflow_analysis::reference::mkm(reference)?,
         fiberflow_analysis::reference::hoyas_jimenez(&reference.join("HJ_Re180.prof"))?,
     ];
-    let md = fiberflow_analysis::flow_validation::report(stats, &refs, out, 150.0)?;
+    let md = fiberflow_analysis::flow_validation::report(stats, &refs, out)?;
     std::fs::write(out.join("flow_validation.md"), &md)?;
     Ok(md)
 }
