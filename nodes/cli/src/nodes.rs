@@ -194,14 +194,21 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
     Ok(())
 }
 
-/// Waits (up to `timeout_s`) until every node in `expected` has sent a DONE or FAILED
-/// heartbeat; logs the ones that did not.
+/// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most
+/// `timeout_s`, and gives up earlier once no heartbeat has arrived for 10 s (a DONE lost
+/// in transit must not hold the run open); logs the nodes it did not hear from.
 fn linger_until_done(hb: &mut Inbox, expected: &[String], timeout_s: f64) {
     use fiberflow_messages::{lifecycle, Heartbeat};
+    use std::time::{Duration, Instant};
     let mut waiting: std::collections::BTreeSet<String> = expected.iter().cloned().collect();
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs_f64(timeout_s);
-    while !waiting.is_empty() && std::time::Instant::now() < deadline {
-        if let Some((_, h)) = hb.recv::<Heartbeat>(std::time::Duration::from_millis(100)) {
+    let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
+    let mut last = Instant::now();
+    while !waiting.is_empty()
+        && Instant::now() < deadline
+        && last.elapsed() < Duration::from_secs(10)
+    {
+        if let Some((_, h)) = hb.recv::<Heartbeat>(Duration::from_millis(100)) {
+            last = Instant::now();
             if h.state == lifecycle::DONE || h.state == lifecycle::FAILED {
                 waiting.remove(&h.node);
             }
@@ -232,5 +239,13 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
         .context("installing SIGINT handler")?;
     let bus = open_bus(&spec)?;
-    run_node(&spec, bus, stop).with_context(|| format!("node {} failed", spec.node))
+    let result =
+        run_node(&spec, bus.clone(), stop).with_context(|| format!("node {} failed", spec.node));
+    if spec.transport == "zenoh" {
+        // a node's last words (final state, DONE) are queued in the zenoh session, which
+        // drops its queues when the process exits: give them time to leave
+        std::thread::sleep(std::time::Duration::from_millis(300));
+    }
+    drop(bus);
+    result
 }

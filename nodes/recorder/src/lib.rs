@@ -130,6 +130,9 @@ pub fn t_plus_to_nanos(t_plus: f64) -> u64 {
     (t_plus.max(0.0) * 1e9).round() as u64
 }
 
+/// How long the recorder waits, after the flow node's DONE, for anything more to arrive.
+const QUIET_AFTER_FLOW_DONE: Duration = Duration::from_secs(3);
+
 /// Records until every node in `expect_done` has reported DONE (or FAILED), or `stop` is set.
 /// Announces itself as node `recorder` until the run starts.
 pub fn record(
@@ -183,6 +186,10 @@ pub fn record(
     let mut last_hb = Instant::now() - Duration::from_secs(1);
     let mut sim_nanos: u64 = 0;
     let mut finish_at: Option<Instant> = None;
+    // once the flow node is DONE the run is over: a DONE lost in transit must not keep the
+    // recorder open, so it also finishes after QUIET_AFTER_FLOW_DONE without any message
+    let mut flow_done = false;
+    let mut last_message = Instant::now();
     loop {
         if stop.load(Ordering::SeqCst) {
             tracing::info!("recorder stopping on signal");
@@ -209,8 +216,14 @@ pub fn record(
             last_flush = Instant::now();
         }
         let Some((topic, bytes)) = inbox.recv_raw(Duration::from_millis(50)) else {
+            if flow_done && finish_at.is_none() && last_message.elapsed() > QUIET_AFTER_FLOW_DONE {
+                let missing: Vec<_> = expected.difference(&done).cloned().collect();
+                tracing::warn!(nodes = %missing.join(", "), "no DONE from these nodes; finishing after the flow node's DONE");
+                break;
+            }
             continue;
         };
+        last_message = Instant::now();
         let Some(type_name) = type_of(&topic) else {
             inbox
                 .drops
@@ -226,6 +239,7 @@ pub fn record(
             "fiberflow_msgs/msg/Heartbeat" => {
                 if let Ok(hb) = decode::<Heartbeat>(&bytes) {
                     if hb.state == lifecycle::DONE || hb.state == lifecycle::FAILED {
+                        flow_done |= hb.node == "flow";
                         done.insert(hb.node);
                         if expected.is_subset(&done) && finish_at.is_none() {
                             finish_at = Some(Instant::now() + Duration::from_millis(500));
