@@ -77,11 +77,7 @@ pub fn launch(
     match (&lf.network, &host) {
         (Some(net), None) => bail!(
             "this launch file spans several hosts ({}): pass --host NAME",
-            net.hosts
-                .iter()
-                .map(|h| h.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
+            net.host_names()
         ),
         (Some(_), Some(h)) => {
             if transport != "zenoh" {

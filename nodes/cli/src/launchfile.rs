@@ -76,6 +76,14 @@ pub struct NetworkSection {
     pub hosts: Vec<HostSection>,
 }
 
+impl NetworkSection {
+    /// The host names, comma-separated (for messages).
+    pub fn host_names(&self) -> String {
+        let names: Vec<_> = self.hosts.iter().map(|h| h.name.as_str()).collect();
+        names.join(", ")
+    }
+}
+
 /// `[[network.hosts]]`: the nodes one host runs and its TLS identity.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -241,11 +249,7 @@ impl LaunchFile {
         n.hosts.iter().find(|h| h.name == name).with_context(|| {
             format!(
                 "--host {name:?}: the launch file's hosts are {}",
-                n.hosts
-                    .iter()
-                    .map(|h| h.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                n.host_names()
             )
         })
     }
