@@ -2,8 +2,12 @@
 //! CDR codec. One encoding on the wire and in MCAP: the recorder stores bytes as received.
 //! No transport dependency.
 
+pub mod checkpoints;
 pub mod codec;
+pub mod fuzz;
+pub mod sanity;
 pub mod schema;
+pub mod segments;
 pub mod topics;
 pub mod types;
 

@@ -101,3 +101,28 @@ pub fn python_ok() -> bool {
         .map(|s| s.success())
         .unwrap_or(false)
 }
+
+/// Every fibre-group state of a recording (a run folder: all its segments) keyed by
+/// (group, step), and the number of segments. Panics if a step appears twice.
+pub fn states_by_step(path: &Path) -> (BTreeMap<(String, u64), Vec<u8>>, usize) {
+    let segs = fiberflow_messages::segments::segment_paths(path).expect("segments");
+    let mut out = BTreeMap::new();
+    for seg in &segs {
+        let bytes = std::fs::read(seg).expect("reading mcap");
+        for m in mcap::MessageStream::new(&bytes).expect("mcap stream") {
+            let m = m.expect("mcap message");
+            if !m.channel.topic.ends_with("/state") {
+                continue;
+            }
+            let s: fiberflow_messages::FiberGroupState =
+                fiberflow_messages::decode(&m.data).expect("state decodes");
+            let key = (s.group.clone(), s.step);
+            assert!(
+                out.insert(key.clone(), m.data.to_vec()).is_none(),
+                "{key:?} recorded twice ({})",
+                seg.display()
+            );
+        }
+    }
+    (out, segs.len())
+}

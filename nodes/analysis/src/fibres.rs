@@ -40,24 +40,37 @@ pub struct GroupSummary {
 }
 
 /// Reads every FiberGroupState of a recording, grouped and ordered by step.
+/// `mcap_path` is a run folder (all its segments, in order) or one `.mcap` file; states
+/// that fail their consistency checks are skipped.
 pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, AnalysisError> {
-    let bytes = std::fs::read(mcap_path).map_err(io_err(mcap_path))?;
-    let stream =
-        mcap::MessageStream::new(&bytes).map_err(|e| AnalysisError::Data(e.to_string()))?;
+    use fiberflow_messages::sanity::Sane;
+    let segs = fiberflow_messages::segments::segment_paths(mcap_path).map_err(io_err(mcap_path))?;
     let mut by: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
-    for m in stream {
-        let Ok(m) = m else { break }; // a damaged tail: analyse what is there
-        if !m.channel.topic.ends_with("/state") {
-            continue;
-        }
-        if let Ok(s) = decode::<FiberGroupState>(&m.data) {
-            by.entry(s.group.clone()).or_default().insert(s.step, s);
+    for seg in &segs {
+        let bytes = std::fs::read(seg).map_err(io_err(seg))?;
+        let stream =
+            mcap::MessageStream::new(&bytes).map_err(|e| AnalysisError::Data(e.to_string()))?;
+        for m in stream {
+            let Ok(m) = m else { break }; // a damaged tail: analyse what is there
+            if !m.channel.topic.ends_with("/state") {
+                continue;
+            }
+            if let Ok(s) = decode::<FiberGroupState>(&m.data) {
+                if s.check().is_ok() {
+                    by.entry(s.group.clone()).or_default().insert(s.step, s);
+                }
+            }
         }
     }
     let mut out = BTreeMap::new();
     for (g, steps) in by {
         let mut gs = GroupSeries::default();
+        let mut shape: Option<Vec<u32>> = None;
         for (_, s) in steps {
+            // every state of a group must describe the same fibres
+            if shape.get_or_insert_with(|| s.segments_per_fiber.clone()) != &s.segments_per_fiber {
+                continue;
+            }
             let mut com = Vec::new();
             let mut z1 = Vec::new();
             let mut s2 = Vec::new();
@@ -101,28 +114,39 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
 }
 
 /// MSD_23(τ) (eq. 20): mean over fibres and time origins of the cross-stream (x2, x3)
-/// squared displacement of the centre of mass, for every lag.
+/// squared displacement of the centre of mass, for every lag. Lags are the true time
+/// differences between states, in multiples of the smallest spacing: a recording with
+/// gaps (decimated or lost states) gives each pair its real lag.
 pub fn msd23(g: &GroupSeries) -> Vec<(f64, f64)> {
-    let n = g.t_plus.len();
+    let n = g.t_plus.len().min(g.com.len());
     if n < 2 {
         return Vec::new();
     }
-    let dt = g.t_plus[1] - g.t_plus[0];
-    let nf = g.com[0].len();
-    (1..n)
-        .map(|lag| {
-            let mut s = 0.0;
-            let mut c = 0usize;
-            for k in 0..n - lag {
-                for f in 0..nf {
-                    let a = g.com[k][f];
-                    let b = g.com[k + lag][f];
-                    s += (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2);
-                    c += 1;
-                }
+    let dt = g
+        .t_plus
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    if !dt.is_finite() {
+        return Vec::new();
+    }
+    let span = ((g.t_plus[n - 1] - g.t_plus[0]) / dt).round() as usize;
+    let mut sum = vec![0.0; span + 1];
+    let mut count = vec![0usize; span + 1];
+    for k in 0..n {
+        for k2 in k + 1..n {
+            let bin = ((g.t_plus[k2] - g.t_plus[k]) / dt).round() as usize;
+            let Some(s) = sum.get_mut(bin) else { continue };
+            for (a, b) in g.com[k].iter().zip(&g.com[k2]) {
+                *s += (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2);
+                count[bin] += 1;
             }
-            (lag as f64 * dt, s / c as f64)
-        })
+        }
+    }
+    (1..=span)
+        .filter(|&b| count[b] > 0)
+        .map(|b| (b as f64 * dt, sum[b] / count[b] as f64))
         .collect()
 }
 
@@ -421,4 +445,48 @@ pub fn summary_table(s: &[GroupSummary]) -> String {
         );
     }
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fibres moving ballistically in x2 and x3 (x = v t): MSD_23(τ) = (v2² + v3²) τ²
+    /// exactly, at every lag, whether or not states are missing from the recording.
+    #[test]
+    fn msd_uses_true_lags_when_states_are_missing() {
+        let v = [(0.3, -0.4), (1.0, 0.5)];
+        let series = |steps: &[u64]| {
+            let mut g = GroupSeries::default();
+            for &k in steps {
+                let t = k as f64 * 0.25;
+                g.t_plus.push(t);
+                g.com
+                    .push(v.iter().map(|(a, b)| [7.0 * t, a * t, b * t]).collect());
+            }
+            g
+        };
+        let full: Vec<u64> = (0..=40).collect();
+        let gappy: Vec<u64> = (0..=40)
+            .filter(|k| (k % 3 != 1 || *k == 40) && *k != 17)
+            .collect();
+        let exact = |tau: f64| {
+            v.iter()
+                .map(|(a, b)| (a * a + b * b) * tau * tau)
+                .sum::<f64>()
+                / 2.0
+        };
+        for g in [series(&full), series(&gappy)] {
+            let m = msd23(&g);
+            assert_eq!(m.len(), 40, "every lag 0.25 .. 10 t+ is present");
+            for (tau, msd) in m {
+                assert!(
+                    (msd - exact(tau)).abs() <= 1e-12 * exact(tau).max(1.0),
+                    "tau {tau}: {msd} vs {}",
+                    exact(tau)
+                );
+            }
+        }
+        assert!((loglog_slope(&msd23(&series(&gappy)), 0.25, 10.0) - 2.0).abs() < 1e-9);
+    }
 }

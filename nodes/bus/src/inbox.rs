@@ -2,6 +2,7 @@
 //! counted per topic, and logged once per topic.
 
 use crate::{Envelope, Subscription};
+use fiberflow_messages::sanity::Sane;
 use fiberflow_messages::Message;
 use std::collections::BTreeMap;
 use std::sync::mpsc::RecvTimeoutError;
@@ -21,7 +22,7 @@ impl DropCounter {
             tracing::warn!(
                 topic,
                 reason,
-                "dropping undecodable message (further drops on this topic are counted silently)"
+                "dropping an undecodable or inconsistent message (further drops on this topic are counted silently)"
             );
         }
         *c += 1;
@@ -58,14 +59,18 @@ impl Inbox {
         }
     }
 
-    /// Next message that decodes as `M` within `timeout`; garbage is dropped and counted.
-    pub fn recv<M: Message>(&mut self, timeout: Duration) -> Option<(String, M)> {
+    /// Next message that decodes as `M` and passes its checks ([`Sane`]) within
+    /// `timeout`; garbage and inconsistent messages are dropped and counted.
+    pub fn recv<M: Message + Sane>(&mut self, timeout: Duration) -> Option<(String, M)> {
         let deadline = std::time::Instant::now() + timeout;
         loop {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             let (topic, bytes) = self.recv_raw(left)?;
             match fiberflow_messages::decode::<M>(&bytes) {
-                Ok(m) => return Some((topic, m)),
+                Ok(m) => match m.check() {
+                    Ok(()) => return Some((topic, m)),
+                    Err(why) => self.drops.drop_one(&topic, &format!("inconsistent: {why}")),
+                },
                 Err(e) => self.drops.drop_one(&topic, &e.to_string()),
             }
         }

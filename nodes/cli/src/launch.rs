@@ -28,18 +28,35 @@ fn free_port() -> Result<u16> {
     Ok(l.local_addr()?.port())
 }
 
-pub fn launch(
-    file: &Path,
-    out: Option<PathBuf>,
-    transport: Option<String>,
-    host: Option<String>,
-) -> Result<LaunchOutcome> {
+/// What `fiberflow launch` was asked for besides the file.
+#[derive(Debug, Clone, Default)]
+pub struct LaunchOptions {
+    pub out: Option<PathBuf>,
+    pub transport: Option<String>,
+    pub host: Option<String>,
+    /// `--set KEY=VALUE` overrides.
+    pub sets: Vec<String>,
+    /// `--resume DIR`: continue the run in DIR from its newest complete checkpoint.
+    pub resume: Option<PathBuf>,
+}
+
+pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
+    let LaunchOptions {
+        out,
+        transport,
+        host,
+        sets,
+        resume,
+    } = opts;
     // a spin-up file has only a [flow] table with [flow.spinup]
     let raw =
         std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
     let value: toml::Value =
         toml::from_str(&raw).with_context(|| format!("parsing {}", file.display()))?;
     if value.get("run").is_none() && value.get("flow").and_then(|f| f.get("spinup")).is_some() {
+        if !sets.is_empty() || resume.is_some() {
+            bail!("--set and --resume are for coupled launch files, not spin-up files");
+        }
         let stem = file
             .file_stem()
             .map(|s| s.to_string_lossy().to_string())
@@ -52,8 +69,33 @@ pub fn launch(
             launch: None,
         });
     }
-    let (lf, text) = LaunchFile::load(file)?;
-    let out_dir = out.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id));
+    let (lf, text) = LaunchFile::load_with(file, &sets)?;
+    let out_dir = match (&resume, out) {
+        (Some(r), Some(o)) if r != &o => bail!(
+            "--resume {} and --out {} name different folders",
+            r.display(),
+            o.display()
+        ),
+        (Some(r), _) => r.clone(),
+        (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id)),
+    };
+    let digest = crate::nodes::digest(&text);
+    if resume.is_some() {
+        let saved = out_dir.join("launch.toml");
+        let before = std::fs::read_to_string(&saved).with_context(|| {
+            format!(
+                "--resume {}: no launch.toml there (not a run folder?)",
+                out_dir.display()
+            )
+        })?;
+        if crate::nodes::digest(&before) != digest {
+            bail!(
+                "--resume {}: the run was launched with another configuration ({}); pass the same launch file and --set options",
+                out_dir.display(),
+                saved.display()
+            );
+        }
+    }
     std::fs::create_dir_all(out_dir.join("logs"))
         .with_context(|| format!("creating {}", out_dir.display()))?;
     std::fs::create_dir_all(out_dir.join("config"))?;
@@ -65,6 +107,12 @@ pub fn launch(
             launch: Some(lf),
         });
     }
+    if resume.is_none() {
+        // a fresh run: what an earlier run left in this folder is not part of it
+        clear_previous_run(&out_dir)?;
+    }
+    std::fs::write(out_dir.join("launch.toml"), &text)
+        .with_context(|| format!("writing {}", out_dir.join("launch.toml").display()))?;
     let transport = transport.unwrap_or_else(|| lf.run.transport.clone());
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
@@ -94,7 +142,7 @@ pub fn launch(
         .file_name()
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_default();
-    let base = NodeSpec {
+    let mut base = NodeSpec {
         node: String::new(),
         launch: lf.clone(),
         launch_file_name,
@@ -104,7 +152,20 @@ pub fn launch(
         zenoh_connect: vec![],
         host: host.clone(),
         out_dir: out_dir.clone(),
+        start_step: 0,
+        resume_dir: None,
+        segment: 0,
     };
+    let pieces = crate::coupled::pieces(&nodes);
+    if resume.is_some() {
+        roll_back(&mut base, &pieces, &digest)?;
+        println!(
+            "resuming {} from step {} (segment {})",
+            out_dir.display(),
+            base.start_step,
+            fiberflow_messages::segments::segment_name(base.segment)
+        );
+    }
     println!(
         "run {} ({} steps, dt+ = {}), transport {transport}, output {}",
         lf.run.id,
@@ -112,14 +173,24 @@ pub fn launch(
         lf.run.dt_plus,
         out_dir.display()
     );
-    match transport.as_str() {
-        "inproc" => run_inproc(&base, &nodes, stop)?,
-        "zenoh" | "iceoryx2" => run_processes(&base, &nodes, stop)?,
-        other => bail!("--transport must be inproc, zenoh or iceoryx2 (got {other:?})"),
-    }
-    let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.join("run.mcap"));
+    let watcher = checkpoint_watcher(&base, pieces.clone(), digest.clone());
+    let result = match transport.as_str() {
+        "inproc" => run_inproc(&base, &nodes, stop),
+        "zenoh" | "iceoryx2" => supervise_restarts(&mut base, &nodes, &pieces, &digest, stop),
+        other => Err(anyhow::anyhow!(
+            "--transport must be inproc, zenoh or iceoryx2 (got {other:?})"
+        )),
+    };
+    watcher.stop();
+    result?;
+    let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.clone());
     if let Some(m) = &mcap {
-        println!("recording: {}", m.display());
+        let segs = fiberflow_messages::segments::segment_paths(m)?;
+        let names: Vec<String> = segs
+            .iter()
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+            .collect();
+        println!("recording: {} ({})", m.display(), names.join(", "));
         if lf.run.analyze {
             let table = crate::analyze::fibres(m, &out_dir.join("analysis"))?;
             println!("{table}");
@@ -208,7 +279,138 @@ fn signal_group(pgid: i32, sig: i32) {
     }
 }
 
-fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<()> {
+/// Removes what an earlier run left in `out_dir`: its later recording segments and its
+/// checkpoints (`run.mcap` itself is rewritten by the recorder).
+fn clear_previous_run(out_dir: &Path) -> Result<()> {
+    if let Ok(segs) = fiberflow_messages::segments::segment_paths(out_dir) {
+        for s in segs.iter().filter(|p| !p.ends_with("run.mcap")) {
+            std::fs::remove_file(s).with_context(|| format!("removing {}", s.display()))?;
+        }
+    }
+    let ck = fiberflow_messages::checkpoints::root(out_dir);
+    if ck.exists() {
+        std::fs::remove_dir_all(&ck).with_context(|| format!("removing {}", ck.display()))?;
+    }
+    Ok(())
+}
+
+/// Points `base` at the newest complete checkpoint of its run folder (or the start) and a
+/// new recording segment, after finishing any segment whose writer was killed.
+fn roll_back(base: &mut NodeSpec, pieces: &[String], digest: &str) -> Result<()> {
+    for s in crate::coupled::finish_segments(&base.out_dir)? {
+        println!("finished the interrupted segment {}", s.display());
+    }
+    let root = fiberflow_messages::checkpoints::root(&base.out_dir);
+    match crate::coupled::newest(&root, pieces, digest)? {
+        Some((k, dir)) => {
+            base.start_step = k;
+            base.resume_dir = Some(dir);
+        }
+        None => {
+            base.start_step = 0;
+            base.resume_dir = None;
+        }
+    }
+    base.segment = fiberflow_messages::segments::next_segment_index(&base.out_dir);
+    Ok(())
+}
+
+/// Completes checkpoints (manifest, pruning) in the background while the run goes on.
+struct Watcher {
+    finished: Arc<AtomicBool>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Watcher {
+    fn stop(mut self) {
+        self.finished.store(true, Ordering::SeqCst);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn checkpoint_watcher(base: &NodeSpec, pieces: Vec<String>, digest: String) -> Watcher {
+    let finished = Arc::new(AtomicBool::new(false));
+    let root = base.checkpoint_root();
+    let multi_host = base.launch.network.is_some();
+    let handle = root.filter(|_| !multi_host).map(|root| {
+        let finished = finished.clone();
+        std::thread::spawn(move || loop {
+            let last = finished.load(Ordering::SeqCst);
+            if let Err(e) = crate::coupled::complete(&root, &pieces, &digest) {
+                tracing::warn!(error = %format!("{e:#}"), "completing checkpoints");
+            }
+            if last {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        })
+    });
+    Watcher { finished, handle }
+}
+
+/// Runs the nodes as processes; when one dies mid-run and `run.restart` allows it, rolls
+/// every node back to the newest complete checkpoint and goes on.
+fn supervise_restarts(
+    base: &mut NodeSpec,
+    nodes: &[String],
+    pieces: &[String],
+    digest: &str,
+    stop: Arc<AtomicBool>,
+) -> Result<()> {
+    let policy = &base.launch.run.restart;
+    let can_restart = policy.policy == crate::launchfile::RestartPolicy::OnFailure
+        && base.launch.network.is_none();
+    let max = policy.max_restarts;
+    let mut restarts = 0u32;
+    loop {
+        match run_processes(base, nodes, stop.clone())? {
+            Ended::Finished => return Ok(()),
+            Ended::Interrupted => bail!("interrupted"),
+            Ended::NodeDied(why) => {
+                if !can_restart {
+                    bail!(why);
+                }
+                if restarts >= max {
+                    bail!("{why}; gave up after {max} restart(s) (run.restart.max_restarts)");
+                }
+                restarts += 1;
+                let t0 = Instant::now();
+                roll_back(base, pieces, digest)?;
+                let msg = format!(
+                    "{why}; restarting every node from step {} (restart {restarts} of {max}), recording into {}",
+                    base.start_step,
+                    fiberflow_messages::segments::segment_name(base.segment)
+                );
+                eprintln!("{msg}");
+                tracing::warn!(
+                    step = base.start_step,
+                    restarts,
+                    ms = t0.elapsed().as_millis() as u64,
+                    "{msg}"
+                );
+                let log = base.out_dir.join("logs").join("launcher.log");
+                let line = format!("{msg}\n");
+                let _ = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(&log)
+                    .and_then(|mut f| std::io::Write::write_all(&mut f, line.as_bytes()));
+            }
+        }
+    }
+}
+
+/// How a set of node processes ended.
+enum Ended {
+    Finished,
+    Interrupted,
+    /// A node exited with a failure (the message names it, its status and its log).
+    NodeDied(String),
+}
+
+fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<Ended> {
     let zenoh = base.transport == "zenoh";
     let rendezvous = if let (Some(net), Some(h)) = (&base.launch.network, &base.host) {
         println!(
@@ -247,7 +449,16 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         let spec_path = base.out_dir.join("config").join(format!("{n}.toml"));
         std::fs::write(&spec_path, toml::to_string(&spec)?)?;
         let log = base.out_dir.join("logs").join(format!("{n}.log"));
-        let logf = std::fs::File::create(&log)?;
+        // appended: a restarted node's log follows the one that died
+        let mut logf = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log)
+            .with_context(|| format!("opening {}", log.display()))?;
+        if base.start_step > 0 || base.segment > 0 {
+            use std::io::Write;
+            writeln!(logf, "---- restarted from step {} ----", base.start_step)?;
+        }
         let mut cmd = Command::new(&exe);
         cmd.arg("node")
             .arg("--spec")
@@ -256,6 +467,16 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
             .stdout(logf.try_clone()?)
             .stderr(logf)
             .process_group(pgid);
+        // SAFETY: prctl is async-signal-safe; it only sets this child's parent-death signal
+        unsafe {
+            cmd.pre_exec(|| {
+                // a launcher killed outright takes its nodes with it (no orphans)
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
         let child = cmd.spawn().with_context(|| format!("starting node {n}"))?;
         if pgid == 0 {
             pgid = child.id() as i32;
@@ -286,12 +507,12 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
 }
 
 /// Waits for the children; on a signal or a failed node, stops the rest (TERM, then KILL).
-fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> {
-    let mut failure: Option<String> = None;
+fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ended> {
+    let mut ended: Option<Ended> = None;
     let mut exited = vec![false; children.len()];
     loop {
-        if stop.load(Ordering::SeqCst) && failure.is_none() {
-            failure = Some("interrupted".into());
+        if stop.load(Ordering::SeqCst) && ended.is_none() {
+            ended = Some(Ended::Interrupted);
             signal_group(pgid, libc::SIGTERM);
         }
         for (i, n) in children.iter_mut().enumerate() {
@@ -300,13 +521,14 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
             }
             if let Some(st) = n.child.try_wait()? {
                 exited[i] = true;
-                if !st.success() && failure.is_none() {
-                    failure = Some(format!(
+                if !st.success() && ended.is_none() {
+                    let why = format!(
                         "node {} exited with {st}; its log: {}",
                         n.name,
                         n.log.display()
-                    ));
-                    eprintln!("{}", failure.as_deref().unwrap_or_default());
+                    );
+                    eprintln!("{why}");
+                    ended = Some(Ended::NodeDied(why));
                     signal_group(pgid, libc::SIGTERM);
                 }
             }
@@ -314,7 +536,7 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
         if exited.iter().all(|e| *e) {
             break;
         }
-        if failure.is_some() {
+        if ended.is_some() {
             // escalation: give the group 3 s to finish (recorder closes its file), then KILL
             let t0 = Instant::now();
             while t0.elapsed() < Duration::from_secs(3) {
@@ -324,7 +546,7 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
                 {
                     break;
                 }
-                std::thread::sleep(Duration::from_millis(50));
+                std::thread::sleep(Duration::from_millis(20));
             }
             signal_group(pgid, libc::SIGKILL);
             for n in children.iter_mut() {
@@ -334,8 +556,5 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<()> 
         }
         std::thread::sleep(Duration::from_millis(50));
     }
-    match failure {
-        Some(f) => bail!(f),
-        None => Ok(()),
-    }
+    Ok(ended.unwrap_or(Ended::Finished))
 }

@@ -28,6 +28,64 @@ pub struct RunSection {
     /// Run the analysis after the run (and write the .rrd scene).
     #[serde(default)]
     pub analyze: bool,
+    /// Coupled checkpoint (flow field, every group, recorder position) every this many
+    /// t+ (0 = never). Runs shorter than the interval never write one.
+    #[serde(default = "default_checkpoint_every_plus")]
+    pub checkpoint_every_plus: f64,
+    /// What the launcher does when a node dies mid-run.
+    #[serde(default)]
+    pub restart: RestartSection,
+}
+
+fn default_checkpoint_every_plus() -> f64 {
+    100.0
+}
+
+/// `[run.restart]`: supervision of the nodes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RestartSection {
+    /// `"on-failure"`: roll every node back to the newest complete checkpoint (or the
+    /// start) and go on; `"never"`: stop the run.
+    #[serde(default = "default_policy")]
+    pub policy: RestartPolicy,
+    /// Restarts allowed before the run stops.
+    #[serde(default = "default_max_restarts")]
+    pub max_restarts: u32,
+}
+
+/// `run.restart.policy`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RestartPolicy {
+    Never,
+    OnFailure,
+}
+
+fn default_policy() -> RestartPolicy {
+    RestartPolicy::OnFailure
+}
+fn default_max_restarts() -> u32 {
+    3
+}
+
+impl Default for RestartSection {
+    fn default() -> Self {
+        Self {
+            policy: default_policy(),
+            max_restarts: default_max_restarts(),
+        }
+    }
+}
+
+impl RunSection {
+    /// Coupling steps between checkpoints (0 = never).
+    pub fn checkpoint_every_steps(&self) -> u64 {
+        if self.checkpoint_every_plus <= 0.0 {
+            return 0;
+        }
+        (self.checkpoint_every_plus / self.dt_plus).round().max(1.0) as u64
+    }
 }
 
 fn default_step_timeout() -> f64 {
@@ -109,13 +167,97 @@ pub struct LaunchFile {
     pub network: Option<NetworkSection>,
 }
 
+/// Applies `--set KEY=VALUE` overrides to a parsed launch file. KEY is a dotted path
+/// (`run.steps`, `flow.source.dns.nx`); inside `[[fibers]]` a segment is an index or a
+/// group name (`fibers.case1.count`). VALUE is a TOML value; a bare word is a string.
+pub fn apply_overrides(doc: &mut toml::Table, sets: &[String]) -> Result<()> {
+    for set in sets {
+        let Some((key, raw)) = set.split_once('=') else {
+            bail!("--set {set:?}: expected KEY=VALUE, e.g. --set run.steps=400");
+        };
+        let (key, raw) = (key.trim(), raw.trim());
+        let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
+            Ok(mut t) => t
+                .remove("v")
+                .unwrap_or_else(|| toml::Value::String(raw.into())),
+            Err(_) if !raw.is_empty() && !raw.contains(['"', '\'', '[', '{']) => {
+                toml::Value::String(raw.into())
+            }
+            Err(e) => bail!("--set {key}: {raw:?} is not a TOML value: {e}"),
+        };
+        let parts: Vec<&str> = key.split('.').collect();
+        if key.is_empty() || parts.iter().any(|p| p.is_empty()) {
+            bail!("--set {set:?}: the key must be a dotted path such as run.steps");
+        }
+        set_path(doc, &parts, key, value)?;
+    }
+    Ok(())
+}
+
+fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Value) -> Result<()> {
+    let (head, rest) = (parts[0], &parts[1..]);
+    if rest.is_empty() {
+        table.insert(head.to_string(), value);
+        return Ok(());
+    }
+    let entry = table
+        .entry(head.to_string())
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    match entry {
+        toml::Value::Table(t) => set_path(t, rest, key, value),
+        toml::Value::Array(items) => {
+            let sel = rest[0];
+            let idx = sel.parse::<usize>().ok().or_else(|| {
+                items
+                    .iter()
+                    .position(|it| it.get("group").and_then(|g| g.as_str()) == Some(sel))
+            });
+            let Some(toml::Value::Table(item)) = idx.and_then(|n| items.get_mut(n)) else {
+                bail!("--set {key}: {head} has no entry {sel:?} (use an index or a group name)");
+            };
+            if rest.len() < 2 {
+                bail!("--set {key}: name a key inside {head}.{sel}");
+            }
+            set_path(item, &rest[1..], key, value)
+        }
+        _ => bail!("--set {key}: {head} is a value, not a table"),
+    }
+}
+
 impl LaunchFile {
     /// Reads, resolves relative paths against the file's folder, and validates.
     pub fn load(path: &Path) -> Result<(Self, String)> {
-        let text = std::fs::read_to_string(path)
+        Self::load_with(path, &[])
+    }
+
+    /// [`Self::load`] with `--set` overrides. The returned text is the effective launch
+    /// file: the file itself, or with overrides the merged TOML under a header naming them
+    /// (its digest identifies the run's configuration for checkpoints).
+    pub fn load_with(path: &Path, sets: &[String]) -> Result<(Self, String)> {
+        let mut text = std::fs::read_to_string(path)
             .with_context(|| format!("reading launch file {}", path.display()))?;
-        let mut lf: LaunchFile = toml::from_str(&text)
-            .with_context(|| format!("parsing launch file {}", path.display()))?;
+        if !sets.is_empty() {
+            let mut doc: toml::Table = toml::from_str(&text)
+                .with_context(|| format!("parsing launch file {}", path.display()))?;
+            apply_overrides(&mut doc, sets)?;
+            let merged = toml::to_string(&doc).context("writing the merged launch file")?;
+            text = format!(
+                "# {} with overrides: {}\n{merged}",
+                path.display(),
+                sets.join(" ")
+            );
+        }
+        let mut lf: LaunchFile = toml::from_str(&text).with_context(|| {
+            if sets.is_empty() {
+                format!("parsing launch file {}", path.display())
+            } else {
+                format!(
+                    "parsing launch file {} after --set {}",
+                    path.display(),
+                    sets.join(" ")
+                )
+            }
+        })?;
         let base = path
             .parent()
             .map(Path::to_path_buf)
@@ -164,6 +306,27 @@ impl LaunchFile {
         }
         if r.steps == 0 || r.steps > 100_000_000 {
             bail!("run.steps must be in 1..=1e8 (got {})", r.steps);
+        }
+        if !(r.checkpoint_every_plus == 0.0
+            || (r.checkpoint_every_plus >= r.dt_plus && r.checkpoint_every_plus.is_finite()))
+        {
+            bail!(
+                "run.checkpoint_every_plus must be 0 (never) or in [run.dt_plus = {}, inf) (got {})",
+                r.dt_plus,
+                r.checkpoint_every_plus
+            );
+        }
+        if let (Some(b), FlowSource::Dns { dns, .. }) = (r.box_plus, &self.flow.source) {
+            let dns_box = [dns.lx * dns.re_tau, 2.0 * dns.re_tau, dns.lz * dns.re_tau];
+            if b.iter()
+                .zip(dns_box)
+                .any(|(a, d)| !((a - d).abs() <= 1e-6 * d))
+            {
+                bail!(
+                    "run.box_plus = {b:?} differs from the DNS box {dns_box:?} (lx, 2, lz times re_tau): \
+                     fibres would meet walls where the flow has none; remove run.box_plus or make them agree"
+                );
+            }
         }
         if !(r.step_timeout_s > 0.0 && r.step_timeout_s <= 3600.0) {
             bail!(
@@ -352,6 +515,79 @@ mod tests {
         assert!(e.contains("no host runs recorder"), "{e}");
         let e = load(net("tls/h:7447", "\"flow\", \"recorder\"", "\"g2\"")).unwrap_err();
         assert!(e.contains("not a node of this run"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn set_overrides_keys_and_reports_bad_ones() {
+        let dir = std::env::temp_dir().join(format!("ff-set-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = write_launch(&dir, "");
+        let mut text = std::fs::read_to_string(&p).unwrap();
+        text.push_str("\n[[fibers]]\ngroup = \"g1\"\ncase = \"case1\"\n");
+        std::fs::write(&p, text).unwrap();
+        let sets = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let (lf, eff) = LaunchFile::load_with(
+            &p,
+            &sets(&[
+                "run.steps=400",
+                "run.checkpoint_every_plus=5",
+                "run.transport=iceoryx2",
+                "fibers.g1.density_ratio=2300.0",
+                "run.restart.max_restarts=1",
+            ]),
+        )
+        .unwrap();
+        assert_eq!(lf.run.steps, 400);
+        assert_eq!(lf.run.checkpoint_every_steps(), 20);
+        assert_eq!(lf.run.transport, "iceoryx2");
+        assert_eq!(lf.run.restart.max_restarts, 1);
+        assert_eq!(lf.fibers[0].density_ratio, Some(2300.0));
+        assert!(eff.starts_with('#') && eff.contains("run.steps=400"));
+        // the effective text is itself a launch file with the same content
+        let again = dir.join("eff.toml");
+        std::fs::write(&again, &eff).unwrap();
+        assert_eq!(LaunchFile::load(&again).unwrap().0.run, lf.run);
+        for (set, want) in [
+            ("run.stepz=3", "stepz"),
+            ("run.steps=-1", "run.steps"),
+            ("run.checkpoint_every_plus=0.1", "run.checkpoint_every_plus"),
+            ("fibers.nope.density_ratio=3", "no entry \"nope\""),
+            ("run.steps", "KEY=VALUE"),
+            ("run.restart.policy=sometimes", "policy"),
+        ] {
+            let e = format!(
+                "{:#}",
+                LaunchFile::load_with(&p, &sets(&[set])).unwrap_err()
+            );
+            assert!(e.contains(want), "--set {set}: {e}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn box_plus_must_match_the_dns_box() {
+        let dir = std::env::temp_dir().join(format!("ff-box-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("b.toml");
+        let text = |b: &str| {
+            format!(
+                "[run]\nid = \"b\"\nsteps = 2\ndt_plus = 0.25\n{b}\n[flow.source]\nkind = \"dns\"\n\
+                 [flow.source.dns]\nnx = 16\nny = 16\nnz = 16\nre_tau = 150.0\n"
+            )
+        };
+        std::fs::write(&p, text("")).unwrap();
+        let (lf, _) = LaunchFile::load(&p).unwrap();
+        let b = lf.box_plus();
+        std::fs::write(
+            &p,
+            text(&format!("box_plus = [{}, {}, {}]", b[0], b[1], b[2])),
+        )
+        .unwrap();
+        assert!(LaunchFile::load(&p).is_ok());
+        std::fs::write(&p, text(&format!("box_plus = [{}, 320.0, {}]", b[0], b[2]))).unwrap();
+        let e = format!("{:#}", LaunchFile::load(&p).unwrap_err());
+        assert!(e.contains("run.box_plus") && e.contains("DNS box"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -1,6 +1,7 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
 mod analyze;
+mod coupled;
 mod launch;
 mod launchfile;
 mod nodes;
@@ -37,6 +38,14 @@ enum Cmd {
         /// Multi-host launch files: run this host's nodes (a `[[network.hosts]]` name).
         #[arg(long)]
         host: Option<String>,
+        /// Override a launch-file key (dotted path, TOML value), e.g.
+        /// `--set run.steps=400 --set fibers.case1.density_ratio=2300`; repeatable.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// Continue the run in this folder from its newest complete checkpoint (after
+        /// Ctrl-C or a crash); give the same launch file and --set options.
+        #[arg(long, value_name = "DIR")]
+        resume: Option<PathBuf>,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -49,14 +58,16 @@ enum Cmd {
         #[arg(long, default_value = "recordings/spinup")]
         out: PathBuf,
     },
-    /// Channels, message counts, metadata and integrity of a recording.
+    /// Channels, message counts, metadata and integrity of a recording (a run folder or
+    /// one .mcap segment).
     Inspect {
         mcap: PathBuf,
         /// Salvage a file whose writer was killed into <mcap>.recovered.mcap.
         #[arg(long)]
         recover: bool,
     },
-    /// Republish a recording on the bus (zenoh) in its original order and timing.
+    /// Republish a recording (a run folder or one .mcap) on the bus (zenoh) in its
+    /// original order and timing.
     Replay {
         mcap: PathBuf,
         /// Playback speed (1 = one t+ per second of wall time); 0 = as fast as possible.
@@ -84,14 +95,16 @@ enum Cmd {
         #[arg(long, default_value_t = 10.0)]
         idle_s: f64,
     },
-    /// Fibre analysis of a recording: MSD, alignment, coiling (CSV, PNG, summary.md).
+    /// Fibre analysis of a recording (a run folder or one .mcap): MSD, alignment,
+    /// coiling (CSV, PNG, summary.md).
     Analyze {
         mcap: PathBuf,
-        /// Output folder (default: <mcap folder>/analysis).
+        /// Output folder (default: <run folder>/analysis).
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// Show a recording in Rerun: channel box, fibres coloured by coiling, plots per case.
+    /// Show a recording (a run folder or one .mcap) in Rerun: channel box, fibres
+    /// coloured by coiling, plots per case.
     View {
         mcap: PathBuf,
         /// Write an .rrd file instead of opening a viewer.
@@ -116,7 +129,7 @@ enum Cmd {
         #[arg(long)]
         out: Option<PathBuf>,
     },
-    /// Publish random byte strings on every topic of a run (robustness testing).
+    /// Publish random payloads on topics of a run (robustness testing).
     Inject {
         #[arg(long)]
         run: String,
@@ -129,6 +142,10 @@ enum Cmd {
         count: u64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Valid CDR of each topic's message type that breaks a rule receivers check
+        /// (inconsistent arrays, NaN, unknown names, impossible steps) instead of bytes.
+        #[arg(long)]
+        structured: bool,
     },
 }
 
@@ -153,15 +170,29 @@ fn main() -> Result<()> {
             out,
             transport,
             host,
+            sets,
+            resume,
         } => {
-            let o = launch::launch(&file, out, transport, host)
+            let opts = launch::LaunchOptions {
+                out,
+                transport,
+                host,
+                sets,
+                resume,
+            };
+            let o = launch::launch(&file, opts)
                 .with_context(|| format!("launch {} failed", file.display()))?;
             if let (Some(lf), Some(m)) = (&o.launch, &o.mcap) {
+                let rrd = m.join("run.rrd");
+                let how = if rrd.exists() {
+                    format!("rerun {}", rrd.display())
+                } else {
+                    format!("fiberflow view {} --spawn", m.display())
+                };
                 println!(
-                    "run {} finished: {} (view: rerun {})",
+                    "run {} finished: {} (view: {how})",
                     lf.run.id,
-                    o.out_dir.display(),
-                    m.display()
+                    o.out_dir.display()
                 );
             }
             Ok(())
@@ -184,9 +215,13 @@ fn main() -> Result<()> {
         } => recording::echo_cmd(&pattern, connect, listen, count, idle_s),
         Cmd::Analyze { mcap, out } => {
             let out = out.unwrap_or_else(|| {
-                mcap.parent()
-                    .unwrap_or(std::path::Path::new("."))
-                    .join("analysis")
+                if mcap.is_dir() {
+                    mcap.join("analysis")
+                } else {
+                    mcap.parent()
+                        .unwrap_or(std::path::Path::new("."))
+                        .join("analysis")
+                }
             });
             let table = analyze::fibres(&mcap, &out)?;
             println!("{table}");
@@ -228,6 +263,7 @@ fn main() -> Result<()> {
             topic,
             count,
             seed,
-        } => recording::inject_cmd(&run, connect, &topic, count, seed),
+            structured,
+        } => recording::inject_cmd(&run, connect, &topic, count, seed, structured),
     }
 }

@@ -30,6 +30,24 @@ pub struct NodeSpec {
     #[serde(default)]
     pub host: Option<String>,
     pub out_dir: PathBuf,
+    /// First coupling step: 0, or the checkpoint step the run resumes from.
+    #[serde(default)]
+    pub start_step: u64,
+    /// The checkpoint folder to resume from (its step is `start_step`).
+    #[serde(default)]
+    pub resume_dir: Option<PathBuf>,
+    /// The recorder's segment: 0 writes `run.mcap`, n writes `run-n.mcap` after the
+    /// earlier segments.
+    #[serde(default)]
+    pub segment: u32,
+}
+
+impl NodeSpec {
+    /// Where this run's coupled checkpoints go (None: checkpoints are off).
+    pub fn checkpoint_root(&self) -> Option<PathBuf> {
+        (self.launch.run.checkpoint_every_steps() > 0)
+            .then(|| fiberflow_messages::checkpoints::root(&self.out_dir))
+    }
 }
 
 /// Every topic a run uses (iceoryx2 has no wildcard subscriptions).
@@ -130,6 +148,11 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 steps: lf.run.steps,
                 box_plus: lf.box_plus(),
                 step_timeout_s: lf.run.step_timeout_s,
+                start_step: spec.start_step,
+                resume_dir: spec.resume_dir.clone(),
+                checkpoint_every: lf.run.checkpoint_every_steps(),
+                checkpoint_root: spec.checkpoint_root(),
+                group_segments: group_segments(lf)?,
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it
@@ -172,8 +195,26 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             }
             let mut expect = groups.clone();
             expect.push("flow".into());
-            let path = spec.out_dir.join("run.mcap");
-            let s = fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, stop)?;
+            let name = fiberflow_messages::segments::segment_name(spec.segment);
+            let path = spec.out_dir.join(&name);
+            let previous_segments = if spec.segment == 0 {
+                vec![]
+            } else {
+                fiberflow_messages::segments::segment_paths(&spec.out_dir)?
+                    .into_iter()
+                    .filter(|p| p.file_name().is_some_and(|n| n != name.as_str()))
+                    .collect()
+            };
+            let plan = fiberflow_recorder::RecordPlan {
+                groups: groups.clone(),
+                steps: lf.run.steps,
+                checkpoint_every: lf.run.checkpoint_every_steps(),
+                checkpoint_root: spec.checkpoint_root(),
+                start_step: spec.start_step,
+                previous_segments,
+            };
+            let s =
+                fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, &plan, stop)?;
             tracing::info!(messages = s.messages, path = %s.path.display(), "recording finished");
             report_drops("recorder", &s.drops);
         }
@@ -181,17 +222,37 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             let Some(cfg) = lf.fibers.iter().find(|f| f.group == g) else {
                 bail!("node {g:?} is neither flow, recorder nor a fibre group of the launch file");
             };
+            let ck = fiberflow_fiber::serve::Checkpointing {
+                start_step: spec.start_step,
+                resume_dir: spec.resume_dir.clone(),
+                every: lf.run.checkpoint_every_steps(),
+                root: spec.checkpoint_root(),
+                config_digest: digest(&spec.launch_text),
+            };
             let drops = fiberflow_fiber::serve::serve(
                 cfg,
                 bus,
                 &lf.run.id,
                 lf.box_plus(),
                 lf.run.step_timeout_s,
+                &ck,
             )?;
             report_drops(g, &drops);
         }
     }
     Ok(())
+}
+
+/// Segment count of every fibre group of the launch file.
+fn group_segments(lf: &LaunchFile) -> Result<std::collections::BTreeMap<String, usize>> {
+    let mut m = std::collections::BTreeMap::new();
+    for f in &lf.fibers {
+        let built = f
+            .build(lf.box_plus())
+            .map_err(|e| anyhow::anyhow!("fibers[{}]: {e}", f.group))?;
+        m.insert(f.group.clone(), built.group.segment_count());
+    }
+    Ok(m)
 }
 
 /// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most
@@ -234,10 +295,14 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
     let spec: NodeSpec =
         toml::from_str(&text).with_context(|| format!("parsing {}", spec_path.display()))?;
     let stop = Arc::new(AtomicBool::new(false));
-    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
-        .context("installing SIGTERM handler")?;
-    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
-        .context("installing SIGINT handler")?;
+    // the recorder finishes its file on SIGTERM/SIGINT; the other nodes hold nothing that
+    // a signal could leave half-written, so they keep the default action and stop at once
+    if spec.node == "recorder" {
+        signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
+            .context("installing SIGTERM handler")?;
+        signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
+            .context("installing SIGINT handler")?;
+    }
     let bus = open_bus(&spec)?;
     let result =
         run_node(&spec, bus.clone(), stop).with_context(|| format!("node {} failed", spec.node));

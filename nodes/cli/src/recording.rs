@@ -6,7 +6,32 @@ use fiberflow_bus::Bus;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+/// `inspect`: every segment of a run folder (or the one file), then the totals.
 pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
+    let segs = fiberflow_messages::segments::segment_paths(path)
+        .with_context(|| format!("reading {}", path.display()))?;
+    if path.is_dir() {
+        println!("{}: {} segment(s)", path.display(), segs.len());
+    }
+    let mut total = 0u64;
+    let mut by: std::collections::BTreeMap<String, u64> = Default::default();
+    for seg in &segs {
+        let (n, counts) = inspect_one(seg, recover)?;
+        total += n;
+        for (t, c) in counts {
+            *by.entry(t).or_insert(0) += c;
+        }
+    }
+    if segs.len() > 1 {
+        println!("all segments: {total} messages");
+        for (t, n) in &by {
+            println!("{t:<60} {n:>8}");
+        }
+    }
+    Ok(())
+}
+
+fn inspect_one(path: &Path, recover: bool) -> Result<(u64, Vec<(String, u64)>)> {
     let ins = fiberflow_recorder::recover::inspect(path)
         .with_context(|| format!("reading {}", path.display()))?;
     println!("{}: {} messages", path.display(), ins.messages);
@@ -41,7 +66,12 @@ pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
             fiberflow_recorder::recover::recover(path, &dst).map_err(|e| anyhow::anyhow!("{e}"))?;
         println!("recovered {n} messages into {}", dst.display());
     }
-    Ok(())
+    let counts = ins
+        .channels
+        .iter()
+        .map(|(t, (_, n))| (t.clone(), *n))
+        .collect();
+    Ok((ins.messages, counts))
 }
 
 fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
@@ -67,26 +97,32 @@ pub fn replay_cmd(
     if !(speed >= 0.0 && speed.is_finite()) {
         bail!("--speed must be >= 0 (got {speed})");
     }
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let segs = fiberflow_messages::segments::segment_paths(path)
+        .with_context(|| format!("reading {}", path.display()))?;
     let bus = zenoh(connect, listen)?;
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
     let mut n = 0u64;
-    for m in mcap::MessageStream::new(&bytes)? {
-        let m = m?;
-        if m.channel.topic.ends_with("/points") {
-            continue; // derived by the recorder, not a bus topic
-        }
-        let t0 = *first.get_or_insert(m.log_time);
-        if speed > 0.0 {
-            let due = Duration::from_secs_f64((m.log_time - t0) as f64 / 1e9 / speed);
-            if let Some(wait) = due.checked_sub(start.elapsed()) {
-                std::thread::sleep(wait);
+    // the segments of a resumed run follow each other in time; each holds its steps once
+    for seg in &segs {
+        let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
+        for m in mcap::MessageStream::new(&bytes)? {
+            let m = m?;
+            if m.channel.topic.ends_with("/points") {
+                continue; // derived by the recorder, not a bus topic
             }
+            let t0 = *first.get_or_insert(m.log_time);
+            if speed > 0.0 {
+                let due =
+                    Duration::from_secs_f64(m.log_time.saturating_sub(t0) as f64 / 1e9 / speed);
+                if let Some(wait) = due.checked_sub(start.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            bus.publish(&m.channel.topic, &m.data)?;
+            n += 1;
         }
-        bus.publish(&m.channel.topic, &m.data)?;
-        n += 1;
     }
     println!(
         "replayed {n} messages in {:.1} s",
@@ -95,27 +131,52 @@ pub fn replay_cmd(
     Ok(())
 }
 
+/// `inject`: random byte strings, or (`structured`) valid CDR of each topic's type whose
+/// content breaks a rule receivers check (see `fiberflow_messages::fuzz`).
 pub fn inject_cmd(
     run: &str,
     connect: Vec<String>,
     topics: &[String],
     count: u64,
     seed: u64,
+    structured: bool,
 ) -> Result<()> {
     let bus = zenoh(connect, vec![])?;
     std::thread::sleep(Duration::from_millis(500));
-    let mut x = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    let mut next = || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        x
-    };
+    let mut rng = fiberflow_messages::fuzz::Rng::new(seed);
+    let full: Vec<String> = topics
+        .iter()
+        .map(|t| format!("fiberflow/{run}/{t}"))
+        .collect();
+    // the run's group names, so that structured messages also name real groups
+    let groups: Vec<String> = full
+        .iter()
+        .filter_map(|t| {
+            let p: Vec<&str> = t.split('/').collect();
+            match (p.get(2), p.get(4)) {
+                (Some(&"fibers"), _) => p.get(3).map(|g| g.to_string()),
+                (Some(&"flow"), Some(g)) => Some(g.to_string()),
+                _ => None,
+            }
+        })
+        .collect();
+    for t in &full {
+        if structured && fiberflow_messages::topics::type_of(t).is_none() {
+            bail!("--structured: {t} carries no message type");
+        }
+    }
     for i in 0..count {
-        for t in topics {
-            let len = (next() % 512) as usize;
-            let payload: Vec<u8> = (0..len).map(|_| next() as u8).collect();
-            bus.publish(&format!("fiberflow/{run}/{t}"), &payload)?;
+        for t in &full {
+            let payload = match fiberflow_messages::topics::type_of(t) {
+                Some(ty) if structured => {
+                    fiberflow_messages::fuzz::nonsense_payload(ty, &mut rng, &groups)
+                }
+                _ => {
+                    let len = rng.below(512) as usize;
+                    (0..len).map(|_| rng.next_u64() as u8).collect()
+                }
+            };
+            bus.publish(t, &payload)?;
         }
         if i % 1000 == 999 {
             std::thread::sleep(Duration::from_millis(10));

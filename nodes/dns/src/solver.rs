@@ -166,8 +166,10 @@ impl Solver {
         self.step += 1;
         let mut bulk = bulk_mean(&self.grid, &self.vel.u);
         if let Forcing::FlowRate { bulk_velocity } = self.cfg.forcing {
-            // the uniform shift is the impulse of the mean pressure gradient over the step
-            self.forcing = (bulk_velocity - bulk) / dt;
+            // the uniform shift is the impulse of the extra mean pressure gradient the step
+            // needed: it adds to the forcing applied (so the forcing converges to the
+            // mean pressure gradient that holds the flow rate, and is checkpointed as such)
+            self.forcing += (bulk_velocity - bulk) / dt;
             self.set_bulk_velocity(bulk_velocity);
             bulk = bulk_velocity;
         }
@@ -298,6 +300,17 @@ impl Solver {
             forcing: self.forcing,
             dy_first: self.grid.dyf[1],
         }
+    }
+
+    /// Max |div u| found by the last periodic check (reported in every step's report).
+    pub fn last_divergence(&self) -> f64 {
+        self.last_divergence
+    }
+
+    /// Restores the last check's value (coupled checkpoints carry it, so a resumed run
+    /// reports what an uninterrupted one does between two checks).
+    pub fn set_last_divergence(&mut self, d: f64) {
+        self.last_divergence = d;
     }
 
     /// Writes a checkpoint (atomic).

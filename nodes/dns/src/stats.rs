@@ -80,6 +80,50 @@ impl RunningStats {
         }
     }
 
+    /// Serialises the running sums bit for bit (part of a coupled checkpoint: a resumed
+    /// run publishes the same statistics as an uninterrupted one).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(32 + 8 * NQ * self.sums.len());
+        out.extend_from_slice(b"FFSTATS1");
+        out.extend_from_slice(&self.samples.to_le_bytes());
+        out.extend_from_slice(&(self.sums.len() as u64).to_le_bytes());
+        out.extend_from_slice(&self.t_plus_first.to_le_bytes());
+        out.extend_from_slice(&self.t_plus_last.to_le_bytes());
+        for row in &self.sums {
+            for x in row {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Parses [`Self::to_bytes`] for grid `g`; `None` if the bytes do not fit it.
+    pub fn from_bytes(g: &Grid, b: &[u8]) -> Option<Self> {
+        let word = |o: usize| -> Option<[u8; 8]> { b.get(o..o + 8)?.try_into().ok() };
+        if b.get(..8)? != b"FFSTATS1" {
+            return None;
+        }
+        let samples = u64::from_le_bytes(word(8)?);
+        let ny = usize::try_from(u64::from_le_bytes(word(16)?)).ok()?;
+        if ny != g.ny || b.len() != 40 + 8 * NQ * ny {
+            return None;
+        }
+        let mut sums = vec![[0.0; NQ]; ny];
+        let mut o = 40;
+        for row in sums.iter_mut() {
+            for x in row.iter_mut() {
+                *x = f64::from_le_bytes(word(o)?);
+                o += 8;
+            }
+        }
+        Some(Self {
+            samples,
+            sums,
+            t_plus_first: f64::from_le_bytes(word(24)?),
+            t_plus_last: f64::from_le_bytes(word(32)?),
+        })
+    }
+
     /// Adds one snapshot (halos of `vel` must be current).
     pub fn add(&mut self, g: &Grid, vel: &Velocity, t_plus: f64) {
         let (px, nx, ny, nz) = (g.px, g.nx, g.ny, g.nz);

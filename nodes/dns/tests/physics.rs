@@ -139,6 +139,32 @@ fn laminar_poiseuille_from_rest() {
     assert!(order > 1.8, "observed order {order} (errors {errs:?})");
 }
 
+/// Flow-rate forcing holds the bulk velocity of the pressure-driven laminar flow; its
+/// mean pressure gradient must then converge to that flow's, 1 (outer units), within 1e-6
+/// over the last 20 steps. (Replacing the forcing with each step's correction instead of
+/// accumulating it makes it alternate between ~0 and ~1 while the flow looks right.)
+#[test]
+fn flow_rate_forcing_converges_to_the_driving_gradient() {
+    let (s, _) = run_laminar(16);
+    let target = fiberflow_dns::field::bulk_mean(&s.grid, &s.vel.u);
+    let mut cfg = s.cfg.clone();
+    cfg.forcing = Forcing::FlowRate {
+        bulk_velocity: target,
+    };
+    let mut f = Solver::new(cfg).unwrap();
+    let mut last = Vec::new();
+    while f.time < 80.0 {
+        last.push(f.step().unwrap().forcing);
+    }
+    for x in &last[last.len() - 20..] {
+        assert!(
+            (x - 1.0).abs() < 1e-6,
+            "forcing {x} (last: {:?})",
+            &last[last.len() - 4..]
+        );
+    }
+}
+
 /// u = A sin(kz) cos(πy/2) exp(-ν(k² + π²/4)t), v = w = 0 solves the full equations:
 /// decay rate within 1% on the coarse grid (ny = nz = 64), second order in the grid.
 #[test]

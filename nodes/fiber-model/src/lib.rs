@@ -4,6 +4,7 @@
 //! contact. No transport dependency: plain state plus [`step::step`].
 
 pub mod cases;
+pub mod checkpoint;
 pub mod dense;
 pub mod error;
 pub mod fibre;

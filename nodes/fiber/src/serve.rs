@@ -3,14 +3,17 @@
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Inbox};
+use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
 use fiberflow_fiber_model::metrics::metrics;
 use fiberflow_fiber_model::{FibreError, FluidSample};
+use fiberflow_messages::checkpoints;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FiberGroupMetrics, FiberGroupState, FlowSamples, Heartbeat, RunAnnouncement,
     SCHEMA_VERSION,
 };
 use nalgebra::{Matrix3, Vector3};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 #[derive(Debug, thiserror::Error)]
@@ -19,8 +22,25 @@ pub enum FiberNodeError {
     Model(#[from] FibreError),
     #[error(transparent)]
     Bus(#[from] BusError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
     #[error("{0}")]
     Protocol(String),
+}
+
+/// Where a group starts, where it saves coupled checkpoints, and which run it belongs to.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Checkpointing {
+    /// First coupling step: 0, or the step of the checkpoint the run resumes from.
+    pub start_step: u64,
+    /// The checkpoint folder to resume from (its step is `start_step`).
+    pub resume_dir: Option<PathBuf>,
+    /// Save every this many steps (0 = never) under `root`.
+    pub every: u64,
+    pub root: Option<PathBuf>,
+    /// SHA-256 of the launch configuration: announcements with another digest are dropped
+    /// (empty = accept any).
+    pub config_digest: String,
 }
 
 /// Runs one group to the end of the run; returns the drop counts.
@@ -30,10 +50,34 @@ pub fn serve(
     run_id: &str,
     box_plus: [f64; 3],
     timeout_s: f64,
+    ck: &Checkpointing,
 ) -> Result<DropCounter, FiberNodeError> {
     let t = Topics::new(run_id);
     let built = cfg.build(box_plus)?;
     let mut group = built.group;
+    if let Some(dir) = &ck.resume_dir {
+        let path = checkpoints::piece(dir, &cfg.group);
+        let snap = GroupSnapshot::read(&path)?;
+        if snap.step != ck.start_step {
+            return Err(FiberNodeError::Protocol(format!(
+                "{} holds step {}, the run resumes at step {}",
+                path.display(),
+                snap.step,
+                ck.start_step
+            )));
+        }
+        snap.restore(&mut group).map_err(|e| {
+            FiberNodeError::Protocol(format!(
+                "{} does not fit group {}: {e}",
+                path.display(),
+                cfg.group
+            ))
+        })?;
+        tracing::info!(
+            step = ck.start_step,
+            "group restored from a coupled checkpoint"
+        );
+    }
     let layers = built.layers;
     let name = cfg.group.clone();
     let mut samples_in = Inbox::new(bus.subscribe(&t.flow_samples(&name))?);
@@ -59,8 +103,14 @@ pub fn serve(
             )));
         }
         hb(lifecycle::READY, 0, 0)?;
-        if let Some((_, a)) = ann_in.recv::<RunAnnouncement>(Duration::from_millis(200)) {
-            if a.groups.contains(&name) {
+        if let Some((topic, a)) = ann_in.recv::<RunAnnouncement>(Duration::from_millis(200)) {
+            if a.run_id != run_id
+                || (!ck.config_digest.is_empty() && a.config_digest != ck.config_digest)
+            {
+                ann_in
+                    .drops
+                    .drop_one(&topic, "announcement of another run or configuration");
+            } else if a.groups.contains(&name) {
                 break a;
             }
         }
@@ -118,10 +168,13 @@ pub fn serve(
             };
             bus.publish(&t.fiber_metrics(&name), &encode(&m))
         };
-    publish_state(&group, 0)?;
-    publish_metrics(&group, 0)?;
+    let start = ck.start_step;
+    publish_state(&group, start)?;
+    if start == 0 || start % cfg.metrics_every == 0 {
+        publish_metrics(&group, start)?;
+    }
     let step_timeout = Duration::from_secs_f64(timeout_s);
-    for k in 0..ann.steps {
+    for k in start..ann.steps {
         let wait_from = Instant::now();
         let samples = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
@@ -131,19 +184,23 @@ pub fn serve(
                     "group {name}: no flow samples for step {k} within {timeout_s:.0} s"
                 )));
             }
-            if let Some((_, s)) = samples_in.recv::<FlowSamples>(left) {
-                if s.step == k && s.group == name {
+            if let Some((topic, s)) = samples_in.recv::<FlowSamples>(left) {
+                let n = group.segment_count();
+                if s.group != name {
+                    samples_in
+                        .drops
+                        .drop_one(&topic, "samples for another group");
+                } else if s.step != k {
+                    samples_in.drops.drop_one(&topic, "samples of another step");
+                } else if s.velocity.len() != 3 * n {
+                    samples_in
+                        .drops
+                        .drop_one(&topic, "samples for another number of segments");
+                } else {
                     break s;
                 }
             }
         };
-        let n = group.segment_count();
-        if samples.velocity.len() != 3 * n || samples.velocity_gradient.len() != 9 * n {
-            return Err(FiberNodeError::Protocol(format!(
-                "group {name}: samples for {} points, group has {n} segments",
-                samples.velocity.len() / 3
-            )));
-        }
         let fluid: Vec<FluidSample> = samples
             .velocity
             .chunks_exact(3)
@@ -155,11 +212,24 @@ pub fn serve(
             .collect();
         if k == 0 && cfg.initial_velocity == InitialVelocity::Fluid {
             group.set_velocity_to_fluid(&fluid)?;
+            // the state of step 0 went out before the fluid's velocity was known: send it
+            // again complete (the recorder keeps the last state 0, the flow node ignores it)
+            publish_state(&group, 0)?;
         }
         group.step(&fluid, dt)?;
         publish_state(&group, k + 1)?;
         if (k + 1) % cfg.metrics_every == 0 || k + 1 == ann.steps {
             publish_metrics(&group, k + 1)?;
+        }
+        if let Some(root) = &ck.root {
+            if checkpoints::is_checkpoint_step(k + 1, ck.every, ann.steps) {
+                let dir = checkpoints::step_dir(root, k + 1);
+                std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io {
+                    path: dir.display().to_string(),
+                    source,
+                })?;
+                GroupSnapshot::capture(&group, k + 1).write(&checkpoints::piece(&dir, &name))?;
+            }
         }
     }
     hb(lifecycle::DONE, ann.steps, samples_in.drops.total())?;

@@ -2,6 +2,7 @@
 //! channel DNS or from an analytic flow, and runs DNS spin-up to developed turbulence.
 
 pub mod analytic;
+pub mod checkpoint;
 pub mod config;
 pub mod error;
 pub mod serve;

@@ -14,6 +14,7 @@ use fiberflow_messages::{
     RunAnnouncement, SCHEMA_VERSION,
 };
 use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 /// Run-level facts the launcher hands to every node.
@@ -28,6 +29,81 @@ pub struct RunInfo {
     pub box_plus: [f64; 3],
     /// Seconds to wait for a group's state at one step before giving up.
     pub step_timeout_s: f64,
+    /// First coupling step: 0, or the step of the checkpoint the run resumes from.
+    pub start_step: u64,
+    /// The checkpoint folder the run resumes from (its step is `start_step`).
+    pub resume_dir: Option<PathBuf>,
+    /// Coupled checkpoints: every this many steps (0 = never) under this folder.
+    pub checkpoint_every: u64,
+    pub checkpoint_root: Option<PathBuf>,
+    /// Segment count of every group (states with another count are dropped).
+    pub group_segments: BTreeMap<String, usize>,
+}
+
+enum Admit {
+    Take,
+    /// The state of step k−1 again (a fluid-velocity start republishes step 0 with its
+    /// velocities set): expected, not counted.
+    Ignore,
+    Drop(String),
+}
+
+/// Decides what to do with a state that decoded while serving step `k`: states that make
+/// no sense (inconsistent arrays, an unknown group, another segment count than the
+/// group's, a point outside the channel, a step from the past or the future) are dropped.
+fn admit(s: &FiberGroupState, k: u64, run: &RunInfo) -> Admit {
+    use fiberflow_messages::sanity::Sane;
+    if let Err(why) = s.check() {
+        return Admit::Drop(format!("inconsistent: {why}"));
+    }
+    if !run.groups.contains(&s.group) {
+        return Admit::Drop(format!("state of unknown group {:?}", s.group));
+    }
+    if let Some(&n) = run.group_segments.get(&s.group) {
+        if s.centre.len() != 3 * n {
+            return Admit::Drop(format!(
+                "group {} has {n} segments, the state {}",
+                s.group,
+                s.centre.len() / 3
+            ));
+        }
+    }
+    if s.step + 1 == k {
+        return Admit::Ignore;
+    }
+    if s.step != k {
+        return Admit::Drop(format!("state of step {} while serving step {k}", s.step));
+    }
+    let half = 0.5 * run.box_plus[1] * (1.0 + 1e-9);
+    let bad = s
+        .centre
+        .chunks_exact(3)
+        .any(|p| p[1].abs() > half || p[0].abs() > 1e12 || p[2].abs() > 1e12);
+    if bad {
+        return Admit::Drop("a segment centre outside the channel".into());
+    }
+    Admit::Take
+}
+
+/// Refuses a coupling time step the DNS cannot take from its starting field: the Courant
+/// sum max(|u|/Δx + |v|/Δy + |w|/Δz)·Δt must stay below the RK3 limit √3.
+fn check_stability(solver: &Solver, dt_plus: f64) -> Result<(), FlowError> {
+    let rate = fiberflow_dns::timestep::max_courant_rate(&solver.grid, &solver.vel);
+    let dt = dt_plus * solver.t_unit();
+    let cfl = rate * dt;
+    let limit = fiberflow_dns::timestep::RK3_CFL_LIMIT;
+    if !(cfl <= limit) {
+        let max_dt_plus = if rate > 0.0 {
+            limit / rate / solver.t_unit()
+        } else {
+            f64::INFINITY
+        };
+        return Err(FlowError::Config(format!(
+            "run.dt_plus = {dt_plus} gives a Courant sum of {cfl:.2} on the starting flow field \
+             (RK3 stability limit {limit}): run.dt_plus must be in (0, {max_dt_plus:.3}]"
+        )));
+    }
+    Ok(())
 }
 
 enum Field {
@@ -69,19 +145,26 @@ pub fn serve(
 ) -> Result<ServeSummary, FlowError> {
     cfg.validate()?;
     let t = Topics::new(&run.run_id);
+    let mut resumed_stats = None;
     let mut field = match &cfg.source {
         FlowSource::Analytic { flow } => Field::Analytic(*flow),
         FlowSource::Dns { dns, restart } => {
             let mut d = dns.clone();
             d.dt_fixed_plus = Some(cfg.dt_plus);
             let mut s = Solver::new(d)?;
-            if let Some(r) = restart {
+            if let Some(dir) = &run.resume_dir {
+                resumed_stats = crate::checkpoint::read_dns(dir, &mut s)?;
+            } else if let Some(r) = restart {
                 s.read_checkpoint(r)?;
             }
+            check_stability(&s, cfg.dt_plus)?;
             let smp = Sampler::with_scheme(&s.grid, cfg.interpolation);
             Field::Dns(Box::new(s), smp)
         }
     };
+    if let (Field::Analytic(_), Some(dir)) = (&field, &run.resume_dir) {
+        crate::checkpoint::read_analytic(dir, run.start_step)?;
+    }
     let mut hb_in = Inbox::new(bus.subscribe(&format!("{}/control/heartbeat/**", t.prefix()))?);
     let mut st_in = Inbox::new(bus.subscribe(&format!("{}/fibers/**", t.prefix()))?);
     // join barrier
@@ -120,13 +203,22 @@ pub fn serve(
         dt_plus: cfg.dt_plus,
         box_plus: run.box_plus.to_vec(),
     };
+    // nothing sent before the run started is part of it
+    while let Some((topic, _)) = st_in.recv_raw(Duration::ZERO) {
+        st_in
+            .drops
+            .drop_one(&topic, "message before the run started");
+    }
     bus.publish(&t.announce(), &encode(&ann))?;
     tracing::info!(groups = ?run.groups, steps = run.steps, "run announced");
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
     let mut pending: BTreeMap<String, FiberGroupState> = BTreeMap::new();
     // running plane/time statistics of the served field, published as FlowProfiles
-    let mut stats: Option<fiberflow_dns::stats::RunningStats> = None;
-    for k in 0..=run.steps {
+    let mut stats: Option<fiberflow_dns::stats::RunningStats> = resumed_stats;
+    if run.start_step > 0 {
+        tracing::info!(step = run.start_step, "resuming from a coupled checkpoint");
+    }
+    for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
         while pending.len() < run.groups.len() {
@@ -152,12 +244,15 @@ pub fn serve(
                 continue; // metrics and other fibre topics are not for us
             }
             match fiberflow_messages::decode::<FiberGroupState>(&bytes) {
-                Ok(s) if s.step == k && run.groups.contains(&s.group) => {
-                    pending.insert(s.group.clone(), s);
-                }
-                Ok(s) => {
-                    tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring out-of-step state")
-                }
+                Ok(s) => match admit(&s, k, run) {
+                    Admit::Take => {
+                        pending.entry(s.group.clone()).or_insert(s);
+                    }
+                    Admit::Ignore => {
+                        tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring the state of the step just served")
+                    }
+                    Admit::Drop(why) => st_in.drops.drop_one(&topic, &why),
+                },
                 Err(e) => st_in.drops.drop_one(&topic, &e.to_string()),
             }
         }
@@ -196,6 +291,30 @@ pub fn serve(
         }
         if k == run.steps {
             break;
+        }
+        // coupled checkpoint of the field at t_k (the groups integrate meanwhile)
+        if let Some(root) = &run.checkpoint_root {
+            if k != run.start_step
+                && fiberflow_messages::checkpoints::is_checkpoint_step(
+                    k,
+                    run.checkpoint_every,
+                    run.steps,
+                )
+            {
+                let dir = fiberflow_messages::checkpoints::step_dir(root, k);
+                let t0 = Instant::now();
+                match &field {
+                    Field::Dns(solver, _) => {
+                        crate::checkpoint::write_dns(&dir, solver, stats.as_ref())?
+                    }
+                    Field::Analytic(_) => crate::checkpoint::write_analytic(&dir, k)?,
+                }
+                tracing::info!(
+                    step = k,
+                    ms = t0.elapsed().as_millis() as u64,
+                    "checkpoint written"
+                );
+            }
         }
         // advance the field to t_{k+1} while the groups integrate
         let status = match &mut field {
@@ -277,4 +396,33 @@ pub fn serve(
         steps: run.steps,
         drops,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A coupled run's dt_plus is checked against the RK3 Courant limit on the field it
+    /// starts from, with an error that names the key and the allowed range.
+    #[test]
+    fn unstable_dt_plus_is_refused_up_front() {
+        let cfg = fiberflow_dns::DnsConfig::with_cells(16, 16, 16);
+        let solver = Solver::new(cfg).unwrap();
+        assert!(check_stability(&solver, 0.05).is_ok());
+        let e = check_stability(&solver, 50.0).unwrap_err().to_string();
+        assert!(
+            e.contains("run.dt_plus") && e.contains("Courant") && e.contains("(0, "),
+            "{e}"
+        );
+        // the bound it states is the bound it applies
+        let max: f64 = e
+            .rsplit("(0, ")
+            .next()
+            .unwrap()
+            .trim_end_matches(']')
+            .parse()
+            .unwrap();
+        assert!(check_stability(&solver, 0.999 * max).is_ok());
+        assert!(check_stability(&solver, 1.01 * max).is_err());
+    }
 }

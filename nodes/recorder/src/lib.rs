@@ -9,7 +9,8 @@ pub mod recover;
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::topics::{type_of, Topics};
 use fiberflow_messages::{
-    decode, encode, lifecycle, schema, FiberGroupState, Heartbeat, SCHEMA_VERSION,
+    checkpoints, decode, encode, lifecycle, sanity, schema, FiberGroupState, Heartbeat,
+    SCHEMA_VERSION,
 };
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::io::BufWriter;
@@ -56,6 +57,8 @@ pub struct RecordSummary {
     pub by_topic: BTreeMap<String, u64>,
     pub drops: DropCounter,
     pub path: PathBuf,
+    /// Step-stamped messages that an earlier segment already holds (not written again).
+    pub already_recorded: u64,
 }
 
 struct Out {
@@ -133,6 +136,249 @@ pub fn t_plus_to_nanos(t_plus: f64) -> u64 {
 /// How long the recorder waits, after the flow node's DONE, for anything more to arrive.
 const QUIET_AFTER_FLOW_DONE: Duration = Duration::from_secs(3);
 
+/// What the recorder needs to know of the run beyond its topics.
+#[derive(Debug, Clone, Default)]
+pub struct RecordPlan {
+    /// Fibre groups of the run.
+    pub groups: Vec<String>,
+    /// Coupling steps of the run.
+    pub steps: u64,
+    /// Coupled checkpoints: every this many steps (0 = never) under `checkpoint_root`.
+    pub checkpoint_every: u64,
+    pub checkpoint_root: Option<PathBuf>,
+    /// The step the run (re)starts from.
+    pub start_step: u64,
+    /// Segments recorded before this one: what they hold is not written again, so the
+    /// segments together hold every step-stamped message exactly once.
+    pub previous_segments: Vec<PathBuf>,
+}
+
+/// (topic, step) of every step-stamped message in `segments` (a damaged tail ends a file).
+pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<(String, u64)> {
+    let mut seen = BTreeSet::new();
+    for p in segments {
+        let Ok(bytes) = std::fs::read(p) else {
+            continue;
+        };
+        let Ok(stream) = mcap::MessageStream::new(&bytes) else {
+            continue;
+        };
+        for m in stream {
+            let Ok(m) = m else { break };
+            let Some(type_name) = type_of(&m.channel.topic) else {
+                continue;
+            };
+            if let Ok(sanity::Stamp {
+                step: Some(step), ..
+            }) = sanity::check_payload(type_name, &m.data)
+            {
+                seen.insert((m.channel.topic.clone(), step));
+            }
+        }
+    }
+    seen
+}
+
+/// The recorder's running state between messages.
+struct Session<'a> {
+    out: Out,
+    topics: Topics,
+    summary: RecordSummary,
+    drops: DropCounter,
+    sim_nanos: u64,
+    /// Step-stamped messages already in this or an earlier segment.
+    seen: BTreeSet<(String, u64)>,
+    /// Each group's state of step 0, held until its next state: a fluid-velocity start
+    /// sends step 0 twice (positions first, then with the fluid's velocity); the last wins.
+    held_first: BTreeMap<String, Vec<u8>>,
+    /// Newest state and samples step per group (for the checkpoint commit).
+    state_step: BTreeMap<String, u64>,
+    samples_step: BTreeMap<String, u64>,
+    plan: &'a RecordPlan,
+    next_checkpoint: Option<u64>,
+}
+
+impl Session<'_> {
+    /// Validates, de-duplicates and writes one message.
+    fn handle(&mut self, topic: &str, bytes: &[u8]) -> Result<(), RecorderError> {
+        let Some(type_name) = type_of(topic) else {
+            self.drops
+                .drop_one(topic, "topic carries no known message type");
+            return Ok(());
+        };
+        let stamp = match sanity::check_payload(type_name, bytes) {
+            Ok(s) => s,
+            Err(why) => {
+                self.drops.drop_one(topic, &why);
+                return Ok(());
+            }
+        };
+        if let Err(why) = self.belongs(topic, &stamp) {
+            self.drops.drop_one(topic, &why);
+            return Ok(());
+        }
+        let step = stamp.step;
+        let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
+        if let Some(k) = step {
+            if let Some(g) = &stamp.owner {
+                if is_state || type_name == "fiberflow_msgs/msg/FlowSamples" {
+                    let map = if is_state {
+                        &mut self.state_step
+                    } else {
+                        &mut self.samples_step
+                    };
+                    let e = map.entry(g.clone()).or_insert(k);
+                    *e = (*e).max(k);
+                }
+            }
+            if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0)) {
+                self.held_first.insert(topic.to_string(), bytes.to_vec());
+                return Ok(());
+            }
+            if is_state {
+                if let Some(first) = self.held_first.remove(topic) {
+                    self.write_new(topic, type_name, Some(0), &first)?;
+                }
+            }
+        }
+        self.write_new(topic, type_name, step, bytes)?;
+        self.maybe_commit()
+    }
+
+    /// Does a message that decoded and checked belong to this run? Its step must lie in
+    /// the run, its group be one of the run's and named by its topic, a heartbeat come from
+    /// one of the run's nodes.
+    fn belongs(&self, topic: &str, stamp: &sanity::Stamp) -> Result<(), String> {
+        if stamp.step.is_some_and(|k| k > self.plan.steps) {
+            return Err(format!("step beyond the run's {} steps", self.plan.steps));
+        }
+        let Some(owner) = &stamp.owner else {
+            return Ok(());
+        };
+        if topic.ends_with("/control/announce") {
+            if owner != &self.topics.run {
+                return Err(format!("announcement of another run {owner:?}"));
+            }
+            return Ok(());
+        }
+        if self.plan.groups.is_empty() {
+            return Ok(());
+        }
+        let parts: Vec<&str> = topic.split('/').collect();
+        let named = match parts.get(2) {
+            Some(&"fibers") => parts.get(3),
+            Some(&"flow") | Some(&"control") => parts.get(4),
+            _ => None,
+        };
+        if named.is_none_or(|n| n != owner) {
+            return Err(format!("message of {owner:?} on another's topic"));
+        }
+        let known = self.plan.groups.iter().any(|g| g == owner)
+            || ["flow", "recorder", "launcher"].contains(&owner.as_str());
+        if !known {
+            return Err(format!("{owner:?} is not part of this run"));
+        }
+        Ok(())
+    }
+
+    /// Writes unless this (topic, step) is already recorded.
+    fn write_new(
+        &mut self,
+        topic: &str,
+        type_name: &'static str,
+        step: Option<u64>,
+        bytes: &[u8],
+    ) -> Result<(), RecorderError> {
+        if let Some(k) = step {
+            if !self.seen.insert((topic.to_string(), k)) {
+                self.summary.already_recorded += 1;
+                return Ok(());
+            }
+        }
+        let st = if type_name == "fiberflow_msgs/msg/FiberGroupState" {
+            decode::<FiberGroupState>(bytes).ok()
+        } else {
+            None
+        };
+        if let Some(s) = &st {
+            self.sim_nanos = self.sim_nanos.max(t_plus_to_nanos(s.t_plus));
+        }
+        let c = self.out.channel(topic, type_name)?;
+        self.out.write(c, self.sim_nanos, bytes)?;
+        self.summary.messages += 1;
+        *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
+        if let Some(s) = st {
+            let pc = pointcloud::from_state(&s);
+            let ptopic = self.topics.fiber_points(&s.group);
+            let c = self.out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
+            self.out.write(c, self.sim_nanos, &pc)?;
+        }
+        Ok(())
+    }
+
+    /// The recorder's share of checkpoint c: once every group's state and samples of
+    /// step c+1 have arrived, everything of steps <= c is in (each node publishes in step
+    /// order); flush and fsync the segment and say so in `recorder.ckpt`.
+    fn maybe_commit(&mut self) -> Result<(), RecorderError> {
+        let Some(root) = self.plan.checkpoint_root.clone() else {
+            return Ok(());
+        };
+        while let Some(c) = self.next_checkpoint {
+            let past = |m: &BTreeMap<String, u64>| {
+                self.plan
+                    .groups
+                    .iter()
+                    .all(|g| m.get(g).is_some_and(|&s| s > c))
+            };
+            if !(past(&self.state_step) && past(&self.samples_step)) {
+                return Ok(());
+            }
+            self.out.w.flush().map_err(self.out.err())?;
+            let io = |path: &Path| {
+                let path = path.display().to_string();
+                move |source| RecorderError::Io { path, source }
+            };
+            let file = Path::new(&self.out.path);
+            std::fs::File::open(file)
+                .and_then(|f| f.sync_all())
+                .map_err(io(file))?;
+            let dir = checkpoints::step_dir(&root, c);
+            std::fs::create_dir_all(&dir).map_err(io(&dir))?;
+            let seg = file
+                .file_name()
+                .map(|n| n.to_string_lossy().to_string())
+                .unwrap_or_default();
+            let text = format!("segment = {seg:?}\nstep = {c}\n");
+            let piece = checkpoints::piece(&dir, "recorder");
+            let tmp = dir.join("recorder.ckpt.tmp");
+            std::fs::File::create(&tmp)
+                .and_then(|mut f| {
+                    use std::io::Write;
+                    f.write_all(text.as_bytes())?;
+                    f.sync_all()
+                })
+                .map_err(io(&tmp))?;
+            std::fs::rename(&tmp, &piece).map_err(io(&piece))?;
+            let next = c + self.plan.checkpoint_every;
+            self.next_checkpoint = (next < self.plan.steps).then_some(next);
+        }
+        Ok(())
+    }
+
+    /// Writes what is still held (a group whose only state is step 0).
+    fn release_held(&mut self) -> Result<(), RecorderError> {
+        for (topic, bytes) in std::mem::take(&mut self.held_first) {
+            self.write_new(
+                &topic,
+                "fiberflow_msgs/msg/FiberGroupState",
+                Some(0),
+                &bytes,
+            )?;
+        }
+        Ok(())
+    }
+}
+
 /// Records until every node in `expect_done` has reported DONE (or FAILED), or `stop` is set.
 /// Announces itself as node `recorder` until the run starts.
 pub fn record(
@@ -141,6 +387,7 @@ pub fn record(
     path: &Path,
     meta: &RunMetadata,
     expect_done: &[String],
+    plan: &RecordPlan,
     stop: Arc<AtomicBool>,
 ) -> Result<RecordSummary, RecorderError> {
     let t = Topics::new(run_id);
@@ -151,6 +398,7 @@ pub fn record(
             source,
         })?;
     }
+    let seen = recorded_steps(&plan.previous_segments);
     let file = std::fs::File::create(path).map_err(|source| RecorderError::Io {
         path: pstr.clone(),
         source,
@@ -175,16 +423,30 @@ pub fn record(
     };
     write_provenance(&mut out, meta)?;
     let mut inbox = Inbox::new(bus.subscribe(&format!("{}/**", t.prefix()))?);
-    let mut summary = RecordSummary {
-        path: path.to_path_buf(),
-        ..Default::default()
+    let next_checkpoint = (plan.checkpoint_every > 0)
+        .then(|| (plan.start_step / plan.checkpoint_every + 1) * plan.checkpoint_every)
+        .filter(|&c| c < plan.steps);
+    let mut sess = Session {
+        out,
+        topics: t.clone(),
+        summary: RecordSummary {
+            path: path.to_path_buf(),
+            ..Default::default()
+        },
+        drops: DropCounter::default(),
+        sim_nanos: 0,
+        seen,
+        held_first: BTreeMap::new(),
+        state_step: BTreeMap::new(),
+        samples_step: BTreeMap::new(),
+        plan,
+        next_checkpoint,
     };
     let mut done: BTreeSet<String> = BTreeSet::new();
     let expected: BTreeSet<String> = expect_done.iter().cloned().collect();
     let mut started = false;
     let mut last_flush = Instant::now();
     let mut last_hb = Instant::now() - Duration::from_secs(1);
-    let mut sim_nanos: u64 = 0;
     let mut finish_at: Option<Instant> = None;
     // once the flow node is DONE the run is over: a DONE lost in transit must not keep the
     // recorder open, so it also finishes after QUIET_AFTER_FLOW_DONE without any message
@@ -206,13 +468,13 @@ pub fn record(
                 node: "recorder".into(),
                 state: lifecycle::READY,
                 step: 0,
-                dropped: inbox.drops.total(),
+                dropped: sess.drops.total(),
             };
             bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
             last_hb = Instant::now();
         }
         if last_flush.elapsed() >= Duration::from_millis(500) {
-            out.w.flush().map_err(out.err())?;
+            sess.out.w.flush().map_err(sess.out.err())?;
             last_flush = Instant::now();
         }
         let Some((topic, bytes)) = inbox.recv_raw(Duration::from_millis(50)) else {
@@ -224,19 +486,11 @@ pub fn record(
             continue;
         };
         last_message = Instant::now();
-        let Some(type_name) = type_of(&topic) else {
-            inbox
-                .drops
-                .drop_one(&topic, "topic carries no known message type");
-            continue;
-        };
-        if let Err(e) = schema::validate(type_name, &bytes) {
-            inbox.drops.drop_one(&topic, &e.to_string());
-            continue;
-        }
-        match type_name {
-            "fiberflow_msgs/msg/RunAnnouncement" => started = true,
-            "fiberflow_msgs/msg/Heartbeat" => {
+        match type_of(&topic) {
+            Some("fiberflow_msgs/msg/RunAnnouncement") => {
+                started |= schema::validate("fiberflow_msgs/msg/RunAnnouncement", &bytes).is_ok()
+            }
+            Some("fiberflow_msgs/msg/Heartbeat") => {
                 if let Ok(hb) = decode::<Heartbeat>(&bytes) {
                     if hb.state == lifecycle::DONE || hb.state == lifecycle::FAILED {
                         flow_done |= hb.node == "flow";
@@ -249,41 +503,22 @@ pub fn record(
             }
             _ => {}
         }
-        let st = if type_name == "fiberflow_msgs/msg/FiberGroupState" {
-            decode::<FiberGroupState>(&bytes).ok()
-        } else {
-            None
-        };
-        if let Some(s) = &st {
-            sim_nanos = sim_nanos.max(t_plus_to_nanos(s.t_plus));
-        }
-        let c = out.channel(&topic, type_name)?;
-        out.write(c, sim_nanos, &bytes)?;
-        summary.messages += 1;
-        *summary.by_topic.entry(topic.clone()).or_insert(0) += 1;
-        if let Some(s) = st {
-            let pc = pointcloud::from_state(&s);
-            let ptopic = t.fiber_points(&s.group);
-            let c = out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
-            out.write(c, sim_nanos, &pc)?;
-        }
+        sess.handle(&topic, &bytes)?;
     }
     // drain what is already queued
     while let Ok((topic, bytes)) = inbox.sub.rx.try_recv() {
-        if let Some(type_name) = type_of(&topic) {
-            if schema::validate(type_name, &bytes).is_ok() {
-                let c = out.channel(&topic, type_name)?;
-                out.write(c, sim_nanos, &bytes)?;
-                summary.messages += 1;
-                continue;
-            }
-        }
-        inbox.drops.drop_one(&topic, "undecodable");
+        sess.handle(&topic, &bytes)?;
+    }
+    sess.release_held()?;
+    let mut drops = sess.drops.clone();
+    for (k, v) in &inbox.drops.by_topic {
+        *drops.by_topic.entry(k.clone()).or_insert(0) += v;
     }
     let mut drops_meta = BTreeMap::new();
-    for (k, v) in &inbox.drops.by_topic {
+    for (k, v) in &drops.by_topic {
         drops_meta.insert(k.clone(), v.to_string());
     }
+    let mut out = sess.out;
     out.w
         .write_metadata(&mcap::records::Metadata {
             name: "fiberflow.drops".into(),
@@ -291,14 +526,15 @@ pub fn record(
         })
         .map_err(out.err())?;
     out.w.finish().map_err(out.err())?;
-    summary.drops = inbox.drops.clone();
+    let mut summary = sess.summary;
+    summary.drops = drops;
     // the file is complete: tell the run (a zenoh router waits for this before closing)
     let hb = Heartbeat {
         schema_version: SCHEMA_VERSION,
         node: "recorder".into(),
         state: lifecycle::DONE,
         step: 0,
-        dropped: inbox.drops.total(),
+        dropped: summary.drops.total(),
     };
     if let Err(e) = bus.publish(&t.heartbeat("recorder"), &encode(&hb)) {
         tracing::warn!(error = %e, "could not announce the finished recording");

@@ -50,26 +50,32 @@ fn err<E: std::fmt::Display>(e: E) -> ViewerError {
 
 /// Logs the recording at `mcap` to `sink`. `every` thins the steps shown (1 = all).
 pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
-    let bytes = std::fs::read(mcap).map_err(|e| ViewerError::Read {
-        path: mcap.display().to_string(),
-        reason: e.to_string(),
-    })?;
+    use fiberflow_messages::sanity::Sane;
+    let read_err = |p: &Path, e: String| ViewerError::Read {
+        path: p.display().to_string(),
+        reason: e,
+    };
+    // a run folder: every segment in order; states that fail their checks are skipped
+    let segs = fiberflow_messages::segments::segment_paths(mcap)
+        .map_err(|e| read_err(mcap, e.to_string()))?;
     let mut states: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
     let mut box_plus = [942.48, 300.0, 471.24];
-    let stream = mcap::MessageStream::new(&bytes).map_err(|e| ViewerError::Read {
-        path: mcap.display().to_string(),
-        reason: e.to_string(),
-    })?;
-    for m in stream {
-        let Ok(m) = m else { break };
-        if m.channel.topic.ends_with("/state") {
-            if let Ok(s) = decode::<FiberGroupState>(&m.data) {
-                states.entry(s.group.clone()).or_default().insert(s.step, s);
-            }
-        } else if m.channel.topic.ends_with("/control/announce") {
-            if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
-                if a.box_plus.len() == 3 {
-                    box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
+    for seg in &segs {
+        let bytes = std::fs::read(seg).map_err(|e| read_err(seg, e.to_string()))?;
+        let stream = mcap::MessageStream::new(&bytes).map_err(|e| read_err(seg, e.to_string()))?;
+        for m in stream {
+            let Ok(m) = m else { break };
+            if m.channel.topic.ends_with("/state") {
+                if let Ok(s) = decode::<FiberGroupState>(&m.data) {
+                    if s.check().is_ok() {
+                        states.entry(s.group.clone()).or_default().insert(s.step, s);
+                    }
+                }
+            } else if m.channel.topic.ends_with("/control/announce") {
+                if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
+                    if a.check().is_ok() {
+                        box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
+                    }
                 }
             }
         }

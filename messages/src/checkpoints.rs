@@ -1,0 +1,57 @@
+//! Where a run's coupled checkpoints live: `<out>/checkpoints/step-<k>/`, one file per node
+//! (`flow.ckpt`, `<group>.ckpt`, `recorder.ckpt`) and a `manifest.toml` once all are in.
+//! Shared by the nodes that write them and the launcher that completes and resumes them.
+
+use std::path::{Path, PathBuf};
+
+/// The checkpoints folder of a run's output folder.
+pub fn root(out_dir: &Path) -> PathBuf {
+    out_dir.join("checkpoints")
+}
+
+/// The folder of the checkpoint at coupling step `step`.
+pub fn step_dir(root: &Path, step: u64) -> PathBuf {
+    root.join(format!("step-{step:09}"))
+}
+
+/// The step of a checkpoint folder name (`step-000000120` → 120).
+pub fn step_of(name: &str) -> Option<u64> {
+    let d = name.strip_prefix("step-")?;
+    if d.len() != 9 || !d.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    d.parse().ok()
+}
+
+/// The file a node writes into a checkpoint folder.
+pub fn piece(step_dir: &Path, node: &str) -> PathBuf {
+    step_dir.join(format!("{node}.ckpt"))
+}
+
+/// Is `k` a checkpoint step of a run of `steps` steps checkpointing every `every` steps
+/// (0 = never)? The first and last steps are not: the start is the launch file's own
+/// state and the end is the finished run.
+pub fn is_checkpoint_step(k: u64, every: u64, steps: u64) -> bool {
+    every > 0 && k > 0 && k < steps && k % every == 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_and_schedule() {
+        let r = root(Path::new("/tmp/x"));
+        let d = step_dir(&r, 120);
+        assert_eq!(d, Path::new("/tmp/x/checkpoints/step-000000120"));
+        assert_eq!(step_of("step-000000120"), Some(120));
+        assert_eq!(step_of("step-12"), None);
+        assert_eq!(piece(&d, "case1"), d.join("case1.ckpt"));
+        let ks: Vec<u64> = (0..=100)
+            .filter(|&k| is_checkpoint_step(k, 40, 100))
+            .collect();
+        assert_eq!(ks, [40, 80]);
+        assert!(!is_checkpoint_step(100, 50, 100));
+        assert!(!is_checkpoint_step(10, 0, 100));
+    }
+}

@@ -1,0 +1,324 @@
+//! Structure-aware random messages for robustness tests: valid CDR of every message type
+//! with random lengths and values (NaN, infinities, huge steps, mismatched arrays), so
+//! the checks after decoding are exercised, not only the decoder. `nonsense` makes
+//! messages that always break at least one rule a receiver can check.
+
+use crate::types::*;
+use crate::{encode, SCHEMA_VERSION};
+
+/// xorshift64* — small, deterministic, good enough to spread cases.
+#[derive(Debug, Clone)]
+pub struct Rng {
+    x: u64,
+    /// While set, floats are ordinary and lengths exact (a message that may pass).
+    tidy: bool,
+}
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self {
+            x: seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1,
+            tidy: false,
+        }
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.x ^= self.x >> 12;
+        self.x ^= self.x << 25;
+        self.x ^= self.x >> 27;
+        self.x.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    pub fn below(&mut self, n: u64) -> u64 {
+        self.next_u64() % n.max(1)
+    }
+    fn chance(&mut self, one_in: u64) -> bool {
+        self.below(one_in) == 0
+    }
+    /// A float: mostly ordinary, sometimes NaN, ±inf, huge or tiny.
+    pub fn float(&mut self) -> f64 {
+        if self.tidy {
+            return (self.below(2_000_001) as f64 - 1e6) * 1e-3;
+        }
+        match self.below(40) {
+            0 => f64::NAN,
+            1 => f64::INFINITY,
+            2 => f64::NEG_INFINITY,
+            3 => 1e300,
+            4 => -1e-300,
+            _ => (self.below(2_000_001) as f64 - 1e6) * 1e-3,
+        }
+    }
+    fn floats(&mut self, n: usize) -> Vec<f64> {
+        (0..n).map(|_| self.float()).collect()
+    }
+    /// A length near `n`: usually `n`, sometimes off by a little or a lot.
+    fn len_near(&mut self, n: usize) -> usize {
+        if self.tidy {
+            return n;
+        }
+        match self.below(8) {
+            0 => n + 1 + self.below(5) as usize,
+            1 => n.saturating_sub(1 + self.below(5) as usize),
+            2 => self.below(64) as usize,
+            _ => n,
+        }
+    }
+    fn step(&mut self) -> u64 {
+        match self.below(10) {
+            0 => u64::MAX - self.below(10),
+            1 => 1 << 40,
+            _ => self.below(400),
+        }
+    }
+    fn name(&mut self, known: &[String]) -> String {
+        if !known.is_empty() && !self.chance(4) {
+            return known[self.below(known.len() as u64) as usize].clone();
+        }
+        match self.below(4) {
+            0 => String::new(),
+            1 => "flow".into(),
+            _ => format!("intruder{}", self.below(1000)),
+        }
+    }
+}
+
+/// The message type names a payload can be made for.
+pub const TYPES: [&str; 7] = [
+    "fiberflow_msgs/msg/RunAnnouncement",
+    "fiberflow_msgs/msg/FlowStatus",
+    "fiberflow_msgs/msg/FlowProfiles",
+    "fiberflow_msgs/msg/FlowSamples",
+    "fiberflow_msgs/msg/FiberGroupState",
+    "fiberflow_msgs/msg/FiberGroupMetrics",
+    "fiberflow_msgs/msg/Heartbeat",
+];
+
+fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
+    let nf = r.below(6) as usize;
+    let spf: Vec<u32> = (0..nf)
+        .map(|_| {
+            if r.chance(20) {
+                0
+            } else {
+                1 + r.below(8) as u32
+            }
+        })
+        .collect();
+    let nseg: usize = spf.iter().map(|&n| n as usize).sum();
+    let (a, b, c, d) = (
+        r.len_near(3 * nseg),
+        r.len_near(3 * nseg),
+        r.len_near(3 * nseg),
+        r.len_near(3 * nseg),
+    );
+    FiberGroupState {
+        schema_version: SCHEMA_VERSION,
+        group: r.name(groups),
+        step: r.step(),
+        t_plus: r.float(),
+        segments_per_fiber: spf,
+        segment_length: {
+            let n = r.len_near(nf);
+            r.floats(n)
+        },
+        diameter: {
+            let n = r.len_near(nf);
+            r.floats(n)
+        },
+        density_ratio: {
+            let n = r.len_near(nf);
+            r.floats(n)
+        },
+        layer: (0..r.len_near(nf)).map(|_| r.below(256) as u8).collect(),
+        centre: r.floats(a),
+        axis: r.floats(b),
+        velocity: r.floats(c),
+        angular_velocity: r.floats(d),
+    }
+}
+
+/// A random, structurally valid payload of `type_name` (it may or may not make sense:
+/// one in three is tidy — ordinary values, consistent lengths — and usually passes).
+pub fn random_payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+    r.tidy = r.chance(3);
+    let b = payload(type_name, r, groups);
+    r.tidy = false;
+    b
+}
+
+fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+    match type_name {
+        "fiberflow_msgs/msg/RunAnnouncement" => encode(&RunAnnouncement {
+            schema_version: SCHEMA_VERSION,
+            run_id: r.name(&[]),
+            config_digest: format!("{:x}", r.next_u64()),
+            groups: (0..r.below(4)).map(|_| r.name(groups)).collect(),
+            steps: r.step(),
+            dt_plus: r.float(),
+            box_plus: {
+                let n = r.len_near(3);
+                r.floats(n)
+            },
+        }),
+        "fiberflow_msgs/msg/FlowStatus" => encode(&FlowStatus {
+            schema_version: SCHEMA_VERSION,
+            step: r.step(),
+            t_plus: r.float(),
+            dt_plus: r.float(),
+            cfl: r.float(),
+            max_divergence: r.float(),
+            bulk_velocity: r.float(),
+            re_tau: r.float(),
+        }),
+        "fiberflow_msgs/msg/FlowProfiles" => {
+            let n = r.below(40) as usize;
+            let col = |r: &mut Rng| {
+                let m = r.len_near(n);
+                r.floats(m)
+            };
+            encode(&FlowProfiles {
+                schema_version: SCHEMA_VERSION,
+                step: r.step(),
+                t_plus: r.float(),
+                samples: r.below(100),
+                t_plus_span: r.float(),
+                re_tau: r.float(),
+                bulk_velocity: r.float(),
+                y_plus: r.floats(n),
+                u_mean: col(r),
+                u_rms: col(r),
+                v_rms: col(r),
+                w_rms: col(r),
+                uv: col(r),
+                omega_z_mean: col(r),
+                omega_x_rms: col(r),
+                omega_y_rms: col(r),
+                omega_z_rms: col(r),
+            })
+        }
+        "fiberflow_msgs/msg/FlowSamples" => {
+            let n = r.below(60) as usize;
+            let (a, b) = (r.len_near(3 * n), r.len_near(9 * n));
+            encode(&FlowSamples {
+                schema_version: SCHEMA_VERSION,
+                group: r.name(groups),
+                step: r.step(),
+                t_plus: r.float(),
+                velocity: r.floats(a),
+                velocity_gradient: r.floats(b),
+            })
+        }
+        "fiberflow_msgs/msg/FiberGroupState" => encode(&state(r, groups)),
+        "fiberflow_msgs/msg/FiberGroupMetrics" => {
+            let n = r.below(20) as usize;
+            let (a, b, c) = (r.len_near(3 * n), r.len_near(n), r.len_near(n));
+            encode(&FiberGroupMetrics {
+                schema_version: SCHEMA_VERSION,
+                group: r.name(groups),
+                step: r.step(),
+                t_plus: r.float(),
+                centre_of_mass: r.floats(a),
+                z1: r.floats(n),
+                sigma2: r.floats(b),
+                end_to_end: r.floats(c),
+                mean_abs_z1: r.float(),
+                mean_sigma2: r.float(),
+            })
+        }
+        _ => encode(&Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: r.name(groups),
+            state: r.below(8) as u8,
+            step: r.step(),
+            dropped: r.next_u64(),
+        }),
+    }
+}
+
+/// A payload of `type_name` that always breaks a rule a receiver checks: inconsistent
+/// arrays, a non-finite value, an unknown lifecycle state, a name outside the run, or a
+/// step beyond any run (≥ 2^40).
+pub fn nonsense_payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+    loop {
+        let b = random_payload(type_name, r, groups);
+        let broken = match crate::sanity::check_payload(type_name, &b) {
+            Err(_) => true,
+            Ok(stamp) => {
+                stamp.step.is_some_and(|k| k >= 1 << 40)
+                    || stamp
+                        .owner
+                        .as_ref()
+                        .is_some_and(|o| o.is_empty() || o.starts_with("intruder"))
+            }
+        };
+        // an announcement that passes its checks still names another run ("" or
+        // "intruder…" ids, a random digest): receivers compare both
+        let announce_ok = type_name == "fiberflow_msgs/msg/RunAnnouncement";
+        if broken || announce_ok {
+            return b;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sanity::{check_payload, Sane};
+
+    /// 10^5 random messages of every type through the checks: none panics, and every
+    /// accepted state can be walked fibre by fibre with its own counts (what the recorder's
+    /// PointCloud2, the analysis and the viewer do) without leaving its arrays.
+    #[test]
+    fn checks_survive_random_structured_messages() {
+        let groups = vec!["case1".to_string(), "case2".to_string()];
+        let mut r = Rng::new(7);
+        let mut accepted = [0u32; 7];
+        for i in 0..100_000 {
+            let t = TYPES[i % TYPES.len()];
+            let b = random_payload(t, &mut r, &groups);
+            if check_payload(t, &b).is_ok() {
+                accepted[i % TYPES.len()] += 1;
+                if t == "fiberflow_msgs/msg/FiberGroupState" {
+                    let s: FiberGroupState = crate::decode(&b).unwrap();
+                    assert!(s.check().is_ok());
+                    let mut seg = 0usize;
+                    for (f, &n) in s.segments_per_fiber.iter().enumerate() {
+                        let _ = (s.segment_length[f], s.layer[f], s.diameter[f]);
+                        for i in seg..seg + n as usize {
+                            let _ = (s.centre[3 * i + 2], s.axis[3 * i + 2]);
+                            let _ = (s.velocity[3 * i + 2], s.angular_velocity[3 * i + 2]);
+                        }
+                        seg += n as usize;
+                    }
+                }
+            }
+            // a truncated copy never passes as the full message
+            if b.len() > 8 {
+                let cut = &b[..b.len() - 1 - (i % 7)];
+                let _ = check_payload(t, cut);
+            }
+        }
+        // the generator reaches both sides of every check
+        for (t, n) in TYPES.iter().zip(accepted) {
+            assert!(n > 100 && n < 100_000 / 7, "{t}: {n} of ~14286 accepted");
+        }
+    }
+
+    #[test]
+    fn nonsense_is_always_refused_or_foreign() {
+        let groups = vec!["case1".to_string()];
+        let mut r = Rng::new(3);
+        for i in 0..20_000 {
+            let t = TYPES[i % TYPES.len()];
+            let b = nonsense_payload(t, &mut r, &groups);
+            if let Ok(stamp) = check_payload(t, &b) {
+                let foreign = stamp.step.is_some_and(|k| k >= 1 << 40)
+                    || stamp
+                        .owner
+                        .as_ref()
+                        .is_some_and(|o| o.is_empty() || o.starts_with("intruder"))
+                    || t == "fiberflow_msgs/msg/RunAnnouncement";
+                assert!(foreign, "{t} passed as sensible");
+            }
+        }
+    }
+}

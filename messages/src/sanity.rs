@@ -1,0 +1,207 @@
+//! Checks after decoding (DESIGN §3): a message can be valid CDR and still make no sense —
+//! array lengths that disagree with the segment counts, NaN or infinite values, an unknown
+//! lifecycle state. Receivers drop and count such messages like undecodable ones, so no
+//! node indexes an array by a count it has not checked.
+
+use crate::types::*;
+
+/// Semantic validity of a decoded message.
+pub trait Sane {
+    /// `Err(reason)` if the message is inconsistent.
+    fn check(&self) -> Result<(), String>;
+}
+
+fn finite(name: &str, xs: &[f64]) -> Result<(), String> {
+    match xs.iter().position(|x| !x.is_finite()) {
+        Some(i) => Err(format!("{name}[{i}] is not finite")),
+        None => Ok(()),
+    }
+}
+
+fn len(name: &str, got: usize, want: usize) -> Result<(), String> {
+    if got != want {
+        return Err(format!("{name} has {got} values, expected {want}"));
+    }
+    Ok(())
+}
+
+fn time(t_plus: f64) -> Result<(), String> {
+    if !(t_plus.is_finite() && t_plus >= 0.0) {
+        return Err(format!("t_plus {t_plus} is not a time"));
+    }
+    Ok(())
+}
+
+impl Sane for RunAnnouncement {
+    fn check(&self) -> Result<(), String> {
+        if self.run_id.is_empty() || self.groups.iter().any(|g| g.is_empty()) {
+            return Err("empty run or group name".into());
+        }
+        if !(self.dt_plus.is_finite() && self.dt_plus > 0.0) || self.steps == 0 {
+            return Err("dt_plus and steps must be positive".into());
+        }
+        len("box_plus", self.box_plus.len(), 3)?;
+        if !self.box_plus.iter().all(|b| b.is_finite() && *b > 0.0) {
+            return Err("box_plus must be positive".into());
+        }
+        Ok(())
+    }
+}
+
+impl Sane for FlowStatus {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        // re_tau is NaN on steps without a wall-shear evaluation
+        finite(
+            "status",
+            &[
+                self.dt_plus,
+                self.cfl,
+                self.max_divergence,
+                self.bulk_velocity,
+            ],
+        )
+    }
+}
+
+impl Sane for FlowProfiles {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        let n = self.y_plus.len();
+        for (name, v) in [
+            ("y_plus", &self.y_plus),
+            ("u_mean", &self.u_mean),
+            ("u_rms", &self.u_rms),
+            ("v_rms", &self.v_rms),
+            ("w_rms", &self.w_rms),
+            ("uv", &self.uv),
+            ("omega_z_mean", &self.omega_z_mean),
+            ("omega_x_rms", &self.omega_x_rms),
+            ("omega_y_rms", &self.omega_y_rms),
+            ("omega_z_rms", &self.omega_z_rms),
+        ] {
+            len(name, v.len(), n)?;
+            finite(name, v)?;
+        }
+        Ok(())
+    }
+}
+
+impl Sane for FlowSamples {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        if self.group.is_empty() || self.velocity.len() % 3 != 0 {
+            return Err("empty group or velocity not in triples".into());
+        }
+        len(
+            "velocity_gradient",
+            self.velocity_gradient.len(),
+            3 * self.velocity.len(),
+        )?;
+        finite("velocity", &self.velocity)?;
+        finite("velocity_gradient", &self.velocity_gradient)
+    }
+}
+
+impl Sane for FiberGroupState {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        let nf = self.segments_per_fiber.len();
+        if self.group.is_empty() {
+            return Err("empty group name".into());
+        }
+        len("segment_length", self.segment_length.len(), nf)?;
+        len("diameter", self.diameter.len(), nf)?;
+        len("density_ratio", self.density_ratio.len(), nf)?;
+        len("layer", self.layer.len(), nf)?;
+        if self.segments_per_fiber.contains(&0) {
+            return Err("a fibre with 0 segments".into());
+        }
+        let nseg: u64 = self.segments_per_fiber.iter().map(|&n| n as u64).sum();
+        let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
+        for (name, v) in [
+            ("centre", &self.centre),
+            ("axis", &self.axis),
+            ("velocity", &self.velocity),
+            ("angular_velocity", &self.angular_velocity),
+        ] {
+            len(name, v.len(), want)?;
+            finite(name, v)?;
+        }
+        finite("segment_length", &self.segment_length)?;
+        finite("diameter", &self.diameter)?;
+        finite("density_ratio", &self.density_ratio)
+    }
+}
+
+impl Sane for FiberGroupMetrics {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        let n = self.z1.len();
+        len("centre_of_mass", self.centre_of_mass.len(), 3 * n)?;
+        len("sigma2", self.sigma2.len(), n)?;
+        len("end_to_end", self.end_to_end.len(), n)?;
+        for (name, v) in [
+            ("centre_of_mass", &self.centre_of_mass),
+            ("z1", &self.z1),
+            ("sigma2", &self.sigma2),
+            ("end_to_end", &self.end_to_end),
+        ] {
+            finite(name, v)?;
+        }
+        finite("means", &[self.mean_abs_z1, self.mean_sigma2])
+    }
+}
+
+impl Sane for Heartbeat {
+    fn check(&self) -> Result<(), String> {
+        if self.node.is_empty() || self.state > lifecycle::FAILED {
+            return Err(format!(
+                "heartbeat of {:?} with unknown state {}",
+                self.node, self.state
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What a checked message is about: its step (step-stamped types) and its owner (the
+/// group of group messages, the node of a heartbeat, the run of an announcement).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Stamp {
+    pub step: Option<u64>,
+    pub owner: Option<String>,
+}
+
+/// Decodes `bytes` as `type_name` and checks it; `Err(reason)` for garbage or nonsense.
+pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
+    fn go<M: crate::Message + Sane>(b: &[u8], stamp: impl Fn(M) -> Stamp) -> Result<Stamp, String> {
+        let m = crate::decode::<M>(b).map_err(|e| e.to_string())?;
+        m.check()?;
+        Ok(stamp(m))
+    }
+    let st = |step: u64, owner: Option<String>| Stamp {
+        step: Some(step),
+        owner,
+    };
+    match type_name {
+        "fiberflow_msgs/msg/RunAnnouncement" => go::<RunAnnouncement>(bytes, |m| Stamp {
+            step: None,
+            owner: Some(m.run_id),
+        }),
+        "fiberflow_msgs/msg/Heartbeat" => go::<Heartbeat>(bytes, |m| Stamp {
+            step: None,
+            owner: Some(m.node),
+        }),
+        "fiberflow_msgs/msg/FlowStatus" => go::<FlowStatus>(bytes, |m| st(m.step, None)),
+        "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None)),
+        "fiberflow_msgs/msg/FlowSamples" => go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group))),
+        "fiberflow_msgs/msg/FiberGroupState" => {
+            go::<FiberGroupState>(bytes, |m| st(m.step, Some(m.group)))
+        }
+        "fiberflow_msgs/msg/FiberGroupMetrics" => {
+            go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group)))
+        }
+        other => Err(format!("unknown message type {other}")),
+    }
+}

@@ -1,0 +1,236 @@
+//! Runs that survive (coupled checkpoints, restart, resume): real processes killed with
+//! SIGKILL mid-run; the fibre states over all recording segments must be bitwise those of
+//! an uninterrupted run.
+
+use fiberflow_e2e::*;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// The quick launch, shortened: 120 coupling steps (30 t+), a checkpoint every 5 t+.
+fn quick_sets() -> Vec<String> {
+    [
+        "run.steps=120",
+        "run.checkpoint_every_plus=5",
+        "run.analyze=false",
+        "run.step_timeout_s=60",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect()
+}
+
+fn launch_cmd(out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(root().join("launch/quick.toml"))
+        .arg("--transport")
+        .arg("zenoh");
+    for s in quick_sets() {
+        c.arg("--set").arg(s);
+    }
+    c.args(extra);
+    if !extra.contains(&"--resume") {
+        c.arg("--out").arg(out);
+    }
+    c
+}
+
+/// A launch in the background with its output captured to files.
+fn spawn(out: &Path) -> std::process::Child {
+    std::fs::create_dir_all(out).unwrap();
+    let so = std::fs::File::create(out.with_extension("stdout")).unwrap();
+    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
+    launch_cmd(out, &[])
+        .stdout(so)
+        .stderr(se)
+        .spawn()
+        .expect("launch")
+}
+
+/// Waits until the run has a complete checkpoint (a manifest).
+fn wait_for_checkpoint(out: &Path, secs: u64) {
+    let t0 = Instant::now();
+    let root = out.join("checkpoints");
+    while t0.elapsed() < Duration::from_secs(secs) {
+        let done = std::fs::read_dir(&root)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .any(|e| e.path().join("manifest.toml").exists());
+        if done {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    panic!(
+        "no complete checkpoint in {} after {secs} s",
+        root.display()
+    );
+}
+
+fn pids_with(needle: &str) -> Vec<i32> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
+            if cmd.contains(needle) {
+                out.push(pid);
+            }
+        }
+    }
+    out
+}
+
+/// A pseudo-random delay in [0, max_ms) from the clock (printed, so a failure can be
+/// matched to it).
+fn random_delay(max_ms: u64) -> Duration {
+    let ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos() as u64;
+    let ms = (ns.wrapping_mul(0x9E37_79B9) >> 7) % max_ms;
+    eprintln!("kill delay {ms} ms after the first complete checkpoint");
+    Duration::from_millis(ms)
+}
+
+fn text(p: PathBuf) -> String {
+    std::fs::read_to_string(p).unwrap_or_default()
+}
+
+/// Every state payload of every group, by step, over all segments; no step twice.
+fn all_states(dir: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
+    let (states, segments) = states_by_step(dir);
+    assert!(segments >= 1);
+    states
+}
+
+fn assert_same(reference: &BTreeMap<(String, u64), Vec<u8>>, dir: &Path, what: &str) {
+    let got = all_states(dir);
+    assert_eq!(
+        got.len(),
+        reference.len(),
+        "{what}: {} states, the uninterrupted run has {}",
+        got.len(),
+        reference.len()
+    );
+    for (k, v) in reference {
+        let g = got
+            .get(k)
+            .unwrap_or_else(|| panic!("{what}: state {k:?} missing"));
+        assert!(
+            g == v,
+            "{what}: state {k:?} differs from the uninterrupted run"
+        );
+    }
+}
+
+#[test]
+fn killed_nodes_and_launcher_lose_nothing() {
+    let dir = scratch("survive");
+    // the uninterrupted run
+    let reference_out = dir.join("reference");
+    let o = launch_cmd(&reference_out, &[]).output().unwrap();
+    assert!(
+        o.status.success(),
+        "reference run failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let reference = all_states(&reference_out);
+    assert_eq!(reference.len(), 6 * 121, "six groups, steps 0..=120");
+
+    // kill -9 of one node at a random step after the first checkpoint: the launcher rolls
+    // everything back to the newest complete checkpoint and the run completes on its own
+    for node in ["case3", "flow", "recorder"] {
+        let out = dir.join(format!("kill-{node}"));
+        let mut child = spawn(&out);
+        wait_for_checkpoint(&out, 90);
+        std::thread::sleep(random_delay(1500));
+        let spec = out
+            .join(format!("config/{node}.toml"))
+            .display()
+            .to_string();
+        let pids = pids_with(&spec);
+        assert_eq!(pids.len(), 1, "node {node} not found");
+        unsafe { libc::kill(pids[0], libc::SIGKILL) };
+        let st = child.wait().unwrap();
+        let err = text(out.with_extension("stderr"));
+        assert!(
+            st.success(),
+            "run with killed {node} did not complete: {err}"
+        );
+        assert!(
+            err.contains(&format!("node {node} exited"))
+                && err.contains("restarting every node from step"),
+            "the launcher must say which node died and where it resumed: {err}"
+        );
+        let segs = fiberflow_messages::segments::segment_paths(&out).unwrap();
+        assert!(
+            segs.len() >= 2,
+            "a restart records into a new segment: {segs:?}"
+        );
+        assert_same(&reference, &out, &format!("kill -9 {node}"));
+        assert!(
+            pids_with(&out.display().to_string()).is_empty(),
+            "orphans left"
+        );
+    }
+
+    // kill -9 of the launcher and every node at once, then --resume
+    let out = dir.join("kill-all");
+    let mut child = spawn(&out);
+    wait_for_checkpoint(&out, 90);
+    std::thread::sleep(random_delay(1500));
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    for pid in pids_with(&out.display().to_string()) {
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+    }
+    let _ = child.wait();
+    let t0 = Instant::now();
+    while !pids_with(&out.display().to_string()).is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "nodes outlived the launcher"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let o = launch_cmd(&out, &["--resume", out.to_str().unwrap()])
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let so = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "resume failed: {so}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(so.contains("resuming"), "{so}");
+    assert_same(&reference, &out, "kill -9 of everything, then --resume");
+    // the segments are finished files: the Rust reader's summary opens each
+    for seg in fiberflow_messages::segments::segment_paths(&out).unwrap() {
+        let b = std::fs::read(&seg).unwrap();
+        assert!(
+            matches!(mcap::Summary::read(&b), Ok(Some(_))),
+            "{} is not a finished MCAP",
+            seg.display()
+        );
+    }
+    // analysis reads the folder as one recording
+    let a = Command::new(fiberflow())
+        .arg("analyze")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(a.status.success(), "{}", String::from_utf8_lossy(&a.stderr));
+    let csv = std::fs::read_to_string(out.join("analysis/case1_fibres.csv")).unwrap();
+    assert_eq!(
+        csv.lines().count() - 1,
+        121 * 50,
+        "121 states of 50 fibres, once each"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
