@@ -17,6 +17,11 @@ fn transports_give_bitwise_identical_states() {
         let b = scratch(transport);
         launch(&file, &b, transport);
         let sb = states(&b.join("run.mcap"));
+        let w = warnings_in_logs(&b);
+        assert!(
+            w.is_empty(),
+            "a healthy {transport} run logged warnings: {w:#?}"
+        );
         for (g, v) in &sa {
             assert_eq!(v.len(), 201, "group {g}: states for steps 0..=200");
             assert!(
@@ -197,12 +202,16 @@ fn pids_with(needle: &str) -> Vec<i32> {
     out
 }
 
-/// kill -9 of the recorder mid-run: `inspect --recover` gets back everything up to at most
-/// the last second before the kill (by the wall-clock receipt times in the file).
+/// kill -9 of the recorder mid-run (with restarts off): `inspect --recover` gets back
+/// everything up to at most the last second before the kill (by the wall-clock receipt
+/// times in the file).
 #[test]
 fn killed_recorder_is_recoverable() {
     let dir = scratch("kill");
     let file = long_launch(&dir, 40000);
+    let mut text = std::fs::read_to_string(&file).unwrap();
+    text.push_str("\n[run.restart]\npolicy = \"never\"\n");
+    std::fs::write(&file, text).unwrap();
     let out = dir.join("run");
     let (mut child, _) = spawn_launch(&file, &out);
     std::thread::sleep(Duration::from_secs(4));

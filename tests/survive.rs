@@ -142,6 +142,13 @@ fn killed_nodes_and_launcher_lose_nothing() {
     );
     let reference = all_states(&reference_out);
     assert_eq!(reference.len(), 6 * 121, "six groups, steps 0..=120");
+    // the fibres start at the fluid's velocity, and the recorded step 0 says so
+    let s0: fiberflow_messages::FiberGroupState =
+        fiberflow_messages::decode(&reference[&("case1".to_string(), 0)]).unwrap();
+    assert!(
+        s0.velocity.iter().any(|v| v.abs() > 1.0) && s0.angular_velocity.iter().any(|w| *w != 0.0),
+        "step 0 recorded with v = ω = 0 although the fibres start at the fluid's velocity"
+    );
 
     // kill -9 of one node at a random step after the first checkpoint: the launcher rolls
     // everything back to the newest complete checkpoint and the run completes on its own
@@ -219,6 +226,20 @@ fn killed_nodes_and_launcher_lose_nothing() {
             seg.display()
         );
     }
+    // inspect and view read the folder as one recording
+    let i = Command::new(fiberflow()).arg("inspect").arg(&out).output().unwrap();
+    let it = String::from_utf8_lossy(&i.stdout);
+    assert!(i.status.success() && it.contains("segment(s)") && !it.contains("DAMAGED"), "{it}");
+    let rrd = out.join("scene.rrd");
+    let v = Command::new(fiberflow())
+        .arg("view")
+        .arg(&out)
+        .arg("--save")
+        .arg(&rrd)
+        .output()
+        .unwrap();
+    assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
+    assert!(std::fs::metadata(&rrd).unwrap().len() > 10_000);
     // analysis reads the folder as one recording
     let a = Command::new(fiberflow())
         .arg("analyze")

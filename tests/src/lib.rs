@@ -48,6 +48,13 @@ pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
         .output()
         .expect("running fiberflow launch");
     let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+    let stderr = String::from_utf8_lossy(&o.stderr).to_string();
+    // a healthy run prints no warning a newcomer would read as failure
+    assert!(
+        !stderr.contains("WARN") && !stderr.contains("ERROR"),
+        "launch {} --transport {transport} printed warnings:\n{stderr}",
+        file.display()
+    );
     assert!(
         o.status.success(),
         "launch {} --transport {transport} failed:\n{stdout}\n{}",
@@ -55,6 +62,23 @@ pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
         String::from_utf8_lossy(&o.stderr)
     );
     stdout
+}
+
+/// Lines with a WARN or ERROR in a run's node logs (`<out>/logs/*.log`).
+pub fn warnings_in_logs(out: &Path) -> Vec<String> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(out.join("logs"))
+        .expect("logs dir")
+        .flatten()
+    {
+        let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+        for l in text.lines() {
+            if l.contains(" WARN") || l.contains("ERROR") {
+                v.push(format!("{}: {l}", e.file_name().to_string_lossy()));
+            }
+        }
+    }
+    v
 }
 
 /// Fibre-state payloads per group, ordered by step (read with the Rust mcap reader).

@@ -217,6 +217,9 @@ fn progress_thread(
     let mut inbox = Inbox::new(bus.subscribe(&t.flow_status())?);
     let total = lf.run.steps as f64 * lf.run.dt_plus;
     Ok(std::thread::spawn(move || {
+        // the session must outlive the subscription: a zenoh session closed here would
+        // leave the other peers trying to reach a vanished peer (and the bar without data)
+        let _bus = bus;
         let pb = t_plus_bar(total);
         while !finished.load(Ordering::SeqCst) {
             if let Some((_, s)) = inbox.recv::<FlowStatus>(Duration::from_millis(100)) {
@@ -384,14 +387,8 @@ fn supervise_restarts(
                     fiberflow_messages::segments::segment_name(base.segment)
                 );
                 eprintln!("{msg}");
-                tracing::warn!(
-                    step = base.start_step,
-                    restarts,
-                    ms = t0.elapsed().as_millis() as u64,
-                    "{msg}"
-                );
                 let log = base.out_dir.join("logs").join("launcher.log");
-                let line = format!("{msg}\n");
+                let line = format!("{msg} (roll-back took {} ms)\n", t0.elapsed().as_millis());
                 let _ = std::fs::OpenOptions::new()
                     .create(true)
                     .append(true)
@@ -527,7 +524,6 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ende
                         n.name,
                         n.log.display()
                     );
-                    eprintln!("{why}");
                     ended = Some(Ended::NodeDied(why));
                     signal_group(pgid, libc::SIGTERM);
                 }

@@ -225,12 +225,8 @@ fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Val
 }
 
 impl LaunchFile {
-    /// Reads, resolves relative paths against the file's folder, and validates.
-    pub fn load(path: &Path) -> Result<(Self, String)> {
-        Self::load_with(path, &[])
-    }
-
-    /// [`Self::load`] with `--set` overrides. The returned text is the effective launch
+    /// Reads a launch file with `--set` overrides, resolves relative paths against the
+    /// file's folder, and validates. The returned text is the effective launch
     /// file: the file itself, or with overrides the merged TOML under a header naming them
     /// (its digest identifies the run's configuration for checkpoints).
     pub fn load_with(path: &Path, sets: &[String]) -> Result<(Self, String)> {
@@ -455,17 +451,19 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("ff-lf-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let (lf, _) =
-            LaunchFile::load(&write_launch(&dir, "interpolation = \"tricubic\"")).unwrap();
+            LaunchFile::load_with(&write_launch(&dir, "interpolation = \"tricubic\""), &[])
+                .unwrap();
         assert_eq!(
             lf.flow.interpolation,
             fiberflow_dns::sample::Interpolation::Tricubic
         );
-        let (lf, _) = LaunchFile::load(&write_launch(&dir, "")).unwrap();
+        let (lf, _) = LaunchFile::load_with(&write_launch(&dir, ""), &[]).unwrap();
         assert_eq!(
             lf.flow.interpolation,
             fiberflow_dns::sample::Interpolation::Trilinear
         );
-        let err = LaunchFile::load(&write_launch(&dir, "interpolation = \"quintic\"")).unwrap_err();
+        let err = LaunchFile::load_with(&write_launch(&dir, "interpolation = \"quintic\""), &[])
+            .unwrap_err();
         let msg = format!("{err:#}");
         assert!(
             msg.contains("interpolation") && msg.contains("tricubic"),
@@ -494,7 +492,7 @@ mod tests {
             let mut text = std::fs::read_to_string(&p).unwrap();
             text.push_str(&extra);
             std::fs::write(&p, text).unwrap();
-            LaunchFile::load(&p).map_err(|e| format!("{e:#}"))
+            LaunchFile::load_with(&p, &[]).map_err(|e| format!("{e:#}"))
         };
         let ok = load(net("tls/h:7447", "\"flow\", \"recorder\"", "\"g1\"")).unwrap();
         assert_eq!(ok.0.host("worker").unwrap().nodes, vec!["g1".to_string()]);
@@ -547,7 +545,7 @@ mod tests {
         // the effective text is itself a launch file with the same content
         let again = dir.join("eff.toml");
         std::fs::write(&again, &eff).unwrap();
-        assert_eq!(LaunchFile::load(&again).unwrap().0.run, lf.run);
+        assert_eq!(LaunchFile::load_with(&again, &[]).unwrap().0.run, lf.run);
         for (set, want) in [
             ("run.stepz=3", "stepz"),
             ("run.steps=-1", "run.steps"),
@@ -577,16 +575,16 @@ mod tests {
             )
         };
         std::fs::write(&p, text("")).unwrap();
-        let (lf, _) = LaunchFile::load(&p).unwrap();
+        let (lf, _) = LaunchFile::load_with(&p, &[]).unwrap();
         let b = lf.box_plus();
         std::fs::write(
             &p,
             text(&format!("box_plus = [{}, {}, {}]", b[0], b[1], b[2])),
         )
         .unwrap();
-        assert!(LaunchFile::load(&p).is_ok());
+        assert!(LaunchFile::load_with(&p, &[]).is_ok());
         std::fs::write(&p, text(&format!("box_plus = [{}, 320.0, {}]", b[0], b[2]))).unwrap();
-        let e = format!("{:#}", LaunchFile::load(&p).unwrap_err());
+        let e = format!("{:#}", LaunchFile::load_with(&p, &[]).unwrap_err());
         assert!(e.contains("run.box_plus") && e.contains("DNS box"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }

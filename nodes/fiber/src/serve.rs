@@ -228,7 +228,13 @@ pub fn serve(
                     path: dir.display().to_string(),
                     source,
                 })?;
+                let t0 = Instant::now();
                 GroupSnapshot::capture(&group, k + 1).write(&checkpoints::piece(&dir, &name))?;
+                tracing::info!(
+                    step = k + 1,
+                    ms = t0.elapsed().as_millis() as u64,
+                    "checkpoint written"
+                );
             }
         }
     }
