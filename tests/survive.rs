@@ -227,9 +227,16 @@ fn killed_nodes_and_launcher_lose_nothing() {
         );
     }
     // inspect and view read the folder as one recording
-    let i = Command::new(fiberflow()).arg("inspect").arg(&out).output().unwrap();
+    let i = Command::new(fiberflow())
+        .arg("inspect")
+        .arg(&out)
+        .output()
+        .unwrap();
     let it = String::from_utf8_lossy(&i.stdout);
-    assert!(i.status.success() && it.contains("segment(s)") && !it.contains("DAMAGED"), "{it}");
+    assert!(
+        i.status.success() && it.contains("segment(s)") && !it.contains("DAMAGED"),
+        "{it}"
+    );
     let rrd = out.join("scene.rrd");
     let v = Command::new(fiberflow())
         .arg("view")

@@ -32,7 +32,7 @@ pub fn piece(step_dir: &Path, node: &str) -> PathBuf {
 /// (0 = never)? The first and last steps are not: the start is the launch file's own
 /// state and the end is the finished run.
 pub fn is_checkpoint_step(k: u64, every: u64, steps: u64) -> bool {
-    every > 0 && k > 0 && k < steps && k % every == 0
+    every > 0 && k > 0 && k < steps && k.is_multiple_of(every)
 }
 
 #[cfg(test)]

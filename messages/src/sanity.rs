@@ -90,7 +90,7 @@ impl Sane for FlowProfiles {
 impl Sane for FlowSamples {
     fn check(&self) -> Result<(), String> {
         time(self.t_plus)?;
-        if self.group.is_empty() || self.velocity.len() % 3 != 0 {
+        if self.group.is_empty() || !self.velocity.len().is_multiple_of(3) {
             return Err("empty group or velocity not in triples".into());
         }
         len(

@@ -51,7 +51,9 @@ pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
     let stderr = String::from_utf8_lossy(&o.stderr).to_string();
     // a healthy run prints no warning a newcomer would read as failure
     assert!(
-        !stderr.contains("WARN") && !stderr.contains("ERROR"),
+        !["WARN", "ERROR", "[W]", "[E]"]
+            .iter()
+            .any(|w| stderr.contains(w)),
         "launch {} --transport {transport} printed warnings:\n{stderr}",
         file.display()
     );
@@ -73,7 +75,10 @@ pub fn warnings_in_logs(out: &Path) -> Vec<String> {
     {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
         for l in text.lines() {
-            if l.contains(" WARN") || l.contains("ERROR") {
+            if [" WARN", "ERROR", "[W]", "[E]"]
+                .iter()
+                .any(|w| l.contains(w))
+            {
                 v.push(format!("{}: {l}", e.file_name().to_string_lossy()));
             }
         }

@@ -33,6 +33,9 @@ fn terr<E: std::fmt::Debug>(e: E) -> String {
 impl Iceoryx2Bus {
     /// Opens the bus for a run; `topics` are every topic the run uses.
     pub fn open(run_id: &str, topics: Vec<String>) -> Result<Self, BusError> {
+        // iceoryx2's own log says "no config file was loaded" at warning level on every
+        // healthy start; only errors reach the terminal (IOX2_LOG_LEVEL overrides)
+        set_log_level_from_env_or(LogLevel::Error);
         let (tx, rx) = channel();
         let (ready_tx, ready_rx) = channel();
         let run = run_id.to_string();

@@ -79,14 +79,13 @@ impl GroupSnapshot {
             ));
         }
         let v3 = |a: &[f64], i: usize| Vector3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2]);
-        let mut i = 0;
-        for seg in group.fibres.iter_mut().flat_map(|f| f.segments.iter_mut()) {
+        let segments = group.fibres.iter_mut().flat_map(|f| f.segments.iter_mut());
+        for (i, seg) in segments.enumerate() {
             seg.r = v3(&self.centre, i);
             seg.z = v3(&self.axis, i);
             seg.v = v3(&self.velocity, i);
             seg.w = v3(&self.angular_velocity, i);
             seg.n = v3(&self.normal, i);
-            i += 1;
         }
         Ok(())
     }

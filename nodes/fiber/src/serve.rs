@@ -170,7 +170,7 @@ pub fn serve(
         };
     let start = ck.start_step;
     publish_state(&group, start)?;
-    if start == 0 || start % cfg.metrics_every == 0 {
+    if start == 0 || start.is_multiple_of(cfg.metrics_every) {
         publish_metrics(&group, start)?;
     }
     let step_timeout = Duration::from_secs_f64(timeout_s);

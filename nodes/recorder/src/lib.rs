@@ -333,6 +333,7 @@ impl Session<'_> {
             if !(past(&self.state_step) && past(&self.samples_step)) {
                 return Ok(());
             }
+            let t0 = Instant::now();
             self.out.w.flush().map_err(self.out.err())?;
             let io = |path: &Path| {
                 let path = path.display().to_string();
@@ -359,6 +360,11 @@ impl Session<'_> {
                 })
                 .map_err(io(&tmp))?;
             std::fs::rename(&tmp, &piece).map_err(io(&piece))?;
+            tracing::info!(
+                step = c,
+                ms = t0.elapsed().as_millis() as u64,
+                "checkpoint written (segment flushed to disk)"
+            );
             let next = c + self.plan.checkpoint_every;
             self.next_checkpoint = (next < self.plan.steps).then_some(next);
         }
