@@ -498,7 +498,9 @@ pub fn record(
             }
             Some("fiberflow_msgs/msg/Heartbeat") => {
                 if let Ok(hb) = decode::<Heartbeat>(&bytes) {
-                    if hb.state == lifecycle::DONE || hb.state == lifecycle::FAILED {
+                    // a node is done when it says so at the run's last step (the launcher
+                    // stops the recorder when a node fails; a stray heartbeat must not)
+                    if hb.state == lifecycle::DONE && hb.step == plan.steps {
                         flow_done |= hb.node == "flow";
                         done.insert(hb.node);
                         if expected.is_subset(&done) && finish_at.is_none() {
