@@ -268,3 +268,30 @@ fn killed_nodes_and_launcher_lose_nothing() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A node that exits with an error before any checkpoint (here: the flow node's restart
+/// file does not exist) is not restarted over and over: the launcher stops at once and
+/// says which node, why it did not restart, and where its log is.
+#[test]
+fn deterministic_failure_is_not_restarted() {
+    let dir = scratch("no-restart");
+    let out = dir.join("run");
+    let o = Command::new(fiberflow())
+        .arg("launch")
+        .arg(root().join("launch/quick.toml"))
+        .args(["--transport", "zenoh", "--out"])
+        .arg(&out)
+        .args(["--set", "flow.source.restart=/nonexistent/flow.ckpt"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("node flow exited")
+            && err.contains("not restarting")
+            && err.contains("flow.log"),
+        "{err}"
+    );
+    assert!(!err.contains("restart 1 of"), "it was restarted: {err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

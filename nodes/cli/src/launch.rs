@@ -371,16 +371,23 @@ fn supervise_restarts(
         match run_processes(base, nodes, stop.clone())? {
             Ended::Finished => return Ok(()),
             Ended::Interrupted => bail!("interrupted"),
-            Ended::NodeDied(why) => {
+            Ended::NodeDied { why, signalled } => {
                 if !can_restart {
                     bail!(why);
                 }
                 if restarts >= max {
                     bail!("{why}; gave up after {max} restart(s) (run.restart.max_restarts)");
                 }
-                restarts += 1;
                 let t0 = Instant::now();
+                let started_at = base.start_step;
                 roll_back(base, pieces, digest)?;
+                // a node that exits with an error (not killed by a signal) before the run
+                // has a newer checkpoint would fail the same way again: the steps are
+                // deterministic, and so is a configuration error
+                if !signalled && base.start_step <= started_at {
+                    bail!("{why}; not restarting: it failed with an error before any new checkpoint (see its log)");
+                }
+                restarts += 1;
                 let msg = format!(
                     "{why}; restarting every node from step {} (restart {restarts} of {max}), recording into {}",
                     base.start_step,
@@ -403,8 +410,12 @@ fn supervise_restarts(
 enum Ended {
     Finished,
     Interrupted,
-    /// A node exited with a failure (the message names it, its status and its log).
-    NodeDied(String),
+    /// A node exited with a failure (the message names it, its status and its log);
+    /// `signalled`: it was killed by a signal rather than exiting with an error.
+    NodeDied {
+        why: String,
+        signalled: bool,
+    },
 }
 
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<Ended> {
@@ -524,7 +535,8 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ende
                         n.name,
                         n.log.display()
                     );
-                    ended = Some(Ended::NodeDied(why));
+                    let signalled = std::os::unix::process::ExitStatusExt::signal(&st).is_some();
+                    ended = Some(Ended::NodeDied { why, signalled });
                     signal_group(pgid, libc::SIGTERM);
                 }
             }

@@ -19,6 +19,10 @@ pub enum FlowSource {
         dns: DnsConfig,
         #[serde(default)]
         restart: Option<PathBuf>,
+        /// The restart field is on another grid of the same box: interpolate it
+        /// (tricubic) onto this one and project, at start (as `spinup.regrid` does).
+        #[serde(default)]
+        regrid: bool,
     },
 }
 
@@ -67,8 +71,18 @@ fn default_status_every() -> u64 {
 
 impl FlowNodeConfig {
     pub fn validate(&self) -> Result<(), FlowError> {
-        if let FlowSource::Dns { dns, .. } = &self.source {
+        if let FlowSource::Dns {
+            dns,
+            restart,
+            regrid,
+        } = &self.source
+        {
             dns.validate()?;
+            if *regrid && restart.is_none() {
+                return Err(FlowError::Config(
+                    "flow.source.regrid = true needs flow.source.restart (the field to move onto this grid)".into(),
+                ));
+            }
         }
         if let Some(s) = &self.spinup {
             s.validate()?;
@@ -96,5 +110,35 @@ impl FlowNodeConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regrid_needs_a_restart_field() {
+        let src = |regrid, restart: Option<&str>| FlowNodeConfig {
+            source: FlowSource::Dns {
+                dns: DnsConfig::with_cells(16, 16, 16),
+                restart: restart.map(PathBuf::from),
+                regrid,
+            },
+            spinup: None,
+            steps: 10,
+            dt_plus: 0.2,
+            join_timeout_s: 30.0,
+            status_every: 10,
+            profiles_every: 100,
+            interpolation: Interpolation::Trilinear,
+        };
+        assert!(src(true, Some("a.ckpt")).validate().is_ok());
+        assert!(src(false, None).validate().is_ok());
+        let e = src(true, None).validate().unwrap_err().to_string();
+        assert!(
+            e.contains("flow.source.regrid") && e.contains("flow.source.restart"),
+            "{e}"
+        );
     }
 }

@@ -148,14 +148,22 @@ pub fn serve(
     let mut resumed_stats = None;
     let mut field = match &cfg.source {
         FlowSource::Analytic { flow } => Field::Analytic(*flow),
-        FlowSource::Dns { dns, restart } => {
+        FlowSource::Dns {
+            dns,
+            restart,
+            regrid,
+        } => {
             let mut d = dns.clone();
             d.dt_fixed_plus = Some(cfg.dt_plus);
             let mut s = Solver::new(d)?;
             if let Some(dir) = &run.resume_dir {
                 resumed_stats = crate::checkpoint::read_dns(dir, &mut s)?;
             } else if let Some(r) = restart {
-                s.read_checkpoint(r)?;
+                if *regrid {
+                    s.read_checkpoint_regridded(r)?;
+                } else {
+                    s.read_checkpoint(r)?;
+                }
             }
             check_stability(&s, cfg.dt_plus)?;
             let smp = Sampler::with_scheme(&s.grid, cfg.interpolation);

@@ -194,6 +194,8 @@ struct Session<'a> {
     /// Newest state and samples step per group (for the checkpoint commit).
     state_step: BTreeMap<String, u64>,
     samples_step: BTreeMap<String, u64>,
+    /// Newest flow status step.
+    status_step: Option<u64>,
     plan: &'a RecordPlan,
     next_checkpoint: Option<u64>,
 }
@@ -218,6 +220,9 @@ impl Session<'_> {
             return Ok(());
         }
         let step = stamp.step;
+        if type_name == "fiberflow_msgs/msg/FlowStatus" {
+            self.status_step = self.status_step.max(step);
+        }
         let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
         if let Some(k) = step {
             if let Some(g) = &stamp.owner {
@@ -330,7 +335,13 @@ impl Session<'_> {
                     .iter()
                     .all(|g| m.get(g).is_some_and(|&s| s > c))
             };
-            if !(past(&self.state_step) && past(&self.samples_step)) {
+            // without fibre groups the flow node's status of a later step marks it
+            let ready = if self.plan.groups.is_empty() {
+                self.status_step.is_some_and(|s| s > c)
+            } else {
+                past(&self.state_step) && past(&self.samples_step)
+            };
+            if !ready {
                 return Ok(());
             }
             let t0 = Instant::now();
@@ -445,6 +456,7 @@ pub fn record(
         held_first: BTreeMap::new(),
         state_step: BTreeMap::new(),
         samples_step: BTreeMap::new(),
+        status_step: None,
         plan,
         next_checkpoint,
     };
