@@ -30,8 +30,8 @@ struct Shared {
     node: Node<Svc>,
     topics: Vec<String>,
     services: Mutex<HashMap<String, PubSub>>,
-    publishers: Mutex<HashMap<String, Publisher<Svc, [u8], ()>>>,
-    subscribers: Mutex<Vec<(String, Subscriber<Svc, [u8], ()>, Sender<Envelope>)>>,
+    publishers: Mutex<HashMap<String, BytePublisher>>,
+    subscribers: Mutex<Vec<Route>>,
     notifier: Mutex<Notifier<Svc>>,
     stop: AtomicBool,
 }

@@ -32,6 +32,14 @@ enum Hx {
     Face,
 }
 
+/// A point's brackets: `x[Hx]`, `z[Hx]` = (lower node, upper node, fraction), `y[Vy]` =
+/// (lower node, fraction).
+struct Brackets {
+    x: [(usize, usize, f64); 2],
+    z: [(usize, usize, f64); 2],
+    y: [(usize, f64); 3],
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Vy {
     /// Wall, cell centres 1..=ny, wall (ny+2 nodes).
@@ -179,61 +187,83 @@ impl Sampler {
                 (f[at(i, jn + 1, k)] - f[at(i, jn, k)]) / g.dyc[jn]
             }
         };
+        let b = self.brackets(g, p);
         let mut s = Sample::default();
         use Hx::{Centre as C, Face as F};
-        s.vel[0] = self.interp(g, p, F, Vy::Centre, C, |i, j, k| centre_val(u, i, j, k));
-        s.vel[1] = self.interp(g, p, C, Vy::Face, C, |i, j, k| v[at(i, j, k)]);
-        s.vel[2] = self.interp(g, p, C, Vy::Centre, F, |i, j, k| centre_val(w, i, j, k));
+        s.vel[0] = self.interp(&b, F, Vy::Centre, C, |i, j, k| centre_val(u, i, j, k));
+        s.vel[1] = self.interp(&b, C, Vy::Face, C, |i, j, k| v[at(i, j, k)]);
+        s.vel[2] = self.interp(&b, C, Vy::Centre, F, |i, j, k| centre_val(w, i, j, k));
         // ∂u/∂x, ∂u/∂y, ∂u/∂z
-        s.grad[0] = self.interp(g, p, C, Vy::Centre, C, |i, j, k| {
+        s.grad[0] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
             (centre_val(u, i, j, k) - centre_val(u, i - 1, j, k)) / dx
         });
-        s.grad[1] = self.interp(g, p, F, Vy::Mid, C, |i, j, k| y_mid_deriv(u, i, j, k));
-        s.grad[2] = self.interp(g, p, F, Vy::Centre, F, |i, j, k| {
+        s.grad[1] = self.interp(&b, F, Vy::Mid, C, |i, j, k| y_mid_deriv(u, i, j, k));
+        s.grad[2] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
             (centre_val(u, i, j, k + 1) - centre_val(u, i, j, k)) / dz
         });
         // ∂v/∂x, ∂v/∂y, ∂v/∂z
-        s.grad[3] = self.interp(g, p, F, Vy::Face, C, |i, j, k| {
+        s.grad[3] = self.interp(&b, F, Vy::Face, C, |i, j, k| {
             (v[at(i + 1, j, k)] - v[at(i, j, k)]) / dx
         });
-        s.grad[4] = self.interp(g, p, C, Vy::Centre, C, |i, j, k| {
+        s.grad[4] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
             if j == 0 || j == ny + 1 {
                 0.0
             } else {
                 (v[at(i, j, k)] - v[at(i, j - 1, k)]) / g.dyf[j]
             }
         });
-        s.grad[5] = self.interp(g, p, C, Vy::Face, F, |i, j, k| {
+        s.grad[5] = self.interp(&b, C, Vy::Face, F, |i, j, k| {
             (v[at(i, j, k + 1)] - v[at(i, j, k)]) / dz
         });
         // ∂w/∂x, ∂w/∂y, ∂w/∂z
-        s.grad[6] = self.interp(g, p, F, Vy::Centre, F, |i, j, k| {
+        s.grad[6] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
             (centre_val(w, i + 1, j, k) - centre_val(w, i, j, k)) / dx
         });
-        s.grad[7] = self.interp(g, p, C, Vy::Mid, F, |i, j, k| y_mid_deriv(w, i, j, k));
-        s.grad[8] = self.interp(g, p, C, Vy::Centre, C, |i, j, k| {
+        s.grad[7] = self.interp(&b, C, Vy::Mid, F, |i, j, k| y_mid_deriv(w, i, j, k));
+        s.grad[8] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
             (centre_val(w, i, j, k) - centre_val(w, i, j, k - 1)) / dz
         });
         s
+    }
+
+    /// The brackets of a point on every staggered location: x and z on centres and faces,
+    /// y on the centre, face and mid node lists (computed once per point, used by all twelve
+    /// interpolations of a sample).
+    fn brackets(&self, g: &Grid, p: [f64; 3]) -> Brackets {
+        let per = |x: f64, d: f64, n: usize, h: Hx| {
+            let (m0, f) = periodic_bracket(x, d, n, h);
+            (m0, if m0 == n { 1 } else { m0 + 1 }, f)
+        };
+        Brackets {
+            x: [
+                per(p[0], g.dx, g.nx, Hx::Centre),
+                per(p[0], g.dx, g.nx, Hx::Face),
+            ],
+            z: [
+                per(p[2], g.dz, g.nz, Hx::Centre),
+                per(p[2], g.dz, g.nz, Hx::Face),
+            ],
+            y: [
+                bracket(&self.centre, p[1]),
+                bracket(&self.face, p[1]),
+                bracket(&self.mid, p[1]),
+            ],
+        }
     }
 
     /// Trilinear interpolation of a located quantity given by `val(i, jnode, k)`; the
     /// accessor may read one index either side of 1..=n (the halos hold periodic copies).
     fn interp(
         &self,
-        g: &Grid,
-        p: [f64; 3],
+        b: &Brackets,
         hx: Hx,
         vy: Vy,
         hz: Hx,
         val: impl Fn(usize, usize, usize) -> f64,
     ) -> f64 {
-        let (i0, fx) = periodic_bracket(p[0], g.dx, g.nx, hx);
-        let (k0, fz) = periodic_bracket(p[2], g.dz, g.nz, hz);
-        let nodes = self.nodes(vy);
-        let (j0, fy) = bracket(nodes, p[1]);
-        let i1 = if i0 == g.nx { 1 } else { i0 + 1 };
-        let k1 = if k0 == g.nz { 1 } else { k0 + 1 };
+        let (i0, i1, fx) = b.x[hx as usize];
+        let (k0, k1, fz) = b.z[hz as usize];
+        let (j0, fy) = b.y[vy as usize];
         let mut acc = 0.0;
         for (jj, wy) in [(j0, 1.0 - fy), (j0 + 1, fy)] {
             for (kk, wz) in [(k0, 1.0 - fz), (k1, fz)] {

@@ -174,6 +174,8 @@ pub fn serve(
         publish_metrics(&group, start)?;
     }
     let step_timeout = Duration::from_secs_f64(timeout_s);
+    // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
+    let mut timing = (0.0, 0.0, 0.0);
     for k in start..ann.steps {
         let wait_from = Instant::now();
         let samples = loop {
@@ -201,6 +203,9 @@ pub fn serve(
                 }
             }
         };
+        let (mut waited_s, mut stepped_s, mut published_s) = timing;
+        waited_s += wait_from.elapsed().as_secs_f64();
+        let t0 = Instant::now();
         let fluid: Vec<FluidSample> = samples
             .velocity
             .chunks_exact(3)
@@ -217,10 +222,14 @@ pub fn serve(
             publish_state(&group, 0)?;
         }
         group.step(&fluid, dt)?;
+        stepped_s += t0.elapsed().as_secs_f64();
+        let t0 = Instant::now();
         publish_state(&group, k + 1)?;
         if (k + 1) % cfg.metrics_every == 0 || k + 1 == ann.steps {
             publish_metrics(&group, k + 1)?;
         }
+        published_s += t0.elapsed().as_secs_f64();
+        timing = (waited_s, stepped_s, published_s);
         if let Some(root) = &ck.root {
             if checkpoints::is_checkpoint_step(k + 1, ck.every, ann.steps) {
                 let dir = checkpoints::step_dir(root, k + 1);
@@ -238,6 +247,13 @@ pub fn serve(
             }
         }
     }
+    tracing::info!(
+        steps = ann.steps - start,
+        waiting_for_samples_s = format!("{:.3}", timing.0),
+        fibre_step_s = format!("{:.3}", timing.1),
+        encoding_and_publishing_s = format!("{:.3}", timing.2),
+        "where the group's time went"
+    );
     hb(lifecycle::DONE, ann.steps, samples_in.drops.total())?;
     let mut drops = samples_in.drops.clone();
     for (k, v) in ann_in.drops.by_topic {

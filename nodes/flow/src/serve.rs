@@ -13,6 +13,7 @@ use fiberflow_messages::{
     encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowStatus, Heartbeat,
     RunAnnouncement, SCHEMA_VERSION,
 };
+use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -38,6 +39,15 @@ pub struct RunInfo {
     pub checkpoint_root: Option<PathBuf>,
     /// Segment count of every group (states with another count are dropped).
     pub group_segments: BTreeMap<String, usize>,
+}
+
+/// Wall seconds per stage of the coupling loop (logged at the end of a run).
+#[derive(Debug, Default)]
+struct Timing {
+    waiting_s: f64,
+    sampling_s: f64,
+    publishing_s: f64,
+    field_step_s: f64,
 }
 
 enum Admit {
@@ -226,6 +236,7 @@ pub fn serve(
     if run.start_step > 0 {
         tracing::info!(step = run.start_step, "resuming from a coupled checkpoint");
     }
+    let mut timing = Timing::default();
     for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -265,12 +276,15 @@ pub fn serve(
             }
         }
         let t_plus = k as f64 * cfg.dt_plus;
+        timing.waiting_s += wait_from.elapsed().as_secs_f64();
         for (group, s) in std::mem::take(&mut pending) {
+            let t0 = Instant::now();
             let n = s.centre.len() / 3;
-            let mut vel = Vec::with_capacity(3 * n);
-            let mut grad = Vec::with_capacity(9 * n);
-            for p in s.centre.chunks_exact(3) {
-                let (v, g) = match &field {
+            let mut vel = vec![0.0; 3 * n];
+            let mut grad = vec![0.0; 9 * n];
+            // every point on its own: parallel, and the same bits as one by one
+            let sample = |p: &[f64]| -> ([f64; 3], [f64; 9]) {
+                match &field {
                     Field::Analytic(a) => a.sample([p[0], p[1], p[2]]),
                     Field::Dns(solver, smp) => {
                         let re = solver.cfg.re_tau;
@@ -283,10 +297,20 @@ pub fn serve(
                         g.iter_mut().for_each(|x| *x /= re);
                         (sm.vel, g)
                     }
-                };
-                vel.extend_from_slice(&v);
-                grad.extend_from_slice(&g);
-            }
+                }
+            };
+            s.centre
+                .par_chunks_exact(3)
+                .zip(vel.par_chunks_exact_mut(3))
+                .zip(grad.par_chunks_exact_mut(9))
+                .with_min_len(256)
+                .for_each(|((p, v), g)| {
+                    let (sv, sg) = sample(p);
+                    v.copy_from_slice(&sv);
+                    g.copy_from_slice(&sg);
+                });
+            timing.sampling_s += t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
             let msg = FlowSamples {
                 schema_version: SCHEMA_VERSION,
                 group: group.clone(),
@@ -296,6 +320,7 @@ pub fn serve(
                 velocity_gradient: grad,
             };
             bus.publish(&t.flow_samples(&group), &encode(&msg))?;
+            timing.publishing_s += t0.elapsed().as_secs_f64();
         }
         if k == run.steps {
             break;
@@ -337,7 +362,9 @@ pub fn serve(
                 re_tau: 0.0,
             },
             Field::Dns(solver, _) => {
+                let t0 = Instant::now();
                 let r = solver.step()?;
+                timing.field_step_s += t0.elapsed().as_secs_f64();
                 // the DNS branch always has statistics; the analytic one has none
                 let stats = stats
                     .get_or_insert_with(|| fiberflow_dns::stats::RunningStats::new(&solver.grid));
@@ -395,6 +422,14 @@ pub fn serve(
             on_status(&status);
         }
     }
+    tracing::info!(
+        steps = run.steps - run.start_step,
+        waiting_for_states_s = format!("{:.3}", timing.waiting_s),
+        sampling_s = format!("{:.3}", timing.sampling_s),
+        encoding_and_publishing_s = format!("{:.3}", timing.publishing_s),
+        field_step_s = format!("{:.3}", timing.field_step_s),
+        "where the flow node's time went"
+    );
     heartbeat(&bus, &t, lifecycle::DONE, run.steps, st_in.drops.total())?;
     let mut drops = st_in.drops.clone();
     for (k, v) in hb_in.drops.by_topic {
