@@ -22,6 +22,9 @@ use std::time::Duration;
 
 type Svc = ipc_threadsafe::Service;
 type PubSub = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Svc, [u8], ()>;
+type BytePublisher = Publisher<Svc, [u8], ()>;
+/// A subscriber with its topic and the caller's channel.
+type Route = (String, Subscriber<Svc, [u8], ()>, Sender<Envelope>);
 
 /// The longest the receive thread sleeps without a notification (a safety net only).
 const IDLE_WAIT: Duration = Duration::from_millis(50);
