@@ -186,22 +186,6 @@ fn inject_into_a_run(name: &str, structured: bool) {
     }
 }
 
-fn pids_with(needle: &str) -> Vec<i32> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
-            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
-            if cmd.contains(needle) {
-                out.push(pid);
-            }
-        }
-    }
-    out
-}
-
 /// kill -9 of the recorder mid-run (with restarts off): `inspect --recover` gets back
 /// everything up to at most the last second before the kill (by the wall-clock receipt
 /// times in the file).
@@ -346,35 +330,8 @@ fn shortened_quick_run_produces_sane_analysis() {
 fn replay_republishes_the_recording() {
     let out = scratch("replay");
     launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let ep = format!("tcp/127.0.0.1:{port}");
-    let echo = Command::new(fiberflow())
-        .args([
-            "echo",
-            "fiberflow/analytic-shear/**",
-            "--listen",
-            &ep,
-            "--idle-s",
-            "5",
-        ])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(Duration::from_millis(800));
-    let r = Command::new(fiberflow())
-        .arg("replay")
-        .arg(out.join("run.mcap"))
-        .args(["--speed", "0", "--connect", &ep])
-        .output()
-        .unwrap();
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let o = echo.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&o.stdout);
+    // the run folder (its segments in order); here one segment
+    let text = replay_and_echo(&out, "analytic-shear");
     // every state of both groups arrives, in step order per group
     for g in ["case1", "stiff"] {
         let line = format!("total fiberflow/analytic-shear/fibers/{g}/state 201");

@@ -70,22 +70,6 @@ fn wait_for_checkpoint(out: &Path, secs: u64) {
     );
 }
 
-fn pids_with(needle: &str) -> Vec<i32> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir("/proc").unwrap().flatten() {
-        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
-            continue;
-        };
-        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
-            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
-            if cmd.contains(needle) {
-                out.push(pid);
-            }
-        }
-    }
-    out
-}
-
 /// A pseudo-random delay in [0, max_ms) from the clock (printed, so a failure can be
 /// matched to it).
 fn random_delay(max_ms: u64) -> Duration {
@@ -253,6 +237,12 @@ fn killed_nodes_and_launcher_lose_nothing() {
         .unwrap();
     assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
     assert!(std::fs::metadata(&rrd).unwrap().len() > 10_000);
+    // replay republishes the segments as one recording: every state once
+    let echoed = replay_and_echo(&out, "quick");
+    for g in 1..=6 {
+        let line = format!("total fiberflow/quick/fibers/case{g}/state 121");
+        assert!(echoed.contains(&line), "missing {line}");
+    }
     // analysis reads the folder as one recording
     let a = Command::new(fiberflow())
         .arg("analyze")

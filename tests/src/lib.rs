@@ -155,3 +155,55 @@ pub fn states_by_step(path: &Path) -> (BTreeMap<(String, u64), Vec<u8>>, usize) 
     }
     (out, segs.len())
 }
+
+/// Process ids whose command line contains `needle` (e.g. a node's spec path).
+pub fn pids_with(needle: &str) -> Vec<i32> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
+            if cmd.contains(needle) {
+                out.push(pid);
+            }
+        }
+    }
+    out
+}
+
+/// Replays a recording (`replay PATH --speed 0`) to an `echo` listener on a free loopback
+/// port and returns what `echo` printed (a `total <topic> <count>` line per topic).
+pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
+    use std::process::Stdio;
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let echo = Command::new(fiberflow())
+        .args([
+            "echo",
+            &format!("fiberflow/{run_id}/**"),
+            "--listen",
+            &ep,
+            "--idle-s",
+            "5",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(800));
+    let r = Command::new(fiberflow())
+        .arg("replay")
+        .arg(path)
+        .args(["--speed", "0", "--connect", &ep])
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let o = echo.wait_with_output().unwrap();
+    String::from_utf8_lossy(&o.stdout).to_string()
+}
