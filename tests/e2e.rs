@@ -8,6 +8,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// processes for both) records bitwise-identical fibre states.
 #[test]
 fn transports_give_bitwise_identical_states() {
+    let _one = one_run_at_a_time();
     let file = root().join("launch/analytic-shear.toml");
     let a = scratch("inproc");
     launch(&file, &a, "inproc");
@@ -40,6 +41,7 @@ fn transports_give_bitwise_identical_states() {
 /// independent `mcap-ros2-support` CDR decoder against the stored `.msg` schemas.
 #[test]
 fn recording_decodes_with_independent_reader() {
+    let _one = one_run_at_a_time();
     assert!(
         python_ok(),
         "python3 with `mcap` and `mcap-ros2-support` is required (pip install mcap mcap-ros2-support)"
@@ -115,6 +117,7 @@ fn wait_for(path: &std::path::Path, secs: u64) -> String {
 /// are bitwise identical to a clean run, and the recorder counts 10,000 drops per topic.
 #[test]
 fn garbage_on_every_topic_is_dropped_and_counted() {
+    let _one = one_run_at_a_time();
     inject_into_a_run("garbage", false);
 }
 
@@ -125,6 +128,7 @@ fn garbage_on_every_topic_is_dropped_and_counted() {
 /// recorder counts every one of them.
 #[test]
 fn inconsistent_messages_are_dropped_and_counted() {
+    let _one = one_run_at_a_time();
     inject_into_a_run("nonsense", true);
 }
 
@@ -191,6 +195,7 @@ fn inject_into_a_run(name: &str, structured: bool) {
 /// times in the file).
 #[test]
 fn killed_recorder_is_recoverable() {
+    let _one = one_run_at_a_time();
     let dir = scratch("kill");
     let file = long_launch(&dir, 40000);
     let mut text = std::fs::read_to_string(&file).unwrap();
@@ -245,6 +250,7 @@ fn killed_recorder_is_recoverable() {
 /// Ctrl-C on the launcher: every child is gone within 5 s and the MCAP is finished.
 #[test]
 fn ctrl_c_stops_everything_cleanly() {
+    let _one = one_run_at_a_time();
     let dir = scratch("ctrlc");
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
@@ -275,6 +281,7 @@ fn ctrl_c_stops_everything_cleanly() {
 /// (|z1| <= 1, sigma² >= 0, MSD >= 0).
 #[test]
 fn shortened_quick_run_produces_sane_analysis() {
+    let _one = one_run_at_a_time();
     let dir = scratch("quick");
     let text = std::fs::read_to_string(root().join("launch/quick.toml")).unwrap();
     let text = text.replace("steps = 324", "steps = 24").replace(
@@ -328,6 +335,7 @@ fn shortened_quick_run_produces_sane_analysis() {
 /// message of the recording (the derived PointCloud2 channels are not bus topics).
 #[test]
 fn replay_republishes_the_recording() {
+    let _one = one_run_at_a_time();
     let out = scratch("replay");
     launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
     // the run folder (its segments in order); here one segment
@@ -418,6 +426,7 @@ fn launch_host(file: &std::path::Path, host: &str, out: &std::path::Path) -> std
 /// control, and the flow node's join timeout names the group that never arrived.
 #[test]
 fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
+    let _one = one_run_at_a_time();
     let dir = scratch("two-hosts");
     let file = two_host_launch(&dir, "worker", "");
     let head = launch_host(&file, "head", &dir.join("head"));

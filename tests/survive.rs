@@ -115,6 +115,7 @@ fn assert_same(reference: &BTreeMap<(String, u64), Vec<u8>>, dir: &Path, what: &
 
 #[test]
 fn killed_nodes_and_launcher_lose_nothing() {
+    let _one = one_run_at_a_time();
     let dir = scratch("survive");
     // the uninterrupted run
     let reference_out = dir.join("reference");
@@ -264,6 +265,7 @@ fn killed_nodes_and_launcher_lose_nothing() {
 /// says which node, why it did not restart, and where its log is.
 #[test]
 fn deterministic_failure_is_not_restarted() {
+    let _one = one_run_at_a_time();
     let dir = scratch("no-restart");
     let out = dir.join("run");
     let o = Command::new(fiberflow())

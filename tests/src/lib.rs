@@ -5,6 +5,16 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+static LAUNCHES: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Held by every test that starts a run: the runs of one test binary go one at a time.
+/// Each run is already 4–9 processes on a 2-core machine; nine of them at once starved
+/// zenoh links long enough to lose messages and log warnings, which is not what these
+/// tests are about.
+pub fn one_run_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    LAUNCHES.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// The `fiberflow` binary next to the test executable (cargo builds it for `cargo test`).
 pub fn fiberflow() -> PathBuf {
     let exe = std::env::current_exe().expect("test executable path");
