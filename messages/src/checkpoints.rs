@@ -35,6 +35,27 @@ pub fn is_checkpoint_step(k: u64, every: u64, steps: u64) -> bool {
     every > 0 && k > 0 && k < steps && k.is_multiple_of(every)
 }
 
+/// Writes `bytes` to `path` so that a crash leaves the old file or the new one, never a
+/// part: a temp file beside it, fsync, rename, fsync of the folder.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+    }
+    std::fs::rename(&tmp, path)?;
+    if let Some(dir) = path.parent() {
+        if let Ok(d) = std::fs::File::open(dir) {
+            let _ = d.sync_all();
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -53,5 +74,17 @@ mod tests {
         assert_eq!(ks, [40, 80]);
         assert!(!is_checkpoint_step(100, 50, 100));
         assert!(!is_checkpoint_step(10, 0, 100));
+    }
+
+    #[test]
+    fn atomic_write_replaces_whole_and_leaves_no_temp() {
+        let d = std::env::temp_dir().join(format!("ff-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let p = d.join("x.ckpt");
+        write_atomic(&p, b"old").unwrap();
+        write_atomic(&p, b"new contents").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"new contents");
+        assert!(!d.join("x.ckpt.tmp").exists());
+        std::fs::remove_dir_all(&d).ok();
     }
 }

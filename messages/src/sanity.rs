@@ -173,6 +173,14 @@ pub struct Stamp {
     pub owner: Option<String>,
 }
 
+/// Decodes and checks a fibre-group state, keeping it (receivers that use the state
+/// itself decode once).
+pub fn check_state(bytes: &[u8]) -> Result<FiberGroupState, String> {
+    let s = crate::decode::<FiberGroupState>(bytes).map_err(|e| e.to_string())?;
+    s.check()?;
+    Ok(s)
+}
+
 /// Decodes `bytes` as `type_name` and checks it; `Err(reason)` for garbage or nonsense.
 pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
     fn go<M: crate::Message + Sane>(b: &[u8], stamp: impl Fn(M) -> Stamp) -> Result<Stamp, String> {
@@ -197,7 +205,7 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None)),
         "fiberflow_msgs/msg/FlowSamples" => go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group))),
         "fiberflow_msgs/msg/FiberGroupState" => {
-            go::<FiberGroupState>(bytes, |m| st(m.step, Some(m.group)))
+            check_state(bytes).map(|m| st(m.step, Some(m.group)))
         }
         "fiberflow_msgs/msg/FiberGroupMetrics" => {
             go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group)))

@@ -51,9 +51,7 @@ pub fn complete(root: &Path, pieces: &[String], digest: &str) -> Result<Option<u
                     .unwrap_or(0);
                 text.push_str(&format!("{n:?} = {len}\n"));
             }
-            let tmp = dir.join("manifest.toml.tmp");
-            std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
-            std::fs::rename(&tmp, &manifest)
+            fiberflow_messages::checkpoints::write_atomic(&manifest, text.as_bytes())
                 .with_context(|| format!("writing {}", manifest.display()))?;
         }
         complete_steps.push(*k);

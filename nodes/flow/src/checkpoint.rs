@@ -8,19 +8,12 @@ use crate::error::{io_err, FlowError};
 use fiberflow_dns::stats::RunningStats;
 use fiberflow_dns::Solver;
 use fiberflow_messages::checkpoints::piece;
-use std::io::Write;
 use std::path::Path;
 
 const ANALYTIC_MAGIC: &[u8; 8] = b"FFANALYT";
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FlowError> {
-    let tmp = path.with_extension("tmp");
-    {
-        let mut f = std::fs::File::create(&tmp).map_err(io_err(&tmp))?;
-        f.write_all(bytes).map_err(io_err(&tmp))?;
-        f.sync_all().map_err(io_err(&tmp))?;
-    }
-    std::fs::rename(&tmp, path).map_err(io_err(path))
+    fiberflow_messages::checkpoints::write_atomic(path, bytes).map_err(io_err(path))
 }
 
 /// Writes the DNS share into `dir` (the extra file first: `flow.ckpt` marks completion).
@@ -65,9 +58,7 @@ pub fn write_analytic(dir: &Path, step: u64) -> Result<(), FlowError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
     let mut b = ANALYTIC_MAGIC.to_vec();
     b.extend_from_slice(&step.to_le_bytes());
-    write_atomic(&piece(dir, "flow"), &b)?;
-    sync_dir(dir);
-    Ok(())
+    write_atomic(&piece(dir, "flow"), &b)
 }
 
 /// Checks the analytic share belongs to `step`.

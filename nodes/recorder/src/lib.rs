@@ -208,8 +208,21 @@ impl Session<'_> {
                 .drop_one(topic, "topic carries no known message type");
             return Ok(());
         };
-        let stamp = match sanity::check_payload(type_name, bytes) {
-            Ok(s) => s,
+        let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
+        // a state is decoded once: its checks, its stamp, the timeline and the PointCloud2
+        let checked = if is_state {
+            sanity::check_state(bytes).map(|s| {
+                let stamp = sanity::Stamp {
+                    step: Some(s.step),
+                    owner: Some(s.group.clone()),
+                };
+                (stamp, Some(s))
+            })
+        } else {
+            sanity::check_payload(type_name, bytes).map(|s| (s, None))
+        };
+        let (stamp, state) = match checked {
+            Ok(c) => c,
             Err(why) => {
                 self.drops.drop_one(topic, &why);
                 return Ok(());
@@ -223,7 +236,6 @@ impl Session<'_> {
         if type_name == "fiberflow_msgs/msg/FlowStatus" {
             self.status_step = self.status_step.max(step);
         }
-        let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
         if let Some(k) = step {
             if let Some(g) = &stamp.owner {
                 if is_state || type_name == "fiberflow_msgs/msg/FlowSamples" {
@@ -242,11 +254,12 @@ impl Session<'_> {
             }
             if is_state {
                 if let Some(first) = self.held_first.remove(topic) {
-                    self.write_new(topic, type_name, Some(0), &first)?;
+                    let held = sanity::check_state(&first).ok();
+                    self.write_new(topic, type_name, Some(0), &first, held.as_ref())?;
                 }
             }
         }
-        self.write_new(topic, type_name, step, bytes)?;
+        self.write_new(topic, type_name, step, bytes, state.as_ref())?;
         self.maybe_commit()
     }
 
@@ -286,13 +299,15 @@ impl Session<'_> {
         Ok(())
     }
 
-    /// Writes unless this (topic, step) is already recorded.
+    /// Writes unless this (topic, step) is already recorded; `st` is the decoded state
+    /// of a state message (for the timeline and its PointCloud2).
     fn write_new(
         &mut self,
         topic: &str,
         type_name: &'static str,
         step: Option<u64>,
         bytes: &[u8],
+        st: Option<&FiberGroupState>,
     ) -> Result<(), RecorderError> {
         if let Some(k) = step {
             if !self.seen.insert((topic.to_string(), k)) {
@@ -300,12 +315,7 @@ impl Session<'_> {
                 return Ok(());
             }
         }
-        let st = if type_name == "fiberflow_msgs/msg/FiberGroupState" {
-            decode::<FiberGroupState>(bytes).ok()
-        } else {
-            None
-        };
-        if let Some(s) = &st {
+        if let Some(s) = st {
             self.sim_nanos = self.sim_nanos.max(t_plus_to_nanos(s.t_plus));
         }
         let c = self.out.channel(topic, type_name)?;
@@ -313,7 +323,7 @@ impl Session<'_> {
         self.summary.messages += 1;
         *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
         if let Some(s) = st {
-            let pc = pointcloud::from_state(&s);
+            let pc = pointcloud::from_state(s);
             let ptopic = self.topics.fiber_points(&s.group);
             let c = self.out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
             self.out.write(c, self.sim_nanos, &pc)?;
@@ -362,15 +372,7 @@ impl Session<'_> {
                 .unwrap_or_default();
             let text = format!("segment = {seg:?}\nstep = {c}\n");
             let piece = checkpoints::piece(&dir, "recorder");
-            let tmp = dir.join("recorder.ckpt.tmp");
-            std::fs::File::create(&tmp)
-                .and_then(|mut f| {
-                    use std::io::Write;
-                    f.write_all(text.as_bytes())?;
-                    f.sync_all()
-                })
-                .map_err(io(&tmp))?;
-            std::fs::rename(&tmp, &piece).map_err(io(&piece))?;
+            checkpoints::write_atomic(&piece, text.as_bytes()).map_err(io(&piece))?;
             tracing::info!(
                 step = c,
                 ms = t0.elapsed().as_millis() as u64,
@@ -385,11 +387,13 @@ impl Session<'_> {
     /// Writes what is still held (a group whose only state is step 0).
     fn release_held(&mut self) -> Result<(), RecorderError> {
         for (topic, bytes) in std::mem::take(&mut self.held_first) {
+            let st = sanity::check_state(&bytes).ok();
             self.write_new(
                 &topic,
                 "fiberflow_msgs/msg/FiberGroupState",
                 Some(0),
                 &bytes,
+                st.as_ref(),
             )?;
         }
         Ok(())
