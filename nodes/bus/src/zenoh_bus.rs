@@ -118,6 +118,12 @@ impl ZenohBus {
             },
         )
         .map_err(terr)?;
+        if s.mode == ZenohMode::Peer && !s.connect.is_empty() {
+            // a peer's open waits for its connections (and the peers they tell it of) at
+            // most this long; on a busy machine the default 500 ms ran out before a healthy
+            // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
+            c.insert_json5("scouting/delay", "5000").map_err(terr)?;
+        }
         if let Some(t) = &s.tls {
             let q = |v: &str| serde_json::to_string(v).unwrap_or_else(|_| "\"\"".into());
             for (key, val) in [
