@@ -101,6 +101,18 @@ fn default_transport() -> String {
 pub struct RecorderSection {
     #[serde(default = "default_true")]
     pub enabled: bool,
+    /// Record every group's full state (and its PointCloud2) every this many steps; the
+    /// first and last step always. Metrics, flow status and profiles are recorded every
+    /// time they are published.
+    #[serde(default = "default_one")]
+    pub states_every: u64,
+    /// Record the flow samples (needed only to re-drive fibre nodes with `replay`).
+    #[serde(default = "default_true")]
+    pub samples: bool,
+}
+
+fn default_one() -> u64 {
+    1
 }
 
 fn default_true() -> bool {
@@ -109,7 +121,11 @@ fn default_true() -> bool {
 
 impl Default for RecorderSection {
     fn default() -> Self {
-        Self { enabled: true }
+        Self {
+            enabled: true,
+            states_every: 1,
+            samples: true,
+        }
     }
 }
 
@@ -328,6 +344,13 @@ impl LaunchFile {
             bail!(
                 "run.step_timeout_s must be in (0, 3600] (got {})",
                 r.step_timeout_s
+            );
+        }
+        if !(1..=r.steps).contains(&self.recorder.states_every) {
+            bail!(
+                "recorder.states_every must be in 1..=run.steps = {} (got {})",
+                r.steps,
+                self.recorder.states_every
             );
         }
         self.flow.validate()?;

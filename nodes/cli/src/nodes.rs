@@ -212,10 +212,12 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 checkpoint_root: spec.checkpoint_root(),
                 start_step: spec.start_step,
                 previous_segments,
+                states_every: lf.recorder.states_every,
+                samples: lf.recorder.samples,
             };
             let s =
                 fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, &plan, stop)?;
-            tracing::info!(messages = s.messages, path = %s.path.display(), "recording finished");
+            tracing::info!(messages = s.messages, decimated = s.decimated, path = %s.path.display(), "recording finished");
             report_drops("recorder", &s.drops);
         }
         g => {

@@ -59,6 +59,8 @@ pub struct RecordSummary {
     pub path: PathBuf,
     /// Step-stamped messages that an earlier segment already holds (not written again).
     pub already_recorded: u64,
+    /// Messages left out by the plan (`states_every`, `samples = false`).
+    pub decimated: u64,
 }
 
 struct Out {
@@ -151,6 +153,18 @@ pub struct RecordPlan {
     /// Segments recorded before this one: what they hold is not written again, so the
     /// segments together hold every step-stamped message exactly once.
     pub previous_segments: Vec<PathBuf>,
+    /// Full states (and their PointCloud2) every this many steps, plus the first and the
+    /// last step (0 counts as 1).
+    pub states_every: u64,
+    /// Record the flow samples.
+    pub samples: bool,
+}
+
+impl RecordPlan {
+    /// Is a state of step `k` recorded?
+    pub fn keeps_state(&self, k: u64) -> bool {
+        k.is_multiple_of(self.states_every.max(1)) || k == self.steps
+    }
 }
 
 /// (topic, step) of every step-stamped message in `segments` (a damaged tail ends a file).
@@ -247,6 +261,15 @@ impl Session<'_> {
                     let e = map.entry(g.clone()).or_insert(k);
                     *e = (*e).max(k);
                 }
+            }
+            let left_out = if is_state {
+                !self.plan.keeps_state(k)
+            } else {
+                type_name == "fiberflow_msgs/msg/FlowSamples" && !self.plan.samples
+            };
+            if left_out {
+                self.summary.decimated += 1;
+                return self.maybe_commit();
             }
             if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0)) {
                 self.held_first.insert(topic.to_string(), bytes.to_vec());
@@ -443,6 +466,18 @@ pub fn record(
         seq: 0,
     };
     write_provenance(&mut out, meta)?;
+    let mut rec = BTreeMap::new();
+    rec.insert(
+        "states_every".to_string(),
+        plan.states_every.max(1).to_string(),
+    );
+    rec.insert("samples".to_string(), plan.samples.to_string());
+    out.w
+        .write_metadata(&mcap::records::Metadata {
+            name: "fiberflow.recording".into(),
+            metadata: rec,
+        })
+        .map_err(out.err())?;
     let mut inbox = Inbox::new(bus.subscribe(&format!("{}/**", t.prefix()))?);
     let next_checkpoint = (plan.checkpoint_every > 0)
         .then(|| (plan.start_step / plan.checkpoint_every + 1) * plan.checkpoint_every)
@@ -706,6 +741,128 @@ mod tests {
             }
         }
         assert!(written > 1000, "only {written} sensible messages recorded");
+        std::fs::remove_file(&path).ok();
+    }
+
+    fn tidy_state(group: &str, step: u64) -> FiberGroupState {
+        FiberGroupState {
+            schema_version: SCHEMA_VERSION,
+            group: group.into(),
+            step,
+            t_plus: step as f64 * 0.25,
+            segments_per_fiber: vec![2],
+            segment_length: vec![3.0],
+            diameter: vec![0.2],
+            density_ratio: vec![800.0],
+            layer: vec![0],
+            centre: vec![0.0, 1.0, 2.0, 3.0, 1.0, 2.0],
+            axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            velocity: vec![0.0; 6],
+            angular_velocity: vec![0.0; 6],
+        }
+    }
+
+    /// `states_every = 4`, `samples = false` over 10 steps: states (and PointCloud2) of
+    /// steps 0, 4, 8 and the last step 10 only, no samples, metrics every step, and the
+    /// plan written into the file's metadata.
+    #[test]
+    fn decimated_recording_keeps_every_kth_state_and_the_last() {
+        use fiberflow_messages::{FiberGroupMetrics, FlowSamples};
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let t = Topics::new("dec");
+        let path = std::env::temp_dir().join(format!("ff-rec-dec-{}.mcap", std::process::id()));
+        let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("recorder")).unwrap());
+        let plan = RecordPlan {
+            groups: vec!["g".into()],
+            steps: 10,
+            states_every: 4,
+            samples: false,
+            ..Default::default()
+        };
+        let expect: Vec<String> = vec!["flow".into()];
+        let (b2, p2) = (bus.clone(), path.clone());
+        let h = std::thread::spawn(move || {
+            record(
+                b2,
+                "dec",
+                &p2,
+                &RunMetadata::default(),
+                &expect,
+                &plan,
+                Arc::new(AtomicBool::new(false)),
+            )
+        });
+        assert!(hb.recv::<Heartbeat>(Duration::from_secs(10)).is_some());
+        for k in 0..=10u64 {
+            bus.publish(&t.fiber_state("g"), &encode(&tidy_state("g", k)))
+                .unwrap();
+            let m = FiberGroupMetrics {
+                schema_version: SCHEMA_VERSION,
+                group: "g".into(),
+                step: k,
+                t_plus: k as f64 * 0.25,
+                centre_of_mass: vec![0.0; 3],
+                z1: vec![1.0],
+                sigma2: vec![0.0],
+                end_to_end: vec![3.0],
+                mean_abs_z1: 1.0,
+                mean_sigma2: 0.0,
+            };
+            bus.publish(&t.fiber_metrics("g"), &encode(&m)).unwrap();
+            if k < 10 {
+                let s = FlowSamples {
+                    schema_version: SCHEMA_VERSION,
+                    group: "g".into(),
+                    step: k,
+                    t_plus: k as f64 * 0.25,
+                    velocity: vec![0.0; 6],
+                    velocity_gradient: vec![0.0; 18],
+                };
+                bus.publish(&t.flow_samples("g"), &encode(&s)).unwrap();
+            }
+        }
+        let done = Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: "flow".into(),
+            state: lifecycle::DONE,
+            step: 10,
+            dropped: 0,
+        };
+        bus.publish(&t.heartbeat("flow"), &encode(&done)).unwrap();
+        let s = h
+            .join()
+            .expect("recorder panicked")
+            .expect("recorder failed");
+        assert_eq!(s.drops.total(), 0);
+        // 7 states and 10 samples left out
+        assert_eq!(s.decimated, 17);
+        let bytes = std::fs::read(&path).unwrap();
+        let mut state_steps = Vec::new();
+        let (mut points, mut metrics, mut samples) = (0, 0, 0);
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            let topic = m.channel.topic.as_str();
+            if topic == t.fiber_state("g") {
+                state_steps.push(decode::<FiberGroupState>(&m.data).unwrap().step);
+            } else if topic == t.fiber_points("g") {
+                points += 1;
+            } else if topic == t.fiber_metrics("g") {
+                metrics += 1;
+            } else if topic == t.flow_samples("g") {
+                samples += 1;
+            }
+        }
+        assert_eq!(state_steps, vec![0, 4, 8, 10]);
+        assert_eq!((points, metrics, samples), (4, 11, 0));
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        let idx = summary
+            .metadata_indexes
+            .iter()
+            .find(|i| i.name == "fiberflow.recording")
+            .expect("recording plan in the metadata");
+        let meta = mcap::read::metadata(&bytes, idx).unwrap();
+        assert_eq!(meta.metadata["states_every"], "4");
+        assert_eq!(meta.metadata["samples"], "false");
         std::fs::remove_file(&path).ok();
     }
 }
