@@ -1,11 +1,13 @@
 //! Fibre analysis of a recording (paper §4, figs. 6–10): MSD_23 (eq. 20) with its log-log
 //! slope, ⟨|z1|⟩ ± σ per initial layer, signed z1 per fibre, ⟨σ²⟩(t), trajectories in the
-//! x3–x2 plane. Metrics are recomputed from the recorded states (not trusted from the
-//! metrics topic), so any recording of states can be analysed.
+//! x3–x2 plane; 95% bootstrap intervals over fibres for the MSD slope, the ramp time per
+//! layer and the final ⟨σ²⟩. Metrics are recomputed from the recorded states; steps without
+//! a state (a decimated recording) take the fibre node's metrics message.
 
+use crate::bootstrap::{self, weighted_mean, Interval};
 use crate::plot::{line_plot, Series};
 use crate::{io_err, AnalysisError};
-use fiberflow_messages::{decode, FiberGroupState};
+use fiberflow_messages::{decode, FiberGroupMetrics, FiberGroupState};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -37,117 +39,273 @@ pub struct GroupSummary {
     pub final_sigma2: f64,
     pub segment_length: f64,
     pub density_ratio: f64,
+    /// 95% bootstrap intervals over fibres.
+    pub msd_slope_ci: Interval,
+    pub ramp_by_layer_ci: [Interval; 3],
+    pub final_sigma2_ci: Interval,
 }
 
-/// Reads every FiberGroupState of a recording, grouped and ordered by step.
-/// `mcap_path` is a run folder (all its segments, in order) or one `.mcap` file; states
-/// that fail their consistency checks are skipped.
+impl Default for Interval {
+    fn default() -> Self {
+        Interval::NAN
+    }
+}
+
+/// One recorded instant of a group: per-fibre centre of mass, z1 and σ².
+struct Row {
+    t_plus: f64,
+    com: Vec<[f64; 3]>,
+    z1: Vec<f64>,
+    sigma2: Vec<f64>,
+}
+
+/// Per-fibre metrics of a state (paper §4.3: ẑ = Σẑ_i/|Σẑ_i|, z1 = ẑ·ê1,
+/// σ² = Σ|ẑ_i − ẑ|²/(N−1)), from its segment centres and axes.
+fn row_of_state(s: &FiberGroupState) -> Row {
+    let nf = s.segments_per_fiber.len();
+    let mut row = Row {
+        t_plus: s.t_plus,
+        com: Vec::with_capacity(nf),
+        z1: Vec::with_capacity(nf),
+        sigma2: Vec::with_capacity(nf),
+    };
+    let mut seg = 0usize;
+    for &n in &s.segments_per_fiber {
+        let n = n as usize;
+        let mut c = [0.0; 3];
+        let mut zs = [0.0; 3];
+        for i in seg..seg + n {
+            for a in 0..3 {
+                c[a] += s.centre[3 * i + a] / n as f64;
+                zs[a] += s.axis[3 * i + a];
+            }
+        }
+        let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
+            .sqrt()
+            .max(1e-300);
+        let zh = [zs[0] / norm, zs[1] / norm, zs[2] / norm];
+        let mut var = 0.0;
+        for i in seg..seg + n {
+            for a in 0..3 {
+                var += (s.axis[3 * i + a] - zh[a]).powi(2);
+            }
+        }
+        row.com.push(c);
+        row.z1.push(zh[0]);
+        row.sigma2
+            .push(if n > 1 { var / (n - 1) as f64 } else { 0.0 });
+        seg += n;
+    }
+    row
+}
+
+fn row_of_metrics(m: &FiberGroupMetrics) -> Row {
+    Row {
+        t_plus: m.t_plus,
+        com: m
+            .centre_of_mass
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        z1: m.z1.clone(),
+        sigma2: m.sigma2.clone(),
+    }
+}
+
+/// What one group's recording holds, as it is read.
+#[derive(Default)]
+struct Reading {
+    /// The first state's fibres: every later state must describe the same.
+    shape: Option<Vec<u32>>,
+    layer: Vec<u8>,
+    density_ratio: f64,
+    segment_length: f64,
+    from_states: BTreeMap<u64, Row>,
+    from_metrics: BTreeMap<u64, Row>,
+}
+
+/// Reads a recording's fibre groups, ordered by step. `mcap_path` is a run folder (all
+/// its segments, in order) or one `.mcap` file. Each state is reduced to per-fibre metrics
+/// as it is read (so memory grows with fibres x steps, not segments); steps without a state
+/// (a recording with `states_every` > 1) take the fibre node's own metrics message.
+/// Messages that fail their consistency checks are skipped.
 pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, AnalysisError> {
     use fiberflow_messages::sanity::Sane;
     let segs = fiberflow_messages::segments::segment_paths(mcap_path).map_err(io_err(mcap_path))?;
-    let mut by: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
+    let mut by: BTreeMap<String, Reading> = BTreeMap::new();
     for seg in &segs {
         let bytes = std::fs::read(seg).map_err(io_err(seg))?;
         let stream =
             mcap::MessageStream::new(&bytes).map_err(|e| AnalysisError::Data(e.to_string()))?;
         for m in stream {
             let Ok(m) = m else { break }; // a damaged tail: analyse what is there
-            if !m.channel.topic.ends_with("/state") {
-                continue;
-            }
-            if let Ok(s) = decode::<FiberGroupState>(&m.data) {
-                if s.check().is_ok() {
-                    by.entry(s.group.clone()).or_default().insert(s.step, s);
+            let topic = m.channel.topic.as_str();
+            if topic.ends_with("/state") {
+                let Ok(s) = decode::<FiberGroupState>(&m.data) else {
+                    continue;
+                };
+                if s.check().is_err() {
+                    continue;
+                }
+                let r = by.entry(s.group.clone()).or_default();
+                if r.shape.get_or_insert_with(|| s.segments_per_fiber.clone())
+                    != &s.segments_per_fiber
+                {
+                    continue;
+                }
+                if r.layer.is_empty() {
+                    r.layer = s.layer.clone();
+                    r.density_ratio = s.density_ratio.first().copied().unwrap_or(0.0);
+                    r.segment_length = s.segment_length.first().copied().unwrap_or(0.0);
+                }
+                r.from_states.insert(s.step, row_of_state(&s));
+            } else if topic.ends_with("/metrics") && topic.contains("/fibers/") {
+                let Ok(mt) = decode::<FiberGroupMetrics>(&m.data) else {
+                    continue;
+                };
+                if mt.check().is_ok() {
+                    by.entry(mt.group.clone())
+                        .or_default()
+                        .from_metrics
+                        .insert(mt.step, row_of_metrics(&mt));
                 }
             }
         }
     }
     let mut out = BTreeMap::new();
-    for (g, steps) in by {
-        let mut gs = GroupSeries::default();
-        let mut shape: Option<Vec<u32>> = None;
-        for (_, s) in steps {
-            // every state of a group must describe the same fibres
-            if shape.get_or_insert_with(|| s.segments_per_fiber.clone()) != &s.segments_per_fiber {
-                continue;
+    for (g, mut r) in by {
+        // a group needs at least one state: its fibres and layers
+        let Some(shape) = &r.shape else { continue };
+        let nf = shape.len();
+        let mut rows = std::mem::take(&mut r.from_states);
+        for (k, row) in std::mem::take(&mut r.from_metrics) {
+            if row.z1.len() == nf {
+                rows.entry(k).or_insert(row);
             }
-            let mut com = Vec::new();
-            let mut z1 = Vec::new();
-            let mut s2 = Vec::new();
-            let mut seg = 0usize;
-            for &n in &s.segments_per_fiber {
-                let n = n as usize;
-                let mut c = [0.0; 3];
-                let mut zs = [0.0; 3];
-                for i in seg..seg + n {
-                    for a in 0..3 {
-                        c[a] += s.centre[3 * i + a] / n as f64;
-                        zs[a] += s.axis[3 * i + a];
-                    }
-                }
-                let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
-                    .sqrt()
-                    .max(1e-300);
-                let zh = [zs[0] / norm, zs[1] / norm, zs[2] / norm];
-                let mut var = 0.0;
-                for i in seg..seg + n {
-                    for a in 0..3 {
-                        var += (s.axis[3 * i + a] - zh[a]).powi(2);
-                    }
-                }
-                com.push(c);
-                z1.push(zh[0]);
-                s2.push(if n > 1 { var / (n - 1) as f64 } else { 0.0 });
-                seg += n;
-            }
-            gs.t_plus.push(s.t_plus);
-            gs.com.push(com);
-            gs.z1.push(z1);
-            gs.sigma2.push(s2);
-            gs.layer = s.layer.clone();
-            gs.density_ratio = s.density_ratio.first().copied().unwrap_or(0.0);
-            gs.segment_length = s.segment_length.first().copied().unwrap_or(0.0);
+        }
+        let mut gs = GroupSeries {
+            layer: r.layer,
+            density_ratio: r.density_ratio,
+            segment_length: r.segment_length,
+            ..Default::default()
+        };
+        for (_, row) in rows {
+            gs.t_plus.push(row.t_plus);
+            gs.com.push(row.com);
+            gs.z1.push(row.z1);
+            gs.sigma2.push(row.sigma2);
         }
         out.insert(g, gs);
     }
     Ok(out)
 }
 
-/// MSD_23(τ) (eq. 20): mean over fibres and time origins of the cross-stream (x2, x3)
-/// squared displacement of the centre of mass, for every lag. Lags are the true time
-/// differences between states, in multiples of the smallest spacing: a recording with
-/// gaps (decimated or lost states) gives each pair its real lag.
-pub fn msd23(g: &GroupSeries) -> Vec<(f64, f64)> {
-    let n = g.t_plus.len().min(g.com.len());
-    if n < 2 {
-        return Vec::new();
-    }
-    let dt = g
-        .t_plus
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .filter(|d| *d > 0.0)
-        .fold(f64::INFINITY, f64::min);
-    if !dt.is_finite() {
-        return Vec::new();
-    }
-    let span = ((g.t_plus[n - 1] - g.t_plus[0]) / dt).round() as usize;
-    let mut sum = vec![0.0; span + 1];
-    let mut count = vec![0usize; span + 1];
-    for k in 0..n {
-        for k2 in k + 1..n {
-            let bin = ((g.t_plus[k2] - g.t_plus[k]) / dt).round() as usize;
-            let Some(s) = sum.get_mut(bin) else { continue };
-            for (a, b) in g.com[k].iter().zip(&g.com[k2]) {
-                *s += (b[1] - a[1]).powi(2) + (b[2] - a[2]).powi(2);
-                count[bin] += 1;
+/// Per-fibre sums of squared cross-stream displacements (eq. 20) per lag bin: the MSD and
+/// its bootstrap both come from it.
+#[derive(Debug, Clone, Default)]
+pub struct MsdTable {
+    /// Lag of bin b is b·dt.
+    pub dt: f64,
+    /// [fibre][bin] sum over time-origin pairs of |Δx2|² + |Δx3|².
+    pub per_fibre: Vec<Vec<f64>>,
+    /// [bin] number of time-origin pairs.
+    pub pairs: Vec<usize>,
+}
+
+impl MsdTable {
+    /// Lags are the true time differences between states, in multiples of the smallest
+    /// spacing: a recording with gaps (decimated or lost states) gives each pair its real
+    /// lag.
+    pub fn new(g: &GroupSeries) -> Self {
+        use rayon::prelude::*;
+        let n = g.t_plus.len().min(g.com.len());
+        if n < 2 {
+            return Self::default();
+        }
+        let dt = g
+            .t_plus
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .filter(|d| *d > 0.0)
+            .fold(f64::INFINITY, f64::min);
+        if !dt.is_finite() {
+            return Self::default();
+        }
+        let span = ((g.t_plus[n - 1] - g.t_plus[0]) / dt).round() as usize;
+        let bins: Vec<Vec<(usize, usize)>> = {
+            let mut b = vec![Vec::new(); span + 1];
+            for k in 0..n {
+                for k2 in k + 1..n {
+                    let bin = ((g.t_plus[k2] - g.t_plus[k]) / dt).round() as usize;
+                    if let Some(v) = b.get_mut(bin) {
+                        v.push((k, k2));
+                    }
+                }
             }
+            b
+        };
+        let nf = g.com[0].len();
+        let per_fibre = (0..nf)
+            .into_par_iter()
+            .map(|f| {
+                let x: Vec<[f64; 2]> = g.com[..n].iter().map(|c| [c[f][1], c[f][2]]).collect();
+                bins.iter()
+                    .map(|pairs| {
+                        pairs
+                            .iter()
+                            .map(|&(a, b)| {
+                                (x[b][0] - x[a][0]).powi(2) + (x[b][1] - x[a][1]).powi(2)
+                            })
+                            .sum::<f64>()
+                    })
+                    .collect()
+            })
+            .collect();
+        Self {
+            dt,
+            per_fibre,
+            pairs: bins.iter().map(|p| p.len()).collect(),
         }
     }
-    (1..=span)
-        .filter(|&b| count[b] > 0)
-        .map(|b| (b as f64 * dt, sum[b] / count[b] as f64))
-        .collect()
+
+    /// MSD_23(τ) over the fibres with multiplicities `w` (None: every fibre once), for
+    /// the lags in [lo, hi].
+    pub fn msd(&self, w: Option<&[u32]>, lo: f64, hi: f64) -> Vec<(f64, f64)> {
+        let bins: Vec<usize> = (1..self.pairs.len())
+            .filter(|&b| self.pairs[b] > 0)
+            .filter(|&b| {
+                let t = b as f64 * self.dt;
+                t >= lo && t <= hi
+            })
+            .collect();
+        let mut sum = vec![0.0; bins.len()];
+        let mut fibres = 0u64;
+        for (f, s) in self.per_fibre.iter().enumerate() {
+            let k = w.map_or(1, |w| w[f]);
+            if k == 0 {
+                continue;
+            }
+            fibres += k as u64;
+            for (acc, &b) in sum.iter_mut().zip(&bins) {
+                *acc += k as f64 * s[b];
+            }
+        }
+        bins.iter()
+            .zip(sum)
+            .map(|(&b, s)| {
+                (
+                    b as f64 * self.dt,
+                    s / (self.pairs[b] as u64 * fibres) as f64,
+                )
+            })
+            .collect()
+    }
+}
+
+/// MSD_23(τ) (eq. 20): mean over fibres and time origins of the cross-stream (x2, x3)
+/// squared displacement of the centre of mass, for every lag (see [`MsdTable::new`]).
+pub fn msd23(g: &GroupSeries) -> Vec<(f64, f64)> {
+    MsdTable::new(g).msd(None, 0.0, f64::INFINITY)
 }
 
 /// Least-squares slope of log MSD against log τ over [lo, hi].
@@ -218,6 +376,74 @@ pub fn ramp_time(series: &[(f64, f64, f64)]) -> f64 {
         .unwrap_or(f64::NAN)
 }
 
+/// Fibres (indices) that started in `layer`.
+fn in_layer(g: &GroupSeries, layer: u8) -> Vec<usize> {
+    (0..g.layer.len())
+        .filter(|&f| g.layer[f] == layer)
+        .collect()
+}
+
+/// At most `max` of `items`, evenly spread (all of them if there are fewer).
+fn spread<T: Copy>(items: &[T], max: usize) -> Vec<T> {
+    if items.len() <= max {
+        return items.to_vec();
+    }
+    (0..max).map(|i| items[i * items.len() / max]).collect()
+}
+
+/// Seed of the bootstrap of one statistic of one group: fixed, so intervals are
+/// reproducible, and different per group and statistic.
+fn seed(group: &str, what: u64) -> u64 {
+    group.bytes().fold(0xcbf2_9ce4_8422_2325u64 ^ what, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// The three bootstrap intervals of a group (paper quantities: MSD slope over `window`,
+/// |z1| ramp time per initial layer, final ⟨σ²⟩).
+fn intervals(
+    name: &str,
+    g: &GroupSeries,
+    table: &MsdTable,
+    window: (f64, f64),
+) -> (Interval, [Interval; 3], Interval) {
+    let nf = g.layer.len().min(g.z1.first().map_or(0, |z| z.len()));
+    let slope = bootstrap::interval(nf, bootstrap::REPLICATES, seed(name, 1), |w| {
+        loglog_slope(&table.msd(Some(w), window.0, window.1), window.0, window.1)
+    });
+    let ramp = [0u8, 1, 2].map(|l| {
+        let fibres = in_layer(g, l);
+        let abs: Vec<Vec<f64>> =
+            g.z1.iter()
+                .map(|z| fibres.iter().map(|&f| z[f].abs()).collect())
+                .collect();
+        bootstrap::interval(
+            fibres.len(),
+            bootstrap::REPLICATES,
+            seed(name, 2 + l as u64),
+            |w| {
+                let series: Vec<(f64, f64, f64)> = g
+                    .t_plus
+                    .iter()
+                    .zip(&abs)
+                    .map(|(t, a)| (*t, weighted_mean(a, w), 0.0))
+                    .collect();
+                ramp_time(&series)
+            },
+        )
+    });
+    let last = g.sigma2.last().map(|v| v.as_slice()).unwrap_or(&[]);
+    let s2 = bootstrap::interval(last.len(), bootstrap::REPLICATES, seed(name, 9), |w| {
+        weighted_mean(last, w)
+    });
+    (slope, ramp, s2)
+}
+
+/// Per-fibre CSV rows at most (a time stride keeps large runs' tables readable).
+const MAX_FIBRE_ROWS: usize = 1_000_000;
+/// Per-fibre lines in one plot at most (evenly spread over the fibres).
+const MAX_PLOTTED_FIBRES: usize = 60;
+
 /// Writes CSVs and PNGs for every group; returns the summaries.
 pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, AnalysisError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
@@ -233,10 +459,12 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
     let mut z1_series = Vec::new();
     let mut s2_series = Vec::new();
     for (ci, (name, g)) in groups.iter().enumerate() {
-        let msd = msd23(g);
+        let table = MsdTable::new(g);
+        let msd = table.msd(None, 0.0, f64::INFINITY);
         let t_end = g.t_plus.last().copied().unwrap_or(0.0) - g.t_plus[0];
         let window = (1.0_f64.min(t_end / 10.0), t_end / 2.0);
         let slope = loglog_slope(&msd, window.0, window.1);
+        let (msd_slope_ci, ramp_by_layer_ci, final_sigma2_ci) = intervals(name, g, &table, window);
         let all = abs_z1(g, None);
         let s2: Vec<(f64, f64)> = g
             .t_plus
@@ -263,7 +491,9 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
         }
         write(out, &format!("{name}_abs_z1.csv"), &csv)?;
         let mut csv = String::from("t_plus,fibre,layer,z1,sigma2,x1,x2,x3\n");
-        for (k, t) in g.t_plus.iter().enumerate() {
+        let nf = g.z1.first().map_or(0, |z| z.len());
+        let stride = (nf * g.t_plus.len()).div_ceil(MAX_FIBRE_ROWS).max(1);
+        for (k, t) in g.t_plus.iter().enumerate().step_by(stride) {
             for f in 0..g.z1[k].len() {
                 let c = g.com[k][f];
                 let _ = writeln!(
@@ -310,8 +540,8 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
             false,
             false,
         )?;
-        let signed: Vec<Series> = (0..g.z1[0].len())
-            .filter(|f| g.layer.get(*f) == Some(&0))
+        let signed: Vec<Series> = spread(&in_layer(g, 0), MAX_PLOTTED_FIBRES)
+            .into_iter()
             .map(|f| Series {
                 label: String::new(),
                 points: g
@@ -327,7 +557,11 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
         if !signed.is_empty() {
             line_plot(
                 &out.join(format!("{name}_signed_z1_near_wall.png")),
-                &format!("{name}: signed z1, fibres starting near the walls"),
+                &format!(
+                    "{name}: signed z1, {} of the {} fibres starting near the walls",
+                    signed.len(),
+                    in_layer(g, 0).len()
+                ),
                 "t+",
                 "z1",
                 &signed,
@@ -335,7 +569,9 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
                 false,
             )?;
         }
-        let traj: Vec<Series> = (0..g.com[0].len())
+        let all_fibres: Vec<usize> = (0..g.com[0].len()).collect();
+        let traj: Vec<Series> = spread(&all_fibres, MAX_PLOTTED_FIBRES)
+            .into_iter()
             .map(|f| Series {
                 label: String::new(),
                 points: g.com.iter().map(|c| (c[f][2], c[f][1])).collect(),
@@ -345,7 +581,11 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
             .collect();
         line_plot(
             &out.join(format!("{name}_trajectories_x3x2.png")),
-            &format!("{name}: centre-of-mass trajectories in the x3-x2 plane"),
+            &format!(
+                "{name}: centre-of-mass trajectories in the x3-x2 plane ({} of {} fibres)",
+                traj.len(),
+                all_fibres.len()
+            ),
             "x3+",
             "x2+",
             &traj,
@@ -381,6 +621,9 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
             final_sigma2: s2.last().map(|x| x.1).unwrap_or(f64::NAN),
             segment_length: g.segment_length,
             density_ratio: g.density_ratio,
+            msd_slope_ci,
+            ramp_by_layer_ci,
+            final_sigma2_ci,
         });
     }
     line_plot(
@@ -418,30 +661,48 @@ fn write(dir: &Path, name: &str, text: &str) -> Result<(), AnalysisError> {
     std::fs::write(&p, text).map_err(io_err(&p))
 }
 
-/// The summary table (markdown) with the paper's values beside ours.
+fn ci(i: &Interval, decimals: usize) -> String {
+    if i.lo.is_nan() {
+        "[n/a]".into()
+    } else {
+        format!("[{:.*}, {:.*}]", decimals, i.lo, decimals, i.hi)
+    }
+}
+
+/// The summary table (markdown) with the paper's values beside ours; brackets are 95%
+/// bootstrap intervals over fibres.
 pub fn summary_table(s: &[GroupSummary]) -> String {
     let mut md = String::from(
-        "| case | l+ | rho_s/rho_f | fibres | MSD_23 slope (fit window t+) | paper slope | |z1| ramp time t+: all (near wall / next / middle) | paper ramp | final <|z1|> | final <sigma^2> |\n|---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | l+ | rho_s/rho_f | fibres | MSD_23 slope [95% CI] (fit window t+) | paper slope | |z1| ramp time t+: all; near wall / next / middle [95% CI] | paper ramp | final <|z1|> | final <sigma^2> [95% CI] |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for g in s {
         let paper = if g.group == "case1" { "1.926" } else { "~1.9" };
+        let layers: Vec<String> = (0..3)
+            .map(|l| {
+                format!(
+                    "{:.1} {}",
+                    g.ramp_by_layer[l],
+                    ci(&g.ramp_by_layer_ci[l], 1)
+                )
+            })
+            .collect();
         let _ = writeln!(
             md,
-            "| {} | {:.2} | {:.0} | {} | {:.3} ({:.1}–{:.1}) | {} | {:.1} ({:.1} / {:.1} / {:.1}) | ~13 | {:.3} | {:.4} |",
+            "| {} | {:.2} | {:.0} | {} | {:.3} {} ({:.1}–{:.1}) | {} | {:.1}; {} | ~13 | {:.3} | {:.4} {} |",
             g.group,
             g.segment_length,
             g.density_ratio,
             g.fibres,
             g.msd_slope,
+            ci(&g.msd_slope_ci, 3),
             g.fit_window.0,
             g.fit_window.1,
             paper,
             g.ramp_time,
-            g.ramp_by_layer[0],
-            g.ramp_by_layer[1],
-            g.ramp_by_layer[2],
+            layers.join(" / "),
             g.final_abs_z1,
-            g.final_sigma2
+            g.final_sigma2,
+            ci(&g.final_sigma2_ci, 4)
         );
     }
     md
@@ -488,5 +749,129 @@ mod tests {
             }
         }
         assert!((loglog_slope(&msd23(&series(&gappy)), 0.25, 10.0) - 2.0).abs() < 1e-9);
+    }
+
+    /// Ballistic fibres with different speeds: every resample has MSD ∝ τ², so the slope's
+    /// interval is 2 to round-off; diffusive-plus-ballistic mixtures give an interval that
+    /// contains the full-sample slope.
+    #[test]
+    fn slope_interval_brackets_the_slope() {
+        let mut g = GroupSeries::default();
+        let speeds: Vec<(f64, f64)> = (0..40)
+            .map(|i| ((i as f64 * 0.37).sin(), (i as f64 * 0.11).cos()))
+            .collect();
+        for k in 0..=80 {
+            let t = k as f64 * 0.5;
+            g.t_plus.push(t);
+            g.com.push(
+                speeds
+                    .iter()
+                    .enumerate()
+                    // half the fibres move ballistically, half as √t (slope 1)
+                    .map(|(i, (a, b))| {
+                        let s = if i % 2 == 0 { t } else { (t * 4.0).sqrt() };
+                        [0.0, a * s, b * s]
+                    })
+                    .collect(),
+            );
+            g.z1.push(vec![1.0; 40]);
+            g.sigma2.push(vec![0.0; 40]);
+        }
+        g.layer = vec![0; 40];
+        let table = MsdTable::new(&g);
+        let window = (1.0, 20.0);
+        let slope = loglog_slope(&table.msd(None, window.0, window.1), window.0, window.1);
+        let (ci, _, s2) = intervals("t", &g, &table, window);
+        assert!(ci.lo < slope && slope < ci.hi, "{slope} outside {ci:?}");
+        assert!(ci.lo > 1.0 && ci.hi < 2.0, "{ci:?}");
+        assert_eq!((s2.lo, s2.hi), (0.0, 0.0));
+        let mut ballistic = g.clone();
+        for (k, c) in ballistic.com.iter_mut().enumerate() {
+            let t = k as f64 * 0.5;
+            for (p, (a, b)) in c.iter_mut().zip(&speeds) {
+                *p = [0.0, a * t, b * t];
+            }
+        }
+        let t2 = MsdTable::new(&ballistic);
+        let (ci, _, _) = intervals("t", &ballistic, &t2, window);
+        assert!(
+            (ci.lo - 2.0).abs() < 1e-9 && (ci.hi - 2.0).abs() < 1e-9,
+            "{ci:?}"
+        );
+    }
+
+    /// A decimated recording: states at steps 0 and 4, metrics at every step. The reader
+    /// takes every step, states where they exist (recomputed, not the message's values)
+    /// and the metrics message elsewhere.
+    #[test]
+    fn decimated_recording_reads_metrics_between_states() {
+        use fiberflow_messages::{encode, SCHEMA_VERSION};
+        let path = std::env::temp_dir().join(format!("ff-an-dec-{}.mcap", std::process::id()));
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&path).unwrap(),
+        ))
+        .unwrap();
+        let empty = std::collections::BTreeMap::new();
+        let sc = w
+            .add_channel(0, "/fiberflow/r/fibers/g/state", "cdr", &empty)
+            .unwrap();
+        let mc = w
+            .add_channel(0, "/fiberflow/r/fibers/g/metrics", "cdr", &empty)
+            .unwrap();
+        let state = |k: u64| FiberGroupState {
+            schema_version: SCHEMA_VERSION,
+            group: "g".into(),
+            step: k,
+            t_plus: k as f64,
+            segments_per_fiber: vec![2],
+            segment_length: vec![3.0],
+            diameter: vec![0.2],
+            density_ratio: vec![800.0],
+            layer: vec![1],
+            centre: vec![0.0, k as f64, 0.0, 3.0, k as f64, 0.0],
+            axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            velocity: vec![0.0; 6],
+            angular_velocity: vec![0.0; 6],
+        };
+        let metrics = |k: u64| FiberGroupMetrics {
+            schema_version: SCHEMA_VERSION,
+            group: "g".into(),
+            step: k,
+            t_plus: k as f64,
+            centre_of_mass: vec![1.5, k as f64, 0.0],
+            // the message says 0.5: states must win where they exist
+            z1: vec![0.5],
+            sigma2: vec![0.25],
+            end_to_end: vec![6.0],
+            mean_abs_z1: 0.5,
+            mean_sigma2: 0.25,
+        };
+        let mut seq = 0;
+        let mut put = |ch: u16, k: u64, data: Vec<u8>| {
+            seq += 1;
+            let h = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: seq,
+                log_time: k * 1_000_000_000,
+                publish_time: 0,
+            };
+            w.write_to_known_channel(&h, &data).unwrap();
+        };
+        for k in 0..=4u64 {
+            if k % 4 == 0 {
+                put(sc, k, encode(&state(k)));
+            }
+            put(mc, k, encode(&metrics(k)));
+        }
+        drop(put);
+        w.finish().unwrap();
+        let groups = read_groups(&path).unwrap();
+        let g = &groups["g"];
+        assert_eq!(g.t_plus, vec![0.0, 1.0, 2.0, 3.0, 4.0]);
+        let z1: Vec<f64> = g.z1.iter().map(|z| z[0]).collect();
+        assert_eq!(z1, vec![1.0, 0.5, 0.5, 0.5, 1.0]);
+        assert_eq!(g.com[2][0], [1.5, 2.0, 0.0]);
+        assert_eq!(g.layer, vec![1]);
+        std::fs::remove_file(&path).ok();
     }
 }

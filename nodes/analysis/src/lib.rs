@@ -1,6 +1,7 @@
 //! Analysis: turns recordings and flow statistics into the paper's figures and numbers
 //! (CSV + PNG + a markdown summary). Paper §3.2 (flow validation) and §4 (fibres).
 
+pub mod bootstrap;
 pub mod fibres;
 pub mod flow_validation;
 pub mod plot;

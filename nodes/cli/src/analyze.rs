@@ -10,9 +10,11 @@ pub fn fibres(mcap: &Path, out: &Path) -> Result<String> {
     let table = fiberflow_analysis::fibres::summary_table(&s);
     let md = format!(
         "# Fibre analysis of {}\n\nMSD_23 slope: least squares of log MSD against log lag over the fit window.\n\
-         Ramp time: first time <|z1|> covers 1 - 1/e of the way from its initial value to its mean over the last 10% of the run.\n\n{table}\n\
+         Ramp time: first time <|z1|> covers 1 - 1/e of the way from its initial value to its mean over the last 10% of the run.\n\
+         Brackets: 95% bootstrap intervals over the fibres of a case (or of a layer), {} resamples with a fixed seed.\n\n{table}\n\
          Figures: msd23.png, abs_z1.png, sigma2.png and per case <case>_abs_z1_layers.png, <case>_signed_z1_near_wall.png, <case>_trajectories_x3x2.png.\n",
-        mcap.display()
+        mcap.display(),
+        fiberflow_analysis::bootstrap::REPLICATES
     );
     std::fs::write(out.join("summary.md"), &md)
         .with_context(|| format!("writing {}", out.display()))?;
