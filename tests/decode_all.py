@@ -17,7 +17,7 @@ with open(path, "rb") as f:
         if schema.name == "fiberflow_msgs/msg/FiberGroupState":
             n = sum(decoded.segments_per_fiber)
             assert len(decoded.centre) == 3 * n, "centre length"
-            assert decoded.schema_version == 1
+            assert decoded.schema_version == 2
             last_step[decoded.group] = decoded.step
         if schema.name == "sensor_msgs/msg/PointCloud2":
             assert decoded.point_step == 16 and len(decoded.data) == 16 * decoded.width

@@ -83,6 +83,8 @@ mod tests {
             group: "case1".into(),
             step: 7,
             t_plus: 1.5,
+            first_fiber: 0,
+            group_fibers: 1,
             segments_per_fiber: vec![2],
             segment_length: vec![3.0],
             diameter: vec![0.232],

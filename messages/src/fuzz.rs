@@ -62,6 +62,19 @@ impl Rng {
             _ => n,
         }
     }
+    /// (first_fiber, group_fibers) of a message about `n` fibres: usually the whole
+    /// group, sometimes a slice that does not fit.
+    fn piece(&mut self, n: usize) -> (u32, u32) {
+        let whole = (0, n.max(1) as u32);
+        if self.tidy {
+            return whole;
+        }
+        match self.below(10) {
+            0 => (self.below(3) as u32, self.below(3) as u32),
+            1 => (n as u32 + 1, n as u32),
+            _ => whole,
+        }
+    }
     fn step(&mut self) -> u64 {
         match self.below(10) {
             0 => u64::MAX - self.below(10),
@@ -110,11 +123,14 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
         r.len_near(3 * nseg),
         r.len_near(3 * nseg),
     );
+    let (first_fiber, group_fibers) = r.piece(nf);
     FiberGroupState {
         schema_version: SCHEMA_VERSION,
         group: r.name(groups),
         step: r.step(),
         t_plus: r.float(),
+        first_fiber,
+        group_fibers,
         segments_per_fiber: spf,
         segment_length: {
             let n = r.len_near(nf);
@@ -198,11 +214,14 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
         "fiberflow_msgs/msg/FlowSamples" => {
             let n = r.below(60) as usize;
             let (a, b) = (r.len_near(3 * n), r.len_near(9 * n));
+            let (first_fiber, group_fibers) = r.piece(n);
             encode(&FlowSamples {
                 schema_version: SCHEMA_VERSION,
                 group: r.name(groups),
                 step: r.step(),
                 t_plus: r.float(),
+                first_fiber,
+                group_fibers,
                 velocity: r.floats(a),
                 velocity_gradient: r.floats(b),
             })
@@ -211,11 +230,14 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
         "fiberflow_msgs/msg/FiberGroupMetrics" => {
             let n = r.below(20) as usize;
             let (a, b, c) = (r.len_near(3 * n), r.len_near(n), r.len_near(n));
+            let (first_fiber, group_fibers) = r.piece(n);
             encode(&FiberGroupMetrics {
                 schema_version: SCHEMA_VERSION,
                 group: r.name(groups),
                 step: r.step(),
                 t_plus: r.float(),
+                first_fiber,
+                group_fibers,
                 centre_of_mass: r.floats(a),
                 z1: r.floats(n),
                 sigma2: r.floats(b),

@@ -5,6 +5,7 @@
 pub mod checkpoints;
 pub mod codec;
 pub mod fuzz;
+pub mod pieces;
 pub mod sanity;
 pub mod schema;
 pub mod segments;
@@ -15,4 +16,4 @@ pub use codec::{decode, encode, DecodeError, Message};
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;

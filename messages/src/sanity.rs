@@ -25,6 +25,17 @@ fn len(name: &str, got: usize, want: usize) -> Result<(), String> {
     Ok(())
 }
 
+/// A message about fibres `first ..< first + n` of a group of `total`.
+fn piece(first: u32, n: usize, total: u32) -> Result<(), String> {
+    if first >= total || first as u64 + n as u64 > total as u64 {
+        return Err(format!(
+            "fibres {first}..{} of a group of {total}",
+            first as u64 + n as u64
+        ));
+    }
+    Ok(())
+}
+
 fn time(t_plus: f64) -> Result<(), String> {
     if !(t_plus.is_finite() && t_plus >= 0.0) {
         return Err(format!("t_plus {t_plus} is not a time"));
@@ -93,6 +104,7 @@ impl Sane for FlowSamples {
         if self.group.is_empty() || !self.velocity.len().is_multiple_of(3) {
             return Err("empty group or velocity not in triples".into());
         }
+        piece(self.first_fiber, 0, self.group_fibers)?;
         len(
             "velocity_gradient",
             self.velocity_gradient.len(),
@@ -114,6 +126,7 @@ impl Sane for FiberGroupState {
         len("diameter", self.diameter.len(), nf)?;
         len("density_ratio", self.density_ratio.len(), nf)?;
         len("layer", self.layer.len(), nf)?;
+        piece(self.first_fiber, nf, self.group_fibers)?;
         if self.segments_per_fiber.contains(&0) {
             return Err("a fibre with 0 segments".into());
         }
@@ -138,6 +151,7 @@ impl Sane for FiberGroupMetrics {
     fn check(&self) -> Result<(), String> {
         time(self.t_plus)?;
         let n = self.z1.len();
+        piece(self.first_fiber, n, self.group_fibers)?;
         len("centre_of_mass", self.centre_of_mass.len(), 3 * n)?;
         len("sigma2", self.sigma2.len(), n)?;
         len("end_to_end", self.end_to_end.len(), n)?;
@@ -171,6 +185,9 @@ impl Sane for Heartbeat {
 pub struct Stamp {
     pub step: Option<u64>,
     pub owner: Option<String>,
+    /// First fibre of a group message (a sharded group's shards each send their slice;
+    /// 0 for the whole group and for other messages).
+    pub first_fiber: u32,
 }
 
 /// Decodes and checks a fibre-group state, keeping it (receivers that use the state
@@ -188,27 +205,30 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         m.check()?;
         Ok(stamp(m))
     }
-    let st = |step: u64, owner: Option<String>| Stamp {
+    let st = |step: u64, owner: Option<String>, first_fiber: u32| Stamp {
         step: Some(step),
         owner,
+        first_fiber,
     };
     match type_name {
         "fiberflow_msgs/msg/RunAnnouncement" => go::<RunAnnouncement>(bytes, |m| Stamp {
-            step: None,
             owner: Some(m.run_id),
+            ..Stamp::default()
         }),
         "fiberflow_msgs/msg/Heartbeat" => go::<Heartbeat>(bytes, |m| Stamp {
-            step: None,
             owner: Some(m.node),
+            ..Stamp::default()
         }),
-        "fiberflow_msgs/msg/FlowStatus" => go::<FlowStatus>(bytes, |m| st(m.step, None)),
-        "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None)),
-        "fiberflow_msgs/msg/FlowSamples" => go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group))),
+        "fiberflow_msgs/msg/FlowStatus" => go::<FlowStatus>(bytes, |m| st(m.step, None, 0)),
+        "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None, 0)),
+        "fiberflow_msgs/msg/FlowSamples" => {
+            go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
+        }
         "fiberflow_msgs/msg/FiberGroupState" => {
-            check_state(bytes).map(|m| st(m.step, Some(m.group)))
+            check_state(bytes).map(|m| st(m.step, Some(m.group), m.first_fiber))
         }
         "fiberflow_msgs/msg/FiberGroupMetrics" => {
-            go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group)))
+            go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
         other => Err(format!("unknown message type {other}")),
     }

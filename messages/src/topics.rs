@@ -54,7 +54,8 @@ pub fn type_of(topic: &str) -> Option<&'static str> {
         ("control", 5) if parts[3] == "heartbeat" => Some("fiberflow_msgs/msg/Heartbeat"),
         ("flow", 4) if parts[3] == "status" => Some("fiberflow_msgs/msg/FlowStatus"),
         ("flow", 4) if parts[3] == "profiles" => Some("fiberflow_msgs/msg/FlowProfiles"),
-        ("flow", 5) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
+        // flow/samples/<group>, or flow/samples/<group>/<shard> for a sharded group
+        ("flow", 5 | 6) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
         ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
         ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),
         _ => None,

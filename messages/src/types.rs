@@ -63,6 +63,10 @@ pub struct FlowSamples {
     pub group: String,
     pub step: u64,
     pub t_plus: f64,
+    /// This message covers fibres `first_fiber ..` of a group of `group_fibers` fibres:
+    /// the whole group, or the slice one shard of a sharded group integrates.
+    pub first_fiber: u32,
+    pub group_fibers: u32,
     /// 3 per point.
     pub velocity: Vec<f64>,
     /// 9 per point, row-major ∂v_a/∂x_b.
@@ -76,6 +80,10 @@ pub struct FiberGroupState {
     pub group: String,
     pub step: u64,
     pub t_plus: f64,
+    /// This message covers fibres `first_fiber ..` of a group of `group_fibers` fibres:
+    /// the whole group, or the slice one shard of a sharded group integrates.
+    pub first_fiber: u32,
+    pub group_fibers: u32,
     /// Per fibre: number of segments N.
     pub segments_per_fiber: Vec<u32>,
     /// Per fibre: segment length, diameter, density ratio, initial layer (0 near wall,
@@ -98,6 +106,10 @@ pub struct FiberGroupMetrics {
     pub group: String,
     pub step: u64,
     pub t_plus: f64,
+    /// This message covers fibres `first_fiber ..` of a group of `group_fibers` fibres:
+    /// the whole group, or the slice one shard of a sharded group integrates.
+    pub first_fiber: u32,
+    pub group_fibers: u32,
     /// 3 per fibre.
     pub centre_of_mass: Vec<f64>,
     pub z1: Vec<f64>,

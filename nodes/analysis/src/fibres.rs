@@ -7,6 +7,7 @@
 use crate::bootstrap::{self, weighted_mean, Interval};
 use crate::plot::{line_plot, Series};
 use crate::{io_err, AnalysisError};
+use fiberflow_messages::pieces::{merge_metrics, merge_states, Tiles};
 use fiberflow_messages::{decode, FiberGroupMetrics, FiberGroupState};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -133,6 +134,9 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
     use fiberflow_messages::sanity::Sane;
     let segs = fiberflow_messages::segments::segment_paths(mcap_path).map_err(io_err(mcap_path))?;
     let mut by: BTreeMap<String, Reading> = BTreeMap::new();
+    // a sharded group's slices, put back together per step
+    let mut state_tiles = Tiles::default();
+    let mut metric_tiles = Tiles::default();
     for seg in &segs {
         let bytes = std::fs::read(seg).map_err(io_err(seg))?;
         let stream =
@@ -147,6 +151,14 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 if s.check().is_err() {
                     continue;
                 }
+                let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
+                let (n, total) = (s.segments_per_fiber.len() as u32, s.group_fibers);
+                let Some(s) = state_tiles
+                    .add(&g, k, first, n, total, s)
+                    .and_then(merge_states)
+                else {
+                    continue;
+                };
                 let r = by.entry(s.group.clone()).or_default();
                 if r.shape.get_or_insert_with(|| s.segments_per_fiber.clone())
                     != &s.segments_per_fiber
@@ -163,7 +175,15 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 let Ok(mt) = decode::<FiberGroupMetrics>(&m.data) else {
                     continue;
                 };
-                if mt.check().is_ok() {
+                if mt.check().is_err() {
+                    continue;
+                }
+                let (g, k, first) = (mt.group.clone(), mt.step, mt.first_fiber);
+                let (n, total) = (mt.z1.len() as u32, mt.group_fibers);
+                if let Some(mt) = metric_tiles
+                    .add(&g, k, first, n, total, mt)
+                    .and_then(merge_metrics)
+                {
                     by.entry(mt.group.clone())
                         .or_default()
                         .from_metrics
@@ -823,6 +843,8 @@ mod tests {
             group: "g".into(),
             step: k,
             t_plus: k as f64,
+            first_fiber: 0,
+            group_fibers: 1,
             segments_per_fiber: vec![2],
             segment_length: vec![3.0],
             diameter: vec![0.2],
@@ -838,6 +860,8 @@ mod tests {
             group: "g".into(),
             step: k,
             t_plus: k as f64,
+            first_fiber: 0,
+            group_fibers: 1,
             centre_of_mass: vec![1.5, k as f64, 0.0],
             // the message says 0.5: states must win where they exist
             z1: vec![0.5],

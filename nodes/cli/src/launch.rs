@@ -118,7 +118,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
     let mut nodes = vec!["flow".to_string()];
-    nodes.extend(lf.groups());
+    nodes.extend(lf.fibre_nodes()?);
     if lf.recorder.enabled {
         nodes.push("recorder".into());
     }

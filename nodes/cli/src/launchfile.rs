@@ -389,7 +389,7 @@ impl LaunchFile {
             bail!("network.allowed_common_names must list the certificate names of the hosts");
         }
         let mut all = vec!["flow".to_string()];
-        all.extend(self.groups());
+        all.extend(self.fibre_nodes()?);
         if self.recorder.enabled {
             all.push("recorder".into());
         }
@@ -452,6 +452,23 @@ impl LaunchFile {
 
     pub fn groups(&self) -> Vec<String> {
         self.fibers.iter().map(|f| f.group.clone()).collect()
+    }
+
+    /// Every fibre node's share of its group, in launch-file order.
+    pub fn pieces(&self) -> Result<Vec<fiberflow_messages::pieces::Piece>> {
+        let mut v = Vec::new();
+        for f in &self.fibers {
+            v.extend(
+                f.pieces(self.box_plus())
+                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+            );
+        }
+        Ok(v)
+    }
+
+    /// The fibre nodes: one per group, or `<group>.<i>` per shard of a sharded group.
+    pub fn fibre_nodes(&self) -> Result<Vec<String>> {
+        Ok(self.pieces()?.iter().map(|p| p.node()).collect())
     }
 }
 

@@ -58,10 +58,14 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
         v.push(t.heartbeat(n));
     }
     for g in lf.groups() {
-        v.push(t.heartbeat(&g));
-        v.push(t.flow_samples(&g));
         v.push(t.fiber_state(&g));
         v.push(t.fiber_metrics(&g));
+    }
+    // a launch file that does not build has no fibre nodes to open topics for (the
+    // launcher refuses it before any node starts)
+    for p in lf.pieces().unwrap_or_default() {
+        v.push(t.heartbeat(&p.node()));
+        v.push(p.samples_topic(&t));
     }
     v
 }
@@ -134,9 +138,11 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
 pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
     let lf = &spec.launch;
     let groups = lf.groups();
+    let pieces = lf.pieces()?;
+    let fibre_nodes: Vec<String> = pieces.iter().map(|p| p.node()).collect();
     match spec.node.as_str() {
         "flow" => {
-            let mut expected = groups.clone();
+            let mut expected = fibre_nodes.clone();
             if lf.recorder.enabled {
                 expected.push("recorder".into());
             }
@@ -152,7 +158,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 resume_dir: spec.resume_dir.clone(),
                 checkpoint_every: lf.run.checkpoint_every_steps(),
                 checkpoint_root: spec.checkpoint_root(),
-                group_segments: group_segments(lf)?,
+                pieces,
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it
@@ -193,7 +199,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 meta.node_configs
                     .insert(f.group.clone(), toml::to_string(f).unwrap_or_default());
             }
-            let mut expect = groups.clone();
+            let mut expect = fibre_nodes.clone();
             expect.push("flow".into());
             let name = fiberflow_messages::segments::segment_name(spec.segment);
             let path = spec.out_dir.join(&name);
@@ -212,6 +218,10 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 checkpoint_root: spec.checkpoint_root(),
                 start_step: spec.start_step,
                 previous_segments,
+                pieces: pieces
+                    .iter()
+                    .map(|p| (p.group.clone(), p.first_fiber))
+                    .collect(),
                 states_every: lf.recorder.states_every,
                 samples: lf.recorder.samples,
             };
@@ -220,9 +230,12 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             tracing::info!(messages = s.messages, decimated = s.decimated, path = %s.path.display(), "recording finished");
             report_drops("recorder", &s.drops);
         }
-        g => {
-            let Some(cfg) = lf.fibers.iter().find(|f| f.group == g) else {
-                bail!("node {g:?} is neither flow, recorder nor a fibre group of the launch file");
+        node => {
+            let Some(p) = pieces.iter().find(|p| p.node() == node) else {
+                bail!("node {node:?} is neither flow, recorder nor a fibre node of the launch file ({})", fibre_nodes.join(", "));
+            };
+            let Some(cfg) = lf.fibers.iter().find(|f| f.group == p.group) else {
+                bail!("fibre node {node:?} has no group in the launch file");
             };
             let ck = fiberflow_fiber::serve::Checkpointing {
                 start_step: spec.start_step,
@@ -233,28 +246,17 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             };
             let drops = fiberflow_fiber::serve::serve(
                 cfg,
+                p.index,
                 bus,
                 &lf.run.id,
                 lf.box_plus(),
                 lf.run.step_timeout_s,
                 &ck,
             )?;
-            report_drops(g, &drops);
+            report_drops(node, &drops);
         }
     }
     Ok(())
-}
-
-/// Segment count of every fibre group of the launch file.
-fn group_segments(lf: &LaunchFile) -> Result<std::collections::BTreeMap<String, usize>> {
-    let mut m = std::collections::BTreeMap::new();
-    for f in &lf.fibers {
-        let built = f
-            .build(lf.box_plus())
-            .map_err(|e| anyhow::anyhow!("fibers[{}]: {e}", f.group))?;
-        m.insert(f.group.clone(), built.group.segment_count());
-    }
-    Ok(m)
 }
 
 /// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most

@@ -5,6 +5,7 @@ use fiberflow_fiber_model::cases::{
 };
 use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
+use fiberflow_messages::pieces::{split, Piece};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -90,6 +91,10 @@ pub struct FiberNodeConfig {
     /// Publish metrics every this many steps.
     #[serde(default = "default_metrics_every")]
     pub metrics_every: u64,
+    /// Fibre nodes that integrate the group, each a contiguous slice of its fibres (nodes
+    /// `<group>.0`, `<group>.1`, … when > 1); results do not depend on it.
+    #[serde(default = "default_shards")]
+    pub shards: u32,
     /// Fibre properties in physical units instead of wall units (overrides the `_plus`
     /// values and the case preset for the quantities it gives).
     #[serde(default)]
@@ -153,6 +158,10 @@ fn default_cd() -> f64 {
 fn default_true() -> bool {
     true
 }
+fn default_shards() -> u32 {
+    1
+}
+
 fn default_metrics_every() -> u64 {
     1
 }
@@ -161,6 +170,18 @@ fn default_metrics_every() -> u64 {
 pub struct BuiltGroup {
     pub group: FibreGroup,
     pub layers: Vec<u8>,
+}
+
+impl BuiltGroup {
+    /// Keeps fibres `first .. first + n` (one shard's share).
+    pub fn slice(self, first: usize, n: usize) -> BuiltGroup {
+        let params = self.group.params;
+        let fibres = self.group.fibres.into_iter().skip(first).take(n).collect();
+        BuiltGroup {
+            group: FibreGroup::new(params, fibres),
+            layers: self.layers.into_iter().skip(first).take(n).collect(),
+        }
+    }
 }
 
 impl FiberNodeConfig {
@@ -300,6 +321,13 @@ impl FiberNodeConfig {
                     .collect()
             }
         };
+        if self.shards == 0 || self.shards as usize > placements.len() {
+            return bad(
+                "shards",
+                &format!("in 1..={} (the group's fibres)", placements.len()),
+                self.shards.to_string(),
+            );
+        }
         let mut fibres = Vec::with_capacity(placements.len());
         let mut layers = Vec::with_capacity(placements.len());
         for p in &placements {
@@ -322,6 +350,28 @@ impl FiberNodeConfig {
             group: FibreGroup::new(params, fibres),
             layers,
         })
+    }
+
+    /// The fibre nodes of the group: `shards` contiguous slices of its fibres.
+    pub fn pieces(&self, box_plus: [f64; 3]) -> Result<Vec<Piece>, FibreError> {
+        let built = self.build(box_plus)?;
+        let total = built.group.fibres.len() as u32;
+        Ok(split(total, self.shards)
+            .into_iter()
+            .enumerate()
+            .map(|(i, (first, n))| Piece {
+                group: self.group.clone(),
+                index: i as u32,
+                shards: self.shards,
+                first_fiber: first,
+                fibers: n,
+                group_fibers: total,
+                segments: built.group.fibres[first as usize..(first + n) as usize]
+                    .iter()
+                    .map(|f| f.len())
+                    .sum(),
+            })
+            .collect())
     }
 }
 
@@ -375,5 +425,39 @@ mod tests {
             .unwrap()
             .to_string()
             .contains("diameter_plus"));
+    }
+
+    /// Shards split the group into contiguous slices named `<group>.<i>`; a shard count
+    /// outside 1..=fibres is refused with the key and the range.
+    #[test]
+    fn shards_split_the_group_and_are_checked() {
+        let mut c = base();
+        c.shards = 3;
+        let p = c.pieces([942.0, 300.0, 471.0]).unwrap();
+        let got: Vec<(String, u32, u32)> = p
+            .iter()
+            .map(|p| (p.node(), p.first_fiber, p.fibers))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("g.0".to_string(), 0, 16),
+                ("g.1".to_string(), 16, 17),
+                ("g.2".to_string(), 33, 17)
+            ]
+        );
+        assert!(p
+            .iter()
+            .all(|p| p.group_fibers == 50 && p.segments == 7 * p.fibers as usize));
+        for bad in [0, 51] {
+            c.shards = bad;
+            let e = c.build([942.0, 300.0, 471.0]).err().unwrap().to_string();
+            assert!(
+                e.contains("fibers[g].shards") && e.contains("1..=50"),
+                "{e}"
+            );
+        }
+        c.shards = 1;
+        assert_eq!(c.pieces([942.0, 300.0, 471.0]).unwrap()[0].node(), "g");
     }
 }

@@ -43,9 +43,11 @@ pub struct Checkpointing {
     pub config_digest: String,
 }
 
-/// Runs one group to the end of the run; returns the drop counts.
+/// Runs shard `shard` of a group (0 for an unsharded group) to the end of the run;
+/// returns the drop counts.
 pub fn serve(
     cfg: &FiberNodeConfig,
+    shard: u32,
     bus: BusHandle,
     run_id: &str,
     box_plus: [f64; 3],
@@ -53,10 +55,25 @@ pub fn serve(
     ck: &Checkpointing,
 ) -> Result<DropCounter, FiberNodeError> {
     let t = Topics::new(run_id);
-    let built = cfg.build(box_plus)?;
+    let piece = cfg
+        .pieces(box_plus)?
+        .into_iter()
+        .nth(shard as usize)
+        .ok_or_else(|| {
+            FiberNodeError::Protocol(format!(
+                "group {} has {} shards, no shard {shard}",
+                cfg.group, cfg.shards
+            ))
+        })?;
+    // every shard builds the whole group and keeps its slice: the same fibres, bit for
+    // bit, whatever the shard count
+    let built = cfg
+        .build(box_plus)?
+        .slice(piece.first_fiber as usize, piece.fibers as usize);
+    let node = piece.node();
     let mut group = built.group;
     if let Some(dir) = &ck.resume_dir {
-        let path = checkpoints::piece(dir, &cfg.group);
+        let path = checkpoints::piece(dir, &node);
         let snap = GroupSnapshot::read(&path)?;
         if snap.step != ck.start_step {
             return Err(FiberNodeError::Protocol(format!(
@@ -80,14 +97,14 @@ pub fn serve(
     }
     let layers = built.layers;
     let name = cfg.group.clone();
-    let mut samples_in = Inbox::new(bus.subscribe(&t.flow_samples(&name))?);
+    let mut samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
     let mut ann_in = Inbox::new(bus.subscribe(&t.announce())?);
     let hb = |state: u8, step: u64, dropped: u64| -> Result<(), BusError> {
         bus.publish(
-            &t.heartbeat(&name),
+            &t.heartbeat(&node),
             &encode(&Heartbeat {
                 schema_version: SCHEMA_VERSION,
-                node: name.clone(),
+                node: node.clone(),
                 state,
                 step,
                 dropped,
@@ -99,7 +116,7 @@ pub fn serve(
     let ann = loop {
         if Instant::now() > deadline {
             return Err(FiberNodeError::Protocol(format!(
-                "group {name}: no run announcement within {timeout_s:.0} s (is the flow node running?)"
+                "node {node}: no run announcement within {timeout_s:.0} s (is the flow node running?)"
             )));
         }
         hb(lifecycle::READY, 0, 0)?;
@@ -123,6 +140,8 @@ pub fn serve(
                 group: name.clone(),
                 step,
                 t_plus: step as f64 * dt,
+                first_fiber: piece.first_fiber,
+                group_fibers: piece.group_fibers,
                 segments_per_fiber: Vec::with_capacity(group.fibres.len()),
                 segment_length: Vec::new(),
                 diameter: Vec::new(),
@@ -156,6 +175,8 @@ pub fn serve(
                 group: name.clone(),
                 step,
                 t_plus: step as f64 * dt,
+                first_fiber: piece.first_fiber,
+                group_fibers: piece.group_fibers,
                 centre_of_mass: ms
                     .iter()
                     .flat_map(|m| m.centre_of_mass.iter().copied().collect::<Vec<_>>())
@@ -183,15 +204,15 @@ pub fn serve(
             if left.is_zero() {
                 hb(lifecycle::FAILED, k, samples_in.drops.total())?;
                 return Err(FiberNodeError::Protocol(format!(
-                    "group {name}: no flow samples for step {k} within {timeout_s:.0} s"
+                    "node {node}: no flow samples for step {k} within {timeout_s:.0} s"
                 )));
             }
             if let Some((topic, s)) = samples_in.recv::<FlowSamples>(left) {
                 let n = group.segment_count();
-                if s.group != name {
+                if s.group != name || s.first_fiber != piece.first_fiber {
                     samples_in
                         .drops
-                        .drop_one(&topic, "samples for another group");
+                        .drop_one(&topic, "samples for another group or shard");
                 } else if s.step != k {
                     samples_in.drops.drop_one(&topic, "samples of another step");
                 } else if s.velocity.len() != 3 * n {
@@ -238,7 +259,7 @@ pub fn serve(
                     source,
                 })?;
                 let t0 = Instant::now();
-                GroupSnapshot::capture(&group, k + 1).write(&checkpoints::piece(&dir, &name))?;
+                GroupSnapshot::capture(&group, k + 1).write(&checkpoints::piece(&dir, &node))?;
                 tracing::info!(
                     step = k + 1,
                     ms = t0.elapsed().as_millis() as u64,

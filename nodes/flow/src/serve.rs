@@ -8,6 +8,7 @@ use crate::error::FlowError;
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_dns::sample::Sampler;
 use fiberflow_dns::Solver;
+use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowStatus, Heartbeat,
@@ -37,8 +38,9 @@ pub struct RunInfo {
     /// Coupled checkpoints: every this many steps (0 = never) under this folder.
     pub checkpoint_every: u64,
     pub checkpoint_root: Option<PathBuf>,
-    /// Segment count of every group (states with another count are dropped).
-    pub group_segments: BTreeMap<String, usize>,
+    /// Every fibre node's share of its group (one piece per unsharded group): the flow
+    /// node waits for a state of each at every step, samples each on its own.
+    pub pieces: Vec<Piece>,
 }
 
 /// Wall seconds per stage of the coupling loop (logged at the end of a run).
@@ -69,14 +71,27 @@ fn admit(s: &FiberGroupState, k: u64, run: &RunInfo) -> Admit {
     if !run.groups.contains(&s.group) {
         return Admit::Drop(format!("state of unknown group {:?}", s.group));
     }
-    if let Some(&n) = run.group_segments.get(&s.group) {
-        if s.centre.len() != 3 * n {
-            return Admit::Drop(format!(
-                "group {} has {n} segments, the state {}",
-                s.group,
-                s.centre.len() / 3
-            ));
-        }
+    let Some(p) = run
+        .pieces
+        .iter()
+        .find(|p| p.group == s.group && p.first_fiber == s.first_fiber)
+    else {
+        return Admit::Drop(format!(
+            "group {} has no shard starting at fibre {}",
+            s.group, s.first_fiber
+        ));
+    };
+    if s.group_fibers != p.group_fibers || s.centre.len() != 3 * p.segments {
+        return Admit::Drop(format!(
+            "shard {} has {} of {} fibres in {} segments, the state {} of {} in {}",
+            p.node(),
+            p.fibers,
+            p.group_fibers,
+            p.segments,
+            s.segments_per_fiber.len(),
+            s.group_fibers,
+            s.centre.len() / 3
+        ));
     }
     if s.step + 1 == k {
         return Admit::Ignore;
@@ -230,7 +245,8 @@ pub fn serve(
     bus.publish(&t.announce(), &encode(&ann))?;
     tracing::info!(groups = ?run.groups, steps = run.steps, "run announced");
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
-    let mut pending: BTreeMap<String, FiberGroupState> = BTreeMap::new();
+    // states of the step being served, by (group, first fibre)
+    let mut pending: BTreeMap<(String, u32), FiberGroupState> = BTreeMap::new();
     // running plane/time statistics of the served field, published as FlowProfiles
     let mut stats: Option<fiberflow_dns::stats::RunningStats> = resumed_stats;
     if run.start_step > 0 {
@@ -240,18 +256,18 @@ pub fn serve(
     for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
-        while pending.len() < run.groups.len() {
+        while pending.len() < run.pieces.len() {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
                 let missing: Vec<_> = run
-                    .groups
+                    .pieces
                     .iter()
-                    .filter(|g| !pending.contains_key(*g))
-                    .cloned()
+                    .filter(|p| !pending.contains_key(&(p.group.clone(), p.first_fiber)))
+                    .map(|p| p.node())
                     .collect();
                 heartbeat(&bus, &t, lifecycle::FAILED, k, st_in.drops.total())?;
                 return Err(FlowError::Protocol(format!(
-                    "step {k}: no state from fibre group(s) {} within {:.0} s",
+                    "step {k}: no state from fibre node(s) {} within {:.0} s",
                     missing.join(", "),
                     run.step_timeout_s
                 )));
@@ -265,7 +281,7 @@ pub fn serve(
             match fiberflow_messages::decode::<FiberGroupState>(&bytes) {
                 Ok(s) => match admit(&s, k, run) {
                     Admit::Take => {
-                        pending.entry(s.group.clone()).or_insert(s);
+                        pending.entry((s.group.clone(), s.first_fiber)).or_insert(s);
                     }
                     Admit::Ignore => {
                         tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring the state of the step just served")
@@ -277,7 +293,7 @@ pub fn serve(
         }
         let t_plus = k as f64 * cfg.dt_plus;
         timing.waiting_s += wait_from.elapsed().as_secs_f64();
-        for (group, s) in std::mem::take(&mut pending) {
+        for ((group, first_fiber), s) in std::mem::take(&mut pending) {
             let t0 = Instant::now();
             let n = s.centre.len() / 3;
             let mut vel = vec![0.0; 3 * n];
@@ -316,10 +332,19 @@ pub fn serve(
                 group: group.clone(),
                 step: k,
                 t_plus,
+                first_fiber,
+                group_fibers: s.group_fibers,
                 velocity: vel,
                 velocity_gradient: grad,
             };
-            bus.publish(&t.flow_samples(&group), &encode(&msg))?;
+            // admitted states belong to a piece of the run
+            let topic = run
+                .pieces
+                .iter()
+                .find(|p| p.group == group && p.first_fiber == first_fiber)
+                .map(|p| p.samples_topic(&t))
+                .unwrap_or_else(|| t.flow_samples(&group));
+            bus.publish(&topic, &encode(&msg))?;
             timing.publishing_s += t0.elapsed().as_secs_f64();
         }
         if k == run.steps {
@@ -493,7 +518,15 @@ mod fuzz {
             resume_dir: None,
             checkpoint_every: 0,
             checkpoint_root: None,
-            group_segments: [("case1".to_string(), 7usize)].into_iter().collect(),
+            pieces: vec![Piece {
+                group: "case1".into(),
+                index: 0,
+                shards: 1,
+                first_fiber: 0,
+                fibers: 1,
+                group_fibers: 1,
+                segments: 7,
+            }],
         };
         let mut r = Rng::new(5);
         let mut taken = 0;

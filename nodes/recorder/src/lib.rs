@@ -7,6 +7,7 @@ pub mod pointcloud;
 pub mod recover;
 
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
+use fiberflow_messages::pieces::{self, Tiles};
 use fiberflow_messages::topics::{type_of, Topics};
 use fiberflow_messages::{
     checkpoints, decode, encode, lifecycle, sanity, schema, FiberGroupState, Heartbeat,
@@ -143,6 +144,8 @@ const QUIET_AFTER_FLOW_DONE: Duration = Duration::from_secs(3);
 pub struct RecordPlan {
     /// Fibre groups of the run.
     pub groups: Vec<String>,
+    /// (group, first fibre) of every fibre node (empty: one per group).
+    pub pieces: Vec<(String, u32)>,
     /// Coupling steps of the run.
     pub steps: u64,
     /// Coupled checkpoints: every this many steps (0 = never) under `checkpoint_root`.
@@ -167,8 +170,11 @@ impl RecordPlan {
     }
 }
 
-/// (topic, step) of every step-stamped message in `segments` (a damaged tail ends a file).
-pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<(String, u64)> {
+/// A step-stamped message: topic, step and first fibre (the slice of a sharded group).
+type Key = (String, u64, u32);
+
+/// Every step-stamped message in `segments` (a damaged tail ends a file).
+pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<Key> {
     let mut seen = BTreeSet::new();
     for p in segments {
         let Ok(bytes) = std::fs::read(p) else {
@@ -183,10 +189,12 @@ pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<(String, u64)> {
                 continue;
             };
             if let Ok(sanity::Stamp {
-                step: Some(step), ..
+                step: Some(step),
+                first_fiber,
+                ..
             }) = sanity::check_payload(type_name, &m.data)
             {
-                seen.insert((m.channel.topic.clone(), step));
+                seen.insert((m.channel.topic.clone(), step, first_fiber));
             }
         }
     }
@@ -201,13 +209,18 @@ struct Session<'a> {
     drops: DropCounter,
     sim_nanos: u64,
     /// Step-stamped messages already in this or an earlier segment.
-    seen: BTreeSet<(String, u64)>,
-    /// Each group's state of step 0, held until its next state: a fluid-velocity start
-    /// sends step 0 twice (positions first, then with the fluid's velocity); the last wins.
-    held_first: BTreeMap<String, Vec<u8>>,
-    /// Newest state and samples step per group (for the checkpoint commit).
-    state_step: BTreeMap<String, u64>,
-    samples_step: BTreeMap<String, u64>,
+    seen: BTreeSet<Key>,
+    /// Each fibre node's state of step 0 (by topic and first fibre), held until its next
+    /// state: a fluid-velocity start sends step 0 twice (positions first, then with the
+    /// fluid's velocity); the last wins.
+    held_first: BTreeMap<(String, u32), Vec<u8>>,
+    /// Newest state and samples step per fibre node, by (group, first fibre) (for the
+    /// checkpoint commit).
+    state_step: BTreeMap<(String, u32), u64>,
+    samples_step: BTreeMap<(String, u32), u64>,
+    /// Slices of sharded groups' states, until a step's slices make the whole group (its
+    /// PointCloud2 shows the whole group).
+    tiles: Tiles<FiberGroupState>,
     /// Newest flow status step.
     status_step: Option<u64>,
     plan: &'a RecordPlan,
@@ -229,6 +242,7 @@ impl Session<'_> {
                 let stamp = sanity::Stamp {
                     step: Some(s.step),
                     owner: Some(s.group.clone()),
+                    first_fiber: s.first_fiber,
                 };
                 (stamp, Some(s))
             })
@@ -258,7 +272,7 @@ impl Session<'_> {
                     } else {
                         &mut self.samples_step
                     };
-                    let e = map.entry(g.clone()).or_insert(k);
+                    let e = map.entry((g.clone(), stamp.first_fiber)).or_insert(k);
                     *e = (*e).max(k);
                 }
             }
@@ -271,18 +285,19 @@ impl Session<'_> {
                 self.summary.decimated += 1;
                 return self.maybe_commit();
             }
-            if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0)) {
-                self.held_first.insert(topic.to_string(), bytes.to_vec());
+            let slice = (topic.to_string(), stamp.first_fiber);
+            if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0, slice.1)) {
+                self.held_first.insert(slice, bytes.to_vec());
                 return Ok(());
             }
             if is_state {
-                if let Some(first) = self.held_first.remove(topic) {
+                if let Some(first) = self.held_first.remove(&slice) {
                     let held = sanity::check_state(&first).ok();
-                    self.write_new(topic, type_name, Some(0), &first, held.as_ref())?;
+                    self.write_new(topic, type_name, Some(0), &first, held)?;
                 }
             }
         }
-        self.write_new(topic, type_name, step, bytes, state.as_ref())?;
+        self.write_new(topic, type_name, step, bytes, state)?;
         self.maybe_commit()
     }
 
@@ -322,23 +337,25 @@ impl Session<'_> {
         Ok(())
     }
 
-    /// Writes unless this (topic, step) is already recorded; `st` is the decoded state
-    /// of a state message (for the timeline and its PointCloud2).
+    /// Writes unless this (topic, step, slice) is already recorded; `st` is the decoded
+    /// state of a state message (for the timeline and, once its group is complete, the
+    /// group's PointCloud2).
     fn write_new(
         &mut self,
         topic: &str,
         type_name: &'static str,
         step: Option<u64>,
         bytes: &[u8],
-        st: Option<&FiberGroupState>,
+        st: Option<FiberGroupState>,
     ) -> Result<(), RecorderError> {
         if let Some(k) = step {
-            if !self.seen.insert((topic.to_string(), k)) {
+            let first = st.as_ref().map_or(0, |s| s.first_fiber);
+            if !self.seen.insert((topic.to_string(), k, first)) {
                 self.summary.already_recorded += 1;
                 return Ok(());
             }
         }
-        if let Some(s) = st {
+        if let Some(s) = &st {
             self.sim_nanos = self.sim_nanos.max(t_plus_to_nanos(s.t_plus));
         }
         let c = self.out.channel(topic, type_name)?;
@@ -346,10 +363,19 @@ impl Session<'_> {
         self.summary.messages += 1;
         *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
         if let Some(s) = st {
-            let pc = pointcloud::from_state(s);
-            let ptopic = self.topics.fiber_points(&s.group);
-            let c = self.out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
-            self.out.write(c, self.sim_nanos, &pc)?;
+            let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
+            let n = s.segments_per_fiber.len() as u32;
+            let total = s.group_fibers;
+            let whole = self
+                .tiles
+                .add(&g, k, first, n, total, s)
+                .and_then(pieces::merge_states);
+            if let Some(whole) = whole {
+                let pc = pointcloud::from_state(&whole);
+                let ptopic = self.topics.fiber_points(&g);
+                let c = self.out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
+                self.out.write(c, self.sim_nanos, &pc)?;
+            }
         }
         Ok(())
     }
@@ -362,11 +388,13 @@ impl Session<'_> {
             return Ok(());
         };
         while let Some(c) = self.next_checkpoint {
-            let past = |m: &BTreeMap<String, u64>| {
-                self.plan
-                    .groups
-                    .iter()
-                    .all(|g| m.get(g).is_some_and(|&s| s > c))
+            let pieces: Vec<(String, u32)> = if self.plan.pieces.is_empty() {
+                self.plan.groups.iter().map(|g| (g.clone(), 0)).collect()
+            } else {
+                self.plan.pieces.clone()
+            };
+            let past = |m: &BTreeMap<(String, u32), u64>| {
+                pieces.iter().all(|p| m.get(p).is_some_and(|&s| s > c))
             };
             // without fibre groups the flow node's status of a later step marks it
             let ready = if self.plan.groups.is_empty() {
@@ -409,14 +437,14 @@ impl Session<'_> {
 
     /// Writes what is still held (a group whose only state is step 0).
     fn release_held(&mut self) -> Result<(), RecorderError> {
-        for (topic, bytes) in std::mem::take(&mut self.held_first) {
+        for ((topic, _), bytes) in std::mem::take(&mut self.held_first) {
             let st = sanity::check_state(&bytes).ok();
             self.write_new(
                 &topic,
                 "fiberflow_msgs/msg/FiberGroupState",
                 Some(0),
                 &bytes,
-                st.as_ref(),
+                st,
             )?;
         }
         Ok(())
@@ -495,6 +523,7 @@ pub fn record(
         held_first: BTreeMap::new(),
         state_step: BTreeMap::new(),
         samples_step: BTreeMap::new(),
+        tiles: Tiles::default(),
         status_step: None,
         plan,
         next_checkpoint,
@@ -750,6 +779,8 @@ mod tests {
             group: group.into(),
             step,
             t_plus: step as f64 * 0.25,
+            first_fiber: 0,
+            group_fibers: 1,
             segments_per_fiber: vec![2],
             segment_length: vec![3.0],
             diameter: vec![0.2],
@@ -801,6 +832,8 @@ mod tests {
                 group: "g".into(),
                 step: k,
                 t_plus: k as f64 * 0.25,
+                first_fiber: 0,
+                group_fibers: 1,
                 centre_of_mass: vec![0.0; 3],
                 z1: vec![1.0],
                 sigma2: vec![0.0],
@@ -815,6 +848,8 @@ mod tests {
                     group: "g".into(),
                     step: k,
                     t_plus: k as f64 * 0.25,
+                    first_fiber: 0,
+                    group_fibers: 1,
                     velocity: vec![0.0; 6],
                     velocity_gradient: vec![0.0; 18],
                 };

@@ -60,6 +60,8 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
         .map_err(|e| read_err(mcap, e.to_string()))?;
     let mut states: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
     let mut box_plus = [942.48, 300.0, 471.24];
+    // a sharded group's slices, put back together per step
+    let mut tiles = fiberflow_messages::pieces::Tiles::default();
     for seg in &segs {
         let bytes = std::fs::read(seg).map_err(|e| read_err(seg, e.to_string()))?;
         let stream = mcap::MessageStream::new(&bytes).map_err(|e| read_err(seg, e.to_string()))?;
@@ -68,7 +70,15 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
             if m.channel.topic.ends_with("/state") {
                 if let Ok(s) = decode::<FiberGroupState>(&m.data) {
                     if s.check().is_ok() {
-                        states.entry(s.group.clone()).or_default().insert(s.step, s);
+                        let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
+                        let n = s.segments_per_fiber.len() as u32;
+                        let total = s.group_fibers;
+                        if let Some(whole) = tiles
+                            .add(&g, k, first, n, total, s)
+                            .and_then(fiberflow_messages::pieces::merge_states)
+                        {
+                            states.entry(g).or_default().insert(k, whole);
+                        }
                     }
                 }
             } else if m.channel.topic.ends_with("/control/announce") {
