@@ -1,6 +1,7 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
 mod analyze;
+mod bench;
 mod coupled;
 mod launch;
 mod launchfile;
@@ -46,6 +47,34 @@ enum Cmd {
         /// Ctrl-C or a crash); give the same launch file and --set options.
         #[arg(long, value_name = "DIR")]
         resume: Option<PathBuf>,
+    },
+    /// Scale benchmark: the fine-grid flow alone and carrying increasing fibre counts, over
+    /// each transport, interleaved; prints wall per coupling step split into stages.
+    BenchScale {
+        /// Total fibre counts, multiples of 30 (0 = the flow alone).
+        #[arg(long, value_delimiter = ',', default_value = "0,300,3000,30000,60000")]
+        fibres: Vec<u64>,
+        /// Transports to compare.
+        #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
+        transports: Vec<String>,
+        /// Coupling steps per run.
+        #[arg(long, default_value_t = 20)]
+        steps: u64,
+        /// Runs per configuration (interleaved).
+        #[arg(long, default_value_t = 2)]
+        repeats: usize,
+        /// Leave the recorder off (default: on, states every 10 steps, no samples).
+        #[arg(long)]
+        no_record: bool,
+        /// Launch file with six fibre groups.
+        #[arg(long, default_value = "launch/scale-1e4.toml")]
+        fibres_file: PathBuf,
+        /// Launch file of the flow alone.
+        #[arg(long, default_value = "launch/scale-flow-only.toml")]
+        flow_only_file: PathBuf,
+        /// Where the runs and bench-scale.md go.
+        #[arg(long, default_value = "recordings/bench-scale")]
+        out: PathBuf,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -200,6 +229,25 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::Node { spec } => nodes::node_cmd(&spec),
+        Cmd::BenchScale {
+            fibres,
+            transports,
+            steps,
+            repeats,
+            no_record,
+            fibres_file,
+            flow_only_file,
+            out,
+        } => bench::run(&bench::BenchOptions {
+            fibres_file,
+            flow_only_file,
+            fibres,
+            transports,
+            steps,
+            repeats,
+            record: !no_record,
+            out,
+        }),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
         Cmd::Replay {

@@ -228,6 +228,10 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             let s =
                 fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, &plan, stop)?;
             tracing::info!(messages = s.messages, decimated = s.decimated, path = %s.path.display(), "recording finished");
+            tracing::info!(
+                writing_s = format!("{:.3}", s.busy_s),
+                "where the recorder's time went"
+            );
             report_drops("recorder", &s.drops);
         }
         node => {

@@ -13,3 +13,15 @@ pub fn t_plus_bar(total_plus: f64) -> ProgressBar {
     pb.set_style(style);
     pb
 }
+
+/// A bar over a count of `what` (runs, files) with ETA.
+pub fn bar(total: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(total);
+    let style = ProgressStyle::with_template(&format!(
+        "{{spinner}} [{{elapsed_precise}}] {{bar:40.cyan/blue}} {{pos}}/{{len}} {what} {{msg}} ETA {{eta}}"
+    ))
+    .unwrap_or_else(|_| ProgressStyle::default_bar())
+    .progress_chars("=> ");
+    pb.set_style(style);
+    pb
+}

@@ -62,6 +62,8 @@ pub struct RecordSummary {
     pub already_recorded: u64,
     /// Messages left out by the plan (`states_every`, `samples = false`).
     pub decimated: u64,
+    /// Wall seconds spent checking, encoding and writing messages (the rest is waiting).
+    pub busy_s: f64,
 }
 
 struct Out {
@@ -572,6 +574,7 @@ pub fn record(
             continue;
         };
         last_message = Instant::now();
+        let busy_from = Instant::now();
         match type_of(&topic) {
             Some("fiberflow_msgs/msg/RunAnnouncement") => {
                 started |= schema::validate("fiberflow_msgs/msg/RunAnnouncement", &bytes).is_ok()
@@ -592,6 +595,7 @@ pub fn record(
             _ => {}
         }
         sess.handle(&topic, &bytes)?;
+        sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
     }
     // drain what is already queued
     while let Ok((topic, bytes)) = inbox.sub.rx.try_recv() {

@@ -1,0 +1,267 @@
+//! `fiberflow bench-scale`: the scale benchmark. Runs the fine-grid flow alone and carrying
+//! increasing numbers of fibres, over each transport, configurations interleaved (A B C …
+//! A B C …) so slow drifts of a shared machine hit every configuration alike; reads each
+//! node's own "where … time went" log line and prints, per configuration, the wall time per
+//! coupling step split into its stages (medians over the repeats, with min–max of the
+//! step wall).
+
+use anyhow::{bail, Context, Result};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+/// What the benchmark runs.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Launch file with the flow and six fibre groups (`placement.per_layer` is set per
+    /// configuration); 0 fibres runs `flow_only` instead.
+    pub fibres_file: PathBuf,
+    pub flow_only_file: PathBuf,
+    /// Total fibre counts (multiples of 30: six groups of five layers).
+    pub fibres: Vec<u64>,
+    pub transports: Vec<String>,
+    pub steps: u64,
+    pub repeats: usize,
+    /// Record (states every 10 steps, metrics every step, no samples).
+    pub record: bool,
+    pub out: PathBuf,
+}
+
+/// One run's figures, seconds.
+#[derive(Debug, Clone, Default)]
+struct Figures {
+    /// Whole process, from start to exit.
+    process_s: f64,
+    /// The flow node's loop (all its stages).
+    loop_s: f64,
+    field_step_s: f64,
+    sampling_s: f64,
+    /// Flow node encoding + publishing samples, plus the groups' mean encoding +
+    /// publishing of states and metrics.
+    flow_publish_s: f64,
+    group_publish_s: f64,
+    /// The groups' mean fibre step.
+    fibre_step_s: f64,
+    /// The flow node waiting for states (fibre step + transport on the groups' side).
+    waiting_s: f64,
+    recording_s: f64,
+}
+
+/// `key="value"` or `key=value` pairs of a log line.
+fn fields(line: &str) -> BTreeMap<String, f64> {
+    line.split_whitespace()
+        .filter_map(|w| {
+            let (k, v) = w.split_once('=')?;
+            Some((k.to_string(), v.trim_matches('"').parse().ok()?))
+        })
+        .collect()
+}
+
+/// Reads the per-stage lines every node logged into `<out>/logs/`.
+fn read_figures(out: &Path, process_s: f64) -> Result<Figures> {
+    let mut f = Figures {
+        process_s,
+        ..Default::default()
+    };
+    let mut groups = 0.0;
+    for e in std::fs::read_dir(out.join("logs"))
+        .with_context(|| format!("reading {}", out.join("logs").display()))?
+        .flatten()
+    {
+        let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+        for line in text.lines() {
+            let v = fields(line);
+            let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
+            if line.contains("where the flow node's time went") {
+                f.field_step_s = g("field_step_s");
+                f.sampling_s = g("sampling_s");
+                f.flow_publish_s = g("encoding_and_publishing_s");
+                f.waiting_s = g("waiting_for_states_s");
+                f.loop_s = f.field_step_s + f.sampling_s + f.flow_publish_s + f.waiting_s;
+            } else if line.contains("where the group's time went") {
+                groups += 1.0;
+                f.fibre_step_s += g("fibre_step_s");
+                f.group_publish_s += g("encoding_and_publishing_s");
+            } else if line.contains("where the recorder's time went") {
+                f.recording_s = g("writing_s");
+            }
+        }
+    }
+    if f.loop_s == 0.0 {
+        bail!("{}: the flow node logged no timing line", out.display());
+    }
+    if groups > 0.0 {
+        f.fibre_step_s /= groups;
+        f.group_publish_s /= groups;
+    }
+    Ok(f)
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+pub fn run(o: &BenchOptions) -> Result<()> {
+    if o.fibres.iter().any(|n| n % 30 != 0) {
+        bail!("--fibres: every count must be a multiple of 30 (six groups of five layers)");
+    }
+    if o.steps == 0 || o.repeats == 0 {
+        bail!("--steps and --repeats must be >= 1");
+    }
+    let exe = std::env::current_exe().context("locating the fiberflow executable")?;
+    std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
+    let configs: Vec<(u64, String)> = o
+        .fibres
+        .iter()
+        .flat_map(|&n| o.transports.iter().map(move |t| (n, t.clone())))
+        .collect();
+    let total = configs.len() * o.repeats;
+    let bar = crate::progress::bar(total as u64, "runs");
+    let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
+    for r in 0..o.repeats {
+        for (n, transport) in &configs {
+            let out = o.out.join(format!("{n}-{transport}-{r}"));
+            let file = if *n == 0 {
+                &o.flow_only_file
+            } else {
+                &o.fibres_file
+            };
+            let mut c = Command::new(&exe);
+            c.arg("launch")
+                .arg(file)
+                .arg("--out")
+                .arg(&out)
+                .arg("--transport")
+                .arg(transport)
+                .arg("--set")
+                .arg(format!("run.steps={}", o.steps))
+                .arg("--set")
+                .arg("run.analyze=false")
+                .arg("--set")
+                .arg("run.checkpoint_every_plus=0");
+            if *n > 0 {
+                for g in 1..=6 {
+                    c.arg("--set")
+                        .arg(format!("fibers.case{g}.placement.per_layer={}", n / 30));
+                }
+            }
+            for s in if o.record {
+                vec![
+                    "recorder.enabled=true",
+                    "recorder.states_every=10",
+                    "recorder.samples=false",
+                ]
+            } else {
+                vec!["recorder.enabled=false"]
+            } {
+                c.arg("--set").arg(s);
+            }
+            bar.set_message(format!("{n} fibres, {transport}"));
+            let t0 = Instant::now();
+            let st = c
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null())
+                .status()
+                .context("running fiberflow launch")?;
+            let wall = t0.elapsed().as_secs_f64();
+            if !st.success() {
+                bail!(
+                    "{n} fibres over {transport} failed ({st}); logs in {}",
+                    out.join("logs").display()
+                );
+            }
+            results
+                .entry((*n, transport.clone()))
+                .or_default()
+                .push(read_figures(&out, wall)?);
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    let table = table(&results, o.steps);
+    println!("{table}");
+    let path = o.out.join("bench-scale.md");
+    std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
+    println!("written to {}", path.display());
+    Ok(())
+}
+
+/// The markdown table: ms per coupling step, medians over the repeats.
+fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String {
+    use std::fmt::Write as _;
+    let mut md = String::from(
+        "| fibres | transport | step wall ms (min–max) | vs flow-only | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let per = |v: &[Figures], f: fn(&Figures) -> f64| {
+        median(v.iter().map(f).collect()) * 1e3 / steps as f64
+    };
+    for ((n, t), v) in results {
+        let step = per(v, |f| f.loop_s);
+        let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
+        let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
+        let base = results
+            .get(&(0, t.clone()))
+            .map(|b| per(b, |f| f.loop_s))
+            .unwrap_or(f64::NAN);
+        let _ = writeln!(
+            md,
+            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {:.2} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} |",
+            step / base,
+            per(v, |f| f.field_step_s),
+            per(v, |f| f.sampling_s),
+            per(v, |f| f.flow_publish_s),
+            per(v, |f| f.waiting_s),
+            per(v, |f| f.fibre_step_s),
+            per(v, |f| f.group_publish_s),
+            per(v, |f| f.recording_s),
+            median(v.iter().map(|f| f.process_s).collect()),
+        );
+    }
+    md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The log lines the nodes write are what the benchmark reads.
+    #[test]
+    fn reads_the_nodes_timing_lines() {
+        let dir = std::env::temp_dir().join(format!("ff-bench-{}", std::process::id()));
+        let logs = dir.join("logs");
+        std::fs::create_dir_all(&logs).unwrap();
+        std::fs::write(
+            logs.join("flow.log"),
+            "2026-01-01T00:00:00Z  INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\"\n",
+        )
+        .unwrap();
+        for (g, s) in [("case1", "1.000"), ("case2", "3.000")] {
+            std::fs::write(
+                logs.join(format!("{g}.log")),
+                format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\"\n"),
+            )
+            .unwrap();
+        }
+        std::fs::write(
+            logs.join("recorder.log"),
+            "x INFO fiberflow::nodes: where the recorder's time went writing_s=\"0.125\"\n",
+        )
+        .unwrap();
+        let f = read_figures(&dir, 12.0).unwrap();
+        assert_eq!(f.loop_s, 7.5);
+        assert_eq!((f.fibre_step_s, f.group_publish_s), (2.0, 0.25));
+        assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
