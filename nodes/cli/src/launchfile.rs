@@ -216,9 +216,15 @@ fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Val
         table.insert(head.to_string(), value);
         return Ok(());
     }
-    let entry = table
-        .entry(head.to_string())
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    let entry = table.entry(head.to_string()).or_insert_with(|| {
+        let mut t = toml::Table::new();
+        // a group without a placement table has the default one: setting one of its
+        // keys (e.g. placement.per_layer) keeps that kind
+        if head == "placement" {
+            t.insert("kind".into(), toml::Value::String("layers".into()));
+        }
+        toml::Value::Table(t)
+    });
     match entry {
         toml::Value::Table(t) => set_path(t, rest, key, value),
         toml::Value::Array(items) => {
@@ -572,6 +578,7 @@ mod tests {
                 "run.checkpoint_every_plus=5",
                 "run.transport=iceoryx2",
                 "fibers.g1.density_ratio=2300.0",
+                "fibers.g1.placement.per_layer=3",
                 "run.restart.max_restarts=1",
             ]),
         )
@@ -581,6 +588,11 @@ mod tests {
         assert_eq!(lf.run.transport, "iceoryx2");
         assert_eq!(lf.run.restart.max_restarts, 1);
         assert_eq!(lf.fibers[0].density_ratio, Some(2300.0));
+        // a group without a placement table keeps the default (layers) kind
+        assert!(matches!(
+            lf.fibers[0].placement,
+            fiberflow_fiber::config::PlacementConfig::Layers { per_layer: 3, .. }
+        ));
         assert!(eff.starts_with('#') && eff.contains("run.steps=400"));
         // the effective text is itself a launch file with the same content
         let again = dir.join("eff.toml");
