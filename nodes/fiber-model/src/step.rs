@@ -22,7 +22,7 @@
 
 use crate::error::FibreError;
 use crate::fibre::Fibre;
-use crate::hydro::{resistance, DragModel};
+use crate::hydro::{resistance_axisymmetric, Axisymmetric, AxisymmetricResistance, DragModel};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
 /// Fluid velocity and velocity gradient at a segment centre: `grad[(a, b)] = ∂v_a/∂x_b`.
@@ -104,7 +104,9 @@ pub fn step_with_loads(
     Ok(loads)
 }
 
-const MAX_STACK: usize = 32;
+/// Segments per fibre kept on the stack (longer fibres use the heap); small, because every
+/// buffer is initialised at this size on each step.
+const MAX_STACK: usize = 16;
 
 fn step_inner(
     p: &ModelParams,
@@ -120,16 +122,17 @@ fn step_inner(
             got: fluid.len(),
         });
     }
-    // per-segment quantities (small vectors: stack for typical N)
+    // per-segment quantities (small vectors: stack for typical N). Every tensor of a
+    // segment is axisymmetric about its axis ẑ, so P and Q are inverted in closed form
+    // and W = h² Z Q Z = h² q⊥ (ẑẑᵀ − I).
+    let mut pa: smallvec_like::Buf<Axisymmetric> = smallvec_like::Buf::new(n);
+    let mut qa: smallvec_like::Buf<Axisymmetric> = smallvec_like::Buf::new(n);
     let mut pm: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
-    let mut qm: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
     let mut w: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
     let mut ps: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let mut qb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let mut zqb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
-    let mut res_a: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
-    let mut res_c: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(n);
-    let mut res_hg: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
+    let mut res: smallvec_like::Buf<Option<AxisymmetricResistance>> = smallvec_like::Buf::new(n);
     let mut gyro: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let id = Matrix3::<f64>::identity();
     for i in 0..n {
@@ -140,19 +143,28 @@ fn step_inner(
         let omega = fl.rotation();
         let rel = fl.vel - s.v;
         let v_perp = (rel - s.z * s.z.dot(&rel)).norm();
-        let r = resistance(&pr.shape, &p.drag, &s.z, &g, v_perp);
+        let r = resistance_axisymmetric(&pr.shape, &p.drag, &s.z, &g, v_perp);
         let volume = pr.mass / f.density;
         let fw = (pr.mass - p.drag.fluid_density * volume) * p.gravity;
         let m_dt = pr.mass / dt;
-        let pinv = (m_dt * id + r.a)
-            .try_inverse()
-            .ok_or(FibreError::Singular { fibre: 0 })?;
-        let s_t = m_dt * s.v + r.a * fl.vel + fw;
-        let inertia = pr.inertia(&s.z);
-        let gyroscopic = s.w.cross(&(inertia * s.w));
-        let qinv = (inertia / dt + r.c)
-            .try_inverse()
-            .ok_or(FibreError::Singular { fibre: 0 })?;
+        let pinv = Axisymmetric {
+            perp: m_dt + r.a.perp,
+            par: m_dt + r.a.par,
+        }
+        .inverse()
+        .ok_or(FibreError::Singular { fibre: 0 })?;
+        let s_t = m_dt * s.v + r.a.apply(&s.z, &fl.vel) + fw;
+        let inertia = Axisymmetric {
+            perp: pr.inertia_perp,
+            par: pr.inertia_axial,
+        };
+        let gyroscopic = s.w.cross(&inertia.apply(&s.z, &s.w));
+        let qinv = Axisymmetric {
+            perp: inertia.perp / dt + r.c.perp,
+            par: inertia.par / dt + r.c.par,
+        }
+        .inverse()
+        .ok_or(FibreError::Singular { fibre: 0 })?;
         let mut bend = Vector3::zeros();
         if p.bending_stiffness != 0.0 {
             if i + 1 < n {
@@ -182,19 +194,21 @@ fn step_inner(
                 bend -= p.twisting_stiffness * f.twist(i - 1) * t;
             }
         }
-        let b_t = inertia / dt * s.w - gyroscopic + r.c * omega + r.h_g + bend;
+        let b_t =
+            inertia.apply(&s.z, &s.w) / dt - gyroscopic + r.c.apply(&s.z, &omega) + r.h_g + bend;
         let h = 0.5 * pr.shape.length;
-        let zx = s.z.cross_matrix();
-        pm[i] = pinv;
-        qm[i] = qinv;
-        w[i] = h * h * zx * qinv * zx;
-        ps[i] = pinv * s_t;
-        qb[i] = qinv * b_t;
-        zqb[i] = h * zx * qb[i];
-        res_a[i] = r.a;
-        res_c[i] = r.c;
-        res_hg[i] = r.h_g;
-        gyro[i] = gyroscopic;
+        let zz = s.z * s.z.transpose();
+        pa[i] = pinv;
+        qa[i] = qinv;
+        pm[i] = pinv.matrix(&s.z);
+        w[i] = (h * h * qinv.perp) * (zz - id);
+        ps[i] = pinv.apply(&s.z, &s_t);
+        qb[i] = qinv.apply(&s.z, &b_t);
+        zqb[i] = h * s.z.cross(&qb[i]);
+        if loads.is_some() {
+            res[i] = Some(r);
+            gyro[i] = gyroscopic;
+        }
     }
     // joint forces Y_0..Y_{n-2}
     let nj = n.saturating_sub(1);
@@ -207,27 +221,22 @@ fn step_inner(
         if p.tikhonov > 0.0 {
             solve_dense_tikhonov(nj, &lower, &diag, &upper, &rhs, p.tikhonov, &mut y)?;
         } else {
-            let mut dp: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(nj);
+            // block Thomas; each pivot block is inverted once
+            let mut dinv: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(nj);
             let mut rp: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(nj);
-            dp[0] = diag(0);
+            let singular = || FibreError::Singular { fibre: 0 };
+            dinv[0] = diag(0).try_inverse().ok_or_else(singular)?;
             rp[0] = rhs(0);
             for k in 1..nj {
-                let inv = dp[k - 1]
+                let m = lower(k) * dinv[k - 1];
+                dinv[k] = (diag(k) - m * upper(k - 1))
                     .try_inverse()
-                    .ok_or(FibreError::Singular { fibre: 0 })?;
-                let m = lower(k) * inv;
-                dp[k] = diag(k) - m * upper(k - 1);
+                    .ok_or_else(singular)?;
                 rp[k] = rhs(k) - m * rp[k - 1];
             }
-            let last = dp[nj - 1]
-                .try_inverse()
-                .ok_or(FibreError::Singular { fibre: 0 })?;
-            y[nj - 1] = last * rp[nj - 1];
+            y[nj - 1] = dinv[nj - 1] * rp[nj - 1];
             for k in (0..nj - 1).rev() {
-                let inv = dp[k]
-                    .try_inverse()
-                    .ok_or(FibreError::Singular { fibre: 0 })?;
-                y[k] = inv * (rp[k] - upper(k) * y[k + 1]);
+                y[k] = dinv[k] * (rp[k] - upper(k) * y[k + 1]);
             }
         }
     }
@@ -242,15 +251,15 @@ fn step_inner(
         let ym = if i > 0 { y[i - 1] } else { Vector3::zeros() };
         let h = 0.5 * f.props[i].shape.length;
         let s = &mut f.segments[i];
-        let v_new = ps[i] + pm[i] * (yi - ym);
-        let w_new = qb[i] + qm[i] * (h * s.z.cross(&(yi + ym)));
-        if let Some(l) = loads.as_deref_mut() {
+        let v_new = ps[i] + pa[i].apply(&s.z, &(yi - ym));
+        let w_new = qb[i] + qa[i].apply(&s.z, &(h * s.z.cross(&(yi + ym))));
+        if let (Some(l), Some(r)) = (loads.as_deref_mut(), res[i]) {
             let pr = f.props[i];
             let volume = pr.mass / f.density;
             let fw = (pr.mass - p.drag.fluid_density * volume) * p.gravity;
-            l.force.push(res_a[i] * (fluid[i].vel - v_new) + fw);
+            l.force.push(r.a.apply(&s.z, &(fluid[i].vel - v_new)) + fw);
             l.torque
-                .push(res_c[i] * (fluid[i].rotation() - w_new) + res_hg[i]);
+                .push(r.c.apply(&s.z, &(fluid[i].rotation() - w_new)) + r.h_g);
             l.gyroscopic.push(gyro[i]);
         }
         s.v = v_new;
@@ -265,8 +274,8 @@ fn step_inner(
     }
     for s in f.segments.iter_mut() {
         s.r += dt * s.v;
-        s.z = rotate(&s.z, &(dt * s.w));
-        let n = rotate(&s.n, &(dt * s.w));
+        let (z, n) = rotate_pair(&s.z, &s.n, &(dt * s.w));
+        s.z = z;
         s.n = (n - s.z * s.z.dot(&n)).normalize();
     }
     f.rechain();
@@ -291,12 +300,40 @@ pub fn rotate(z: &Vector3<f64>, phi: &Vector3<f64>) -> Vector3<f64> {
     out / out.norm()
 }
 
+/// [`rotate`] of an axis and its material normal by the same rotation vector (one sine
+/// and cosine for both; the same bits as two calls).
+pub fn rotate_pair(
+    z: &Vector3<f64>,
+    n: &Vector3<f64>,
+    phi: &Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let angle = phi.norm();
+    if angle < 1e-300 {
+        return (z / z.norm(), n / n.norm());
+    }
+    let k = phi / angle;
+    let (s, c) = angle.sin_cos();
+    let turn = |v: &Vector3<f64>| {
+        let out = v * c + k.cross(v) * s + k * (k.dot(v) * (1.0 - c));
+        out / out.norm()
+    };
+    (turn(z), turn(n))
+}
+
 /// Frictionless, inelastic wall contact: if a segment end leaves |x2| <= H, the whole fibre
 /// is translated back along ê2 (so joints stay closed) and wall-ward ê2 velocities are zeroed.
 pub fn wall_contact(f: &mut Fibre, half_height: f64) {
-    let joints = f.joints();
-    let ymax = joints.iter().map(|j| j.y).fold(f64::NEG_INFINITY, f64::max);
-    let ymin = joints.iter().map(|j| j.y).fold(f64::INFINITY, f64::min);
+    // the joints' x2 (as Fibre::joints computes them, without allocating)
+    let (mut ymin, mut ymax) = (f64::INFINITY, f64::NEG_INFINITY);
+    for (s, p) in f.segments.iter().zip(&f.props) {
+        let h = 0.5 * p.shape.length;
+        let lo = s.r.y - h * s.z.y;
+        (ymin, ymax) = (ymin.min(lo), ymax.max(lo));
+    }
+    if let (Some(s), Some(p)) = (f.segments.last(), f.props.last()) {
+        let hi = s.r.y + 0.5 * p.shape.length * s.z.y;
+        (ymin, ymax) = (ymin.min(hi), ymax.max(hi));
+    }
     let mut shift = 0.0;
     if ymax > half_height {
         shift = half_height - ymax;
