@@ -72,6 +72,35 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     Ok(m)
 }
 
+/// The fields every group message (FlowSamples, FiberGroupState, FiberGroupMetrics) starts
+/// with, in wire order.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct GroupHeader {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    pub first_fiber: u32,
+    pub group_fibers: u32,
+}
+
+/// Reads only the leading [`GroupHeader`] of a group message (its arrays are neither
+/// walked nor copied): what a receiver needs to decide whether it wants the message.
+pub fn peek_group_header(bytes: &[u8]) -> Result<GroupHeader, DecodeError> {
+    let h: GroupHeader = cdr::deserialize_from(bytes, cdr::size::Bounded(bytes.len() as u64))
+        .map_err(|e| DecodeError::Malformed {
+            len: bytes.len(),
+            reason: e.to_string(),
+        })?;
+    if h.schema_version != SCHEMA_VERSION {
+        return Err(DecodeError::Version {
+            got: h.schema_version,
+            expected: SCHEMA_VERSION,
+        });
+    }
+    Ok(h)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,5 +192,42 @@ mod tests {
         b.truncate(40);
         b.extend_from_slice(&[0xff, 0xff, 0xff, 0x7f]);
         assert!(decode::<FiberGroupState>(&b).is_err());
+    }
+
+    /// The header of a state, samples and metrics message reads back as encoded, and a
+    /// truncated or foreign payload is an error, not a panic.
+    #[test]
+    fn group_header_peeks_without_the_arrays() {
+        let st = state();
+        let h = peek_group_header(&encode(&st)).unwrap();
+        assert_eq!(
+            (
+                h.group.as_str(),
+                h.step,
+                h.t_plus,
+                h.first_fiber,
+                h.group_fibers
+            ),
+            ("case1", 7, 1.5, 0, 1)
+        );
+        let m = FiberGroupMetrics {
+            schema_version: SCHEMA_VERSION,
+            group: "g2".into(),
+            step: 9,
+            t_plus: 2.0,
+            first_fiber: 3,
+            group_fibers: 10,
+            centre_of_mass: vec![0.0; 3],
+            z1: vec![1.0],
+            sigma2: vec![0.0],
+            end_to_end: vec![1.0],
+            mean_abs_z1: 1.0,
+            mean_sigma2: 0.0,
+        };
+        let h = peek_group_header(&encode(&m)).unwrap();
+        assert_eq!((h.step, h.first_fiber, h.group_fibers), (9, 3, 10));
+        let b = encode(&st);
+        assert!(peek_group_header(&b[..10]).is_err());
+        assert!(peek_group_header(&[]).is_err());
     }
 }

@@ -12,7 +12,7 @@ pub mod segments;
 pub mod topics;
 pub mod types;
 
-pub use codec::{decode, encode, DecodeError, Message};
+pub use codec::{decode, encode, peek_group_header, DecodeError, GroupHeader, Message};
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.

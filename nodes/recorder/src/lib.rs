@@ -238,6 +238,43 @@ impl Session<'_> {
             return Ok(());
         };
         let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
+        let is_samples = type_name == "fiberflow_msgs/msg/FlowSamples";
+        // what the plan leaves out is read no further than its header (a state or samples
+        // message is tens of MB at scale): it only marks its node's progress
+        if (is_state && self.plan.states_every > 1) || (is_samples && !self.plan.samples) {
+            let h = match fiberflow_messages::peek_group_header(bytes) {
+                Ok(h) => h,
+                Err(e) => {
+                    self.drops.drop_one(topic, &e.to_string());
+                    return Ok(());
+                }
+            };
+            let left_out = if is_state {
+                !self.plan.keeps_state(h.step)
+            } else {
+                true
+            };
+            if left_out {
+                let stamp = sanity::Stamp {
+                    step: Some(h.step),
+                    owner: Some(h.group.clone()),
+                    first_fiber: h.first_fiber,
+                };
+                if let Err(why) = self.belongs(topic, &stamp) {
+                    self.drops.drop_one(topic, &why);
+                    return Ok(());
+                }
+                let map = if is_state {
+                    &mut self.state_step
+                } else {
+                    &mut self.samples_step
+                };
+                let e = map.entry((h.group, h.first_fiber)).or_insert(h.step);
+                *e = (*e).max(h.step);
+                self.summary.decimated += 1;
+                return self.maybe_commit();
+            }
+        }
         // a state is decoded once: its checks, its stamp, the timeline and the PointCloud2
         let checked = if is_state {
             sanity::check_state(bytes).map(|s| {
@@ -268,7 +305,7 @@ impl Session<'_> {
         }
         if let Some(k) = step {
             if let Some(g) = &stamp.owner {
-                if is_state || type_name == "fiberflow_msgs/msg/FlowSamples" {
+                if is_state || is_samples {
                     let map = if is_state {
                         &mut self.state_step
                     } else {
@@ -277,15 +314,6 @@ impl Session<'_> {
                     let e = map.entry((g.clone(), stamp.first_fiber)).or_insert(k);
                     *e = (*e).max(k);
                 }
-            }
-            let left_out = if is_state {
-                !self.plan.keeps_state(k)
-            } else {
-                type_name == "fiberflow_msgs/msg/FlowSamples" && !self.plan.samples
-            };
-            if left_out {
-                self.summary.decimated += 1;
-                return self.maybe_commit();
             }
             let slice = (topic.to_string(), stamp.first_fiber);
             if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0, slice.1)) {
