@@ -124,6 +124,13 @@ impl ZenohBus {
             // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
             c.insert_json5("scouting/delay", "5000").map_err(terr)?;
         }
+        if s.mode == ZenohMode::Client {
+            // a client (a node on another host) may start before the router it connects
+            // to listens: keep trying for a minute instead of failing at once (zenoh's
+            // client default); open returns as soon as the router answers
+            c.insert_json5("connect/timeout_ms", "60000")
+                .map_err(terr)?;
+        }
         if let Some(t) = &s.tls {
             let q = |v: &str| serde_json::to_string(v).unwrap_or_else(|_| "\"\"".into());
             for (key, val) in [

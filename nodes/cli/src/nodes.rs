@@ -222,6 +222,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                     .iter()
                     .map(|p| (p.group.clone(), p.first_fiber))
                     .collect(),
+                nodes: fibre_nodes.clone(),
                 states_every: lf.recorder.states_every,
                 samples: lf.recorder.samples,
             };

@@ -148,6 +148,8 @@ pub struct RecordPlan {
     pub groups: Vec<String>,
     /// (group, first fibre) of every fibre node (empty: one per group).
     pub pieces: Vec<(String, u32)>,
+    /// Fibre node names (a group's name, or `<group>.<i>` for a shard).
+    pub nodes: Vec<String>,
     /// Coupling steps of the run.
     pub steps: u64,
     /// Coupled checkpoints: every this many steps (0 = never) under `checkpoint_root`.
@@ -359,7 +361,10 @@ impl Session<'_> {
         if named.is_none_or(|n| n != owner) {
             return Err(format!("message of {owner:?} on another's topic"));
         }
+        // groups own their data topics; fibre nodes (a group, or a shard `<group>.<i>`)
+        // send the heartbeats
         let known = self.plan.groups.iter().any(|g| g == owner)
+            || self.plan.nodes.iter().any(|n| n == owner)
             || ["flow", "recorder", "launcher"].contains(&owner.as_str());
         if !known {
             return Err(format!("{owner:?} is not part of this run"));
