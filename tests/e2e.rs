@@ -527,7 +527,10 @@ fn sharded_groups_match_unsharded_bitwise() {
         assert!(o.status.success(), "shards = {shards}: {stderr}");
         assert!(!stderr.contains("WARN"), "{stderr}");
         let w = warnings_in_logs(&out);
-        assert!(w.is_empty(), "shards = {shards}: warnings in node logs: {w:#?}");
+        assert!(
+            w.is_empty(),
+            "shards = {shards}: warnings in node logs: {w:#?}"
+        );
         let stdout = String::from_utf8_lossy(&o.stdout).to_string();
         let table: Vec<String> = stdout
             .lines()

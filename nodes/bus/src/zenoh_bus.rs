@@ -124,6 +124,14 @@ impl ZenohBus {
             // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
             c.insert_json5("scouting/delay", "5000").map_err(terr)?;
         }
+        // lockstep messages are sent with CongestionControl::Block: a link whose queue stays
+        // full for this long is closed and its message lost. zenoh's 5 s is too short for
+        // tens-of-MB messages on a loaded host; a stuck run is caught by the step timeout
+        c.insert_json5(
+            "transport/link/tx/queue/congestion_control/block/wait_before_close",
+            "60000000",
+        )
+        .map_err(terr)?;
         if s.mode == ZenohMode::Client {
             // a client (a node on another host) may start before the router it connects
             // to listens: keep trying for a minute instead of failing at once (zenoh's

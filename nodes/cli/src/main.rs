@@ -179,11 +179,6 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
-    // behave like other command-line tools when piped into `head`: exit quietly on EPIPE
-    // SAFETY: resetting a signal disposition to its default before any thread starts
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -195,6 +190,18 @@ fn main() -> Result<()> {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
+    // commands that print behave like other command-line tools when piped into `head`:
+    // exit quietly on EPIPE. Not the launcher and its nodes: a peer closing a network
+    // connection must surface as an error on that link, not kill the process
+    if !matches!(
+        cli.cmd,
+        Cmd::Launch { .. } | Cmd::Node { .. } | Cmd::BenchScale { .. }
+    ) {
+        // SAFETY: resetting a signal disposition to its default before any thread starts
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     match cli.cmd {
         Cmd::Launch {
             file,
