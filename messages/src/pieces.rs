@@ -62,8 +62,11 @@ pub fn split(fibers: u32, shards: u32) -> Vec<(u32, u32)> {
 /// them over in fibre order. A whole-group message passes straight through.
 #[derive(Debug)]
 pub struct Tiles<T> {
-    open: BTreeMap<(String, u64), (u32, BTreeMap<u32, (u32, T)>)>,
+    /// (group, step) -> (group size, first fibre -> (fibre count, item)).
+    open: BTreeMap<(String, u64), Slices<T>>,
 }
+
+type Slices<T> = (u32, BTreeMap<u32, (u32, T)>);
 
 impl<T> Default for Tiles<T> {
     fn default() -> Self {

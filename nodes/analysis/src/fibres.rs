@@ -887,7 +887,6 @@ mod tests {
             }
             put(mc, k, encode(&metrics(k)));
         }
-        drop(put);
         w.finish().unwrap();
         let groups = read_groups(&path).unwrap();
         let g = &groups["g"];
