@@ -305,9 +305,15 @@ fn shortened_quick_run_produces_sane_analysis() {
         "case1_msd23.csv",
         "case6_abs_z1.csv",
         "case3_fibres.csv",
+        "coiling_onsets.csv",
     ] {
         assert!(a.join(f).exists(), "missing {f}");
     }
+    let summary = std::fs::read_to_string(a.join("summary.md")).unwrap();
+    assert!(
+        summary.contains("## Coiling onsets") && summary.contains("| case4 | 0.1 | middle |"),
+        "coiling-onset table missing:\n{summary}"
+    );
     for c in 1..=6 {
         let csv = std::fs::read_to_string(a.join(format!("case{c}_fibres.csv"))).unwrap();
         let mut rows = 0;

@@ -464,8 +464,21 @@ const MAX_FIBRE_ROWS: usize = 1_000_000;
 /// Per-fibre lines in one plot at most (evenly spread over the fibres).
 const MAX_PLOTTED_FIBRES: usize = 60;
 
-/// Writes CSVs and PNGs for every group; returns the summaries.
-pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, AnalysisError> {
+/// What [`analyse`] found.
+#[derive(Debug, Clone, Default)]
+pub struct Analysis {
+    pub summaries: Vec<GroupSummary>,
+    /// Coiling-onset table (markdown), see [`crate::coiling`].
+    pub coiling_table: String,
+}
+
+/// Writes CSVs and PNGs for every group (with coiling onsets for σ² `thresholds`);
+/// returns the summaries.
+pub fn analyse(
+    mcap_path: &Path,
+    out: &Path,
+    thresholds: &[f64],
+) -> Result<Analysis, AnalysisError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
     let groups = read_groups(mcap_path)?;
     if groups.is_empty() {
@@ -673,7 +686,13 @@ pub fn analyse(mcap_path: &Path, out: &Path) -> Result<Vec<GroupSummary>, Analys
         false,
         false,
     )?;
-    Ok(summaries)
+    let (coiling_table, onsets_csv) = crate::coiling::report(&groups, thresholds);
+    write(out, "coiling_onsets.csv", &onsets_csv)?;
+    write(out, "coiling_onsets.md", &coiling_table)?;
+    Ok(Analysis {
+        summaries,
+        coiling_table,
+    })
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> Result<(), AnalysisError> {

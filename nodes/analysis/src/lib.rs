@@ -2,6 +2,7 @@
 //! (CSV + PNG + a markdown summary). Paper §3.2 (flow validation) and §4 (fibres).
 
 pub mod bootstrap;
+pub mod coiling;
 pub mod fibres;
 pub mod flow_validation;
 pub mod plot;

@@ -4,17 +4,29 @@ use anyhow::{Context, Result};
 use std::path::Path;
 
 /// Fibre analysis; writes `summary.md` and returns the table.
-pub fn fibres(mcap: &Path, out: &Path) -> Result<String> {
-    let s = fiberflow_analysis::fibres::analyse(mcap, out)
+pub fn fibres(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String> {
+    if coil_thresholds.is_empty() || !coil_thresholds.iter().all(|t| *t > 0.0 && t.is_finite()) {
+        anyhow::bail!("--coil-thresholds must be positive numbers (got {coil_thresholds:?})");
+    }
+    let a = fiberflow_analysis::fibres::analyse(mcap, out, coil_thresholds)
         .with_context(|| format!("analysing {}", mcap.display()))?;
-    let table = fiberflow_analysis::fibres::summary_table(&s);
+    let table = fiberflow_analysis::fibres::summary_table(&a.summaries);
     let md = format!(
-        "# Fibre analysis of {}\n\nMSD_23 slope: least squares of log MSD against log lag over the fit window.\n\
+        "# Fibre analysis of {}\n\n\
+         MSD_23 slope: least squares of log MSD against log lag over the fit window.\n\
          Ramp time: first time <|z1|> covers 1 - 1/e of the way from its initial value to its mean over the last 10% of the run.\n\
-         Brackets: 95% bootstrap intervals over the fibres of a case (or of a layer), {} resamples with a fixed seed.\n\n{table}\n\
-         Figures: msd23.png, abs_z1.png, sigma2.png and per case <case>_abs_z1_layers.png, <case>_signed_z1_near_wall.png, <case>_trajectories_x3x2.png.\n",
+         Brackets: 95% bootstrap intervals over the fibres of a case (or of a layer), {} resamples with a fixed seed.\n\n\
+         {table}\n\
+         ## Coiling onsets\n\n\
+         First t+ at which a fibre's sigma^2 reaches each threshold (linear interpolation between recorded steps); \
+         the share of the case's (or layer's) fibres that reach it, and the median onset with its quartiles over those that do. \
+         Per fibre: coiling_onsets.csv.\n\n\
+         {}\n\
+         Figures: msd23.png, abs_z1.png, sigma2.png and per case <case>_abs_z1_layers.png, \
+         <case>_signed_z1_near_wall.png, <case>_trajectories_x3x2.png.\n",
         mcap.display(),
-        fiberflow_analysis::bootstrap::REPLICATES
+        fiberflow_analysis::bootstrap::REPLICATES,
+        a.coiling_table
     );
     std::fs::write(out.join("summary.md"), &md)
         .with_context(|| format!("writing {}", out.display()))?;

@@ -192,7 +192,11 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             .collect();
         println!("recording: {} ({})", m.display(), names.join(", "));
         if lf.run.analyze {
-            let table = crate::analyze::fibres(m, &out_dir.join("analysis"))?;
+            let table = crate::analyze::fibres(
+                m,
+                &out_dir.join("analysis"),
+                &fiberflow_analysis::coiling::DEFAULT_THRESHOLDS,
+            )?;
             println!("{table}");
             let rrd = out_dir.join("run.rrd");
             fiberflow_viewer::view(m, &fiberflow_viewer::Sink::Save(rrd.clone()), 1)

@@ -131,6 +131,9 @@ enum Cmd {
         /// Output folder (default: <run folder>/analysis).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// sigma^2 thresholds of the coiling-onset table.
+        #[arg(long, value_delimiter = ',', default_value = "0.1,0.5,1.0")]
+        coil_thresholds: Vec<f64>,
     },
     /// Show a recording (a run folder or one .mcap) in Rerun: channel box, fibres
     /// coloured by coiling, plots per case.
@@ -270,7 +273,11 @@ fn main() -> Result<()> {
             count,
             idle_s,
         } => recording::echo_cmd(&pattern, connect, listen, count, idle_s),
-        Cmd::Analyze { mcap, out } => {
+        Cmd::Analyze {
+            mcap,
+            out,
+            coil_thresholds,
+        } => {
             let out = out.unwrap_or_else(|| {
                 if mcap.is_dir() {
                     mcap.join("analysis")
@@ -280,7 +287,7 @@ fn main() -> Result<()> {
                         .join("analysis")
                 }
             });
-            let table = analyze::fibres(&mcap, &out)?;
+            let table = analyze::fibres(&mcap, &out, &coil_thresholds)?;
             println!("{table}");
             Ok(())
         }
