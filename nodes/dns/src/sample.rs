@@ -64,6 +64,12 @@ pub struct Sampler {
     face: Vec<f64>,
     mid: Vec<f64>,
     scheme: Interpolation,
+    /// 1/Δx, 1/Δz and 1/Δy per row (centre-to-centre `dyc`, face-to-face `dyf`): the
+    /// trilinear gradients multiply instead of dividing at every corner.
+    inv_dx: f64,
+    inv_dz: f64,
+    inv_dyc: Vec<f64>,
+    inv_dyf: Vec<f64>,
 }
 
 impl Sampler {
@@ -91,6 +97,10 @@ impl Sampler {
             face,
             mid,
             scheme,
+            inv_dx: 1.0 / g.dx,
+            inv_dz: 1.0 / g.dz,
+            inv_dyc: g.dyc.iter().map(|d| 1.0 / d).collect(),
+            inv_dyf: g.dyf.iter().map(|d| 1.0 / d).collect(),
         }
     }
 
@@ -167,8 +177,8 @@ impl Sampler {
         let px = g.px;
         let plane = g.plane();
         let ny = g.ny;
-        let dx = g.dx;
-        let dz = g.dz;
+        let (idx, idz) = (self.inv_dx, self.inv_dz);
+        let (idyc, idyf) = (&self.inv_dyc, &self.inv_dyf);
         // value accessors take (i, jnode, k) with i, k in 1..=nx / 1..=nz (wrapped)
         let at = |i: usize, j: usize, k: usize| i + px * j + plane * k;
         let centre_val = |f: &[f64], i: usize, jn: usize, k: usize| -> f64 {
@@ -178,13 +188,15 @@ impl Sampler {
                 f[at(i, jn, k)]
             }
         };
+        // wall rows: the half-cell distance from the first centre to the wall
+        let (inv_lo, inv_hi) = (1.0 / (g.yc[1] - g.yf[0]), 1.0 / (g.yf[ny] - g.yc[ny]));
         let y_mid_deriv = |f: &[f64], i: usize, jn: usize, k: usize| -> f64 {
             if jn == 0 {
-                f[at(i, 1, k)] / (g.yc[1] - g.yf[0])
+                f[at(i, 1, k)] * inv_lo
             } else if jn == ny {
-                -f[at(i, ny, k)] / (g.yf[ny] - g.yc[ny])
+                -f[at(i, ny, k)] * inv_hi
             } else {
-                (f[at(i, jn + 1, k)] - f[at(i, jn, k)]) / g.dyc[jn]
+                (f[at(i, jn + 1, k)] - f[at(i, jn, k)]) * idyc[jn]
             }
         };
         let b = self.brackets(g, p);
@@ -195,33 +207,33 @@ impl Sampler {
         s.vel[2] = self.interp(&b, C, Vy::Centre, F, |i, j, k| centre_val(w, i, j, k));
         // ∂u/∂x, ∂u/∂y, ∂u/∂z
         s.grad[0] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (centre_val(u, i, j, k) - centre_val(u, i - 1, j, k)) / dx
+            (centre_val(u, i, j, k) - centre_val(u, i - 1, j, k)) * idx
         });
         s.grad[1] = self.interp(&b, F, Vy::Mid, C, |i, j, k| y_mid_deriv(u, i, j, k));
         s.grad[2] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (centre_val(u, i, j, k + 1) - centre_val(u, i, j, k)) / dz
+            (centre_val(u, i, j, k + 1) - centre_val(u, i, j, k)) * idz
         });
         // ∂v/∂x, ∂v/∂y, ∂v/∂z
         s.grad[3] = self.interp(&b, F, Vy::Face, C, |i, j, k| {
-            (v[at(i + 1, j, k)] - v[at(i, j, k)]) / dx
+            (v[at(i + 1, j, k)] - v[at(i, j, k)]) * idx
         });
         s.grad[4] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
             if j == 0 || j == ny + 1 {
                 0.0
             } else {
-                (v[at(i, j, k)] - v[at(i, j - 1, k)]) / g.dyf[j]
+                (v[at(i, j, k)] - v[at(i, j - 1, k)]) * idyf[j]
             }
         });
         s.grad[5] = self.interp(&b, C, Vy::Face, F, |i, j, k| {
-            (v[at(i, j, k + 1)] - v[at(i, j, k)]) / dz
+            (v[at(i, j, k + 1)] - v[at(i, j, k)]) * idz
         });
         // ∂w/∂x, ∂w/∂y, ∂w/∂z
         s.grad[6] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (centre_val(w, i + 1, j, k) - centre_val(w, i, j, k)) / dx
+            (centre_val(w, i + 1, j, k) - centre_val(w, i, j, k)) * idx
         });
         s.grad[7] = self.interp(&b, C, Vy::Mid, F, |i, j, k| y_mid_deriv(w, i, j, k));
         s.grad[8] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (centre_val(w, i, j, k) - centre_val(w, i, j, k - 1)) / dz
+            (centre_val(w, i, j, k) - centre_val(w, i, j, k - 1)) * idz
         });
         s
     }
@@ -268,10 +280,7 @@ impl Sampler {
         for (jj, wy) in [(j0, 1.0 - fy), (j0 + 1, fy)] {
             for (kk, wz) in [(k0, 1.0 - fz), (k1, fz)] {
                 for (ii, wx) in [(i0, 1.0 - fx), (i1, fx)] {
-                    let wgt = wx * wy * wz;
-                    if wgt != 0.0 {
-                        acc += wgt * val(ii, jj, kk);
-                    }
+                    acc += wx * wy * wz * val(ii, jj, kk);
                 }
             }
         }
