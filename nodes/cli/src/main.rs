@@ -182,6 +182,15 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
+    // Every coupling step allocates and frees message buffers of several MB. glibc serves
+    // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
+    // its heap after each free; keep them in the heap instead, so a step reuses the last
+    // step's memory.
+    // SAFETY: mallopt only tunes the allocator; called before any thread starts
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
