@@ -46,6 +46,47 @@ pub trait Bus: Send + Sync {
     fn name(&self) -> &'static str;
 }
 
+/// One subscription over several patterns (one thread per pattern forwards into a shared
+/// channel): each pattern's messages stay in order; messages of different patterns are
+/// interleaved as they arrive. One pattern is a plain [`Bus::subscribe`].
+pub fn subscribe_any(bus: &dyn Bus, patterns: &[String]) -> Result<Subscription, BusError> {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    if let [one] = patterns {
+        return bus.subscribe(one);
+    }
+    let (tx, rx) = std::sync::mpsc::channel();
+    let stop = Arc::new(AtomicBool::new(false));
+    for p in patterns {
+        let sub = bus.subscribe(p)?;
+        let (tx, stop) = (tx.clone(), stop.clone());
+        std::thread::Builder::new()
+            .name("bus-merge".into())
+            .spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    match sub.rx.recv_timeout(std::time::Duration::from_millis(200)) {
+                        Ok(m) => {
+                            if tx.send(m).is_err() {
+                                break;
+                            }
+                        }
+                        Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                        Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+            })
+            .map_err(|e| BusError::Transport(e.to_string()))?;
+    }
+    /// Stops the forwarding threads when the merged subscription is dropped.
+    struct StopOnDrop(Arc<AtomicBool>);
+    impl Drop for StopOnDrop {
+        fn drop(&mut self) {
+            self.0.store(true, Ordering::Relaxed);
+        }
+    }
+    Ok(Subscription::new(rx, Some(Box::new(StopOnDrop(stop)))))
+}
+
 /// True if `topic` matches `pattern` (exact, or prefix with `/**`).
 pub fn matches(pattern: &str, topic: &str) -> bool {
     match pattern.strip_suffix("/**") {

@@ -431,12 +431,14 @@ impl Session<'_> {
             let past = |m: &BTreeMap<(String, u32), u64>| {
                 pieces.iter().all(|p| m.get(p).is_some_and(|&s| s > c))
             };
-            // without fibre groups the flow node's status of a later step marks it
-            let ready = if self.plan.groups.is_empty() {
+            // the flow node's messages of steps <= c are in once one of a later step is:
+            // its samples, or (without fibre groups, or samples not recorded) its status
+            let flow_past = if self.plan.groups.is_empty() || !self.plan.samples {
                 self.status_step.is_some_and(|s| s > c)
             } else {
-                past(&self.state_step) && past(&self.samples_step)
+                past(&self.samples_step)
             };
+            let ready = flow_past && (self.plan.groups.is_empty() || past(&self.state_step));
             if !ready {
                 return Ok(());
             }
@@ -541,7 +543,19 @@ pub fn record(
             metadata: rec,
         })
         .map_err(out.err())?;
-    let mut inbox = Inbox::new(bus.subscribe(&format!("{}/**", t.prefix()))?);
+    // without samples in the plan the recorder does not subscribe to them at all (at scale
+    // they are as large as the states, and every copy to the recorder costs)
+    let patterns: Vec<String> = if plan.samples {
+        vec![format!("{}/**", t.prefix())]
+    } else {
+        vec![
+            format!("{}/control/**", t.prefix()),
+            t.flow_status(),
+            t.flow_profiles(),
+            format!("{}/fibers/**", t.prefix()),
+        ]
+    };
+    let mut inbox = Inbox::new(fiberflow_bus::subscribe_any(bus.as_ref(), &patterns)?);
     let next_checkpoint = (plan.checkpoint_every > 0)
         .then(|| (plan.start_step / plan.checkpoint_every + 1) * plan.checkpoint_every)
         .filter(|&c| c < plan.steps);
@@ -840,11 +854,14 @@ mod tests {
         let t = Topics::new("dec");
         let path = std::env::temp_dir().join(format!("ff-rec-dec-{}.mcap", std::process::id()));
         let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("recorder")).unwrap());
+        let ck_root = std::env::temp_dir().join(format!("ff-rec-dec-ck-{}", std::process::id()));
         let plan = RecordPlan {
             groups: vec!["g".into()],
             steps: 10,
             states_every: 4,
             samples: false,
+            checkpoint_every: 4,
+            checkpoint_root: Some(ck_root.clone()),
             ..Default::default()
         };
         let expect: Vec<String> = vec!["flow".into()];
@@ -879,6 +896,20 @@ mod tests {
                 mean_sigma2: 0.0,
             };
             bus.publish(&t.fiber_metrics("g"), &encode(&m)).unwrap();
+            if k > 0 {
+                // the flow node's status of step k (published after its samples of k - 1)
+                let st = fiberflow_messages::FlowStatus {
+                    schema_version: SCHEMA_VERSION,
+                    step: k,
+                    t_plus: k as f64 * 0.25,
+                    dt_plus: 0.25,
+                    cfl: 0.5,
+                    max_divergence: 0.0,
+                    bulk_velocity: 15.0,
+                    re_tau: 150.0,
+                };
+                bus.publish(&t.flow_status(), &encode(&st)).unwrap();
+            }
             if k < 10 {
                 let s = FlowSamples {
                     schema_version: SCHEMA_VERSION,
@@ -906,8 +937,8 @@ mod tests {
             .expect("recorder panicked")
             .expect("recorder failed");
         assert_eq!(s.drops.total(), 0);
-        // 7 states and 10 samples left out
-        assert_eq!(s.decimated, 17);
+        // 7 states left out; the samples are not even subscribed to
+        assert_eq!(s.decimated, 7);
         let bytes = std::fs::read(&path).unwrap();
         let mut state_steps = Vec::new();
         let (mut points, mut metrics, mut samples) = (0, 0, 0);
@@ -935,6 +966,14 @@ mod tests {
         let meta = mcap::read::metadata(&bytes, idx).unwrap();
         assert_eq!(meta.metadata["states_every"], "4");
         assert_eq!(meta.metadata["samples"], "false");
+        // the recorder's share of checkpoints 4 and 8 is committed without samples (the
+        // flow node's status of a later step stands in for them)
+        for c in [4u64, 8] {
+            let piece = checkpoints::piece(&checkpoints::step_dir(&ck_root, c), "recorder");
+            let text = std::fs::read_to_string(&piece).expect("recorder checkpoint piece");
+            assert!(text.contains(&format!("step = {c}")), "{text}");
+        }
+        std::fs::remove_dir_all(&ck_root).ok();
         std::fs::remove_file(&path).ok();
     }
 }
