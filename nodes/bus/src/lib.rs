@@ -63,6 +63,9 @@ pub fn subscribe_any(bus: &dyn Bus, patterns: &[String]) -> Result<Subscription,
         std::thread::Builder::new()
             .name("bus-merge".into())
             .spawn(move || {
+                // the whole subscription moves here: its guard keeps the transport's
+                // subscriber alive (a closure would otherwise capture only `sub.rx`)
+                let sub = sub;
                 while !stop.load(Ordering::Relaxed) {
                     match sub.rx.recv_timeout(std::time::Duration::from_millis(200)) {
                         Ok(m) => {
@@ -129,3 +132,47 @@ impl std::fmt::Display for Transport {
 
 /// Shared handle to a bus.
 pub type BusHandle = Arc<dyn Bus>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    /// Messages of every pattern reach the merged subscription, in order per pattern, on a
+    /// transport whose subscriptions hold a guard (zenoh) and on the in-process bus; others
+    /// do not.
+    #[test]
+    fn subscribe_any_merges_patterns() {
+        let buses: Vec<BusHandle> = vec![
+            Arc::new(inproc::InprocBus::new()),
+            Arc::new(
+                zenoh_bus::ZenohBus::open(&zenoh_bus::ZenohSettings::default())
+                    .expect("zenoh session on loopback"),
+            ),
+        ];
+        for bus in buses {
+            let pats = vec!["r/a/**".to_string(), "r/b".to_string()];
+            let sub = subscribe_any(bus.as_ref(), &pats).unwrap();
+            std::thread::sleep(Duration::from_millis(300));
+            for i in 0..5u8 {
+                bus.publish("r/a/x", &[i]).unwrap();
+                bus.publish("r/b", &[10 + i]).unwrap();
+                bus.publish("r/c", &[99]).unwrap();
+            }
+            let mut a = Vec::new();
+            let mut b = Vec::new();
+            while let Ok((t, p)) = sub.rx.recv_timeout(Duration::from_secs(3)) {
+                match t.as_str() {
+                    "r/a/x" => a.push(p[0]),
+                    "r/b" => b.push(p[0]),
+                    other => panic!("{other} is not subscribed"),
+                }
+                if a.len() + b.len() == 10 {
+                    break;
+                }
+            }
+            assert_eq!(a, vec![0, 1, 2, 3, 4], "{}", bus.name());
+            assert_eq!(b, vec![10, 11, 12, 13, 14], "{}", bus.name());
+        }
+    }
+}
