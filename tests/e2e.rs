@@ -486,7 +486,7 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
 /// Every group's whole state per step, with a sharded group's slices put back together
 /// (re-encoded, so an unsharded group's state compares byte for byte).
 fn whole_states(path: &std::path::Path) -> std::collections::BTreeMap<(String, u64), Vec<u8>> {
-    use fiberflow_messages::pieces::{merge_states, Tiles};
+    use fiberflow_messages::pieces::Tiles;
     let bytes = std::fs::read(path.join("run.mcap")).unwrap();
     let mut tiles = Tiles::default();
     let mut out = std::collections::BTreeMap::new();
@@ -496,10 +496,8 @@ fn whole_states(path: &std::path::Path) -> std::collections::BTreeMap<(String, u
             continue;
         }
         let s: fiberflow_messages::FiberGroupState = fiberflow_messages::decode(&m.data).unwrap();
-        let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
-        let (n, total) = (s.segments_per_fiber.len() as u32, s.group_fibers);
-        if let Some(w) = tiles.add(&g, k, first, n, total, s).and_then(merge_states) {
-            out.insert((g, k), fiberflow_messages::encode(&w));
+        if let Some(w) = tiles.add_slice(s) {
+            out.insert((w.group.clone(), w.step), fiberflow_messages::encode(&w));
         }
     }
     assert_eq!(tiles.incomplete(), 0, "a step's slices never completed");

@@ -124,6 +124,56 @@ impl<T> Tiles<T> {
     }
 }
 
+/// A group message that may be one slice of a sharded group.
+pub trait Slice: Sized {
+    /// (group, step, first fibre, fibres, group fibres).
+    fn slice(&self) -> (String, u64, u32, u32, u32);
+    /// The whole group from its slices in fibre order.
+    fn merge(slices: Vec<Self>) -> Option<Self>;
+}
+
+impl Slice for FiberGroupState {
+    fn slice(&self) -> (String, u64, u32, u32, u32) {
+        let n = self.segments_per_fiber.len() as u32;
+        (
+            self.group.clone(),
+            self.step,
+            self.first_fiber,
+            n,
+            self.group_fibers,
+        )
+    }
+    fn merge(slices: Vec<Self>) -> Option<Self> {
+        merge_states(slices)
+    }
+}
+
+impl Slice for FiberGroupMetrics {
+    fn slice(&self) -> (String, u64, u32, u32, u32) {
+        let n = self.z1.len() as u32;
+        (
+            self.group.clone(),
+            self.step,
+            self.first_fiber,
+            n,
+            self.group_fibers,
+        )
+    }
+    fn merge(slices: Vec<Self>) -> Option<Self> {
+        merge_metrics(slices)
+    }
+}
+
+impl<T: Slice> Tiles<T> {
+    /// Adds a message; returns its whole group once the step's slices are all in (at
+    /// once for an unsharded group's message).
+    pub fn add_slice(&mut self, item: T) -> Option<T> {
+        let (group, step, first, n, total) = item.slice();
+        self.add(&group, step, first, n, total, item)
+            .and_then(T::merge)
+    }
+}
+
 /// One group state from its slices in fibre order (as [`Tiles::add`] returns them).
 pub fn merge_states(mut pieces: Vec<FiberGroupState>) -> Option<FiberGroupState> {
     if pieces.len() <= 1 {
@@ -202,5 +252,36 @@ mod tests {
         // a slice of another group size starts over
         assert_eq!(t.add("g", 3, 0, 3, 9, "p"), None);
         assert_eq!(t.add("g", 3, 3, 6, 9, "q"), Some(vec!["p", "q"]));
+    }
+
+    /// Two slices of a 3-fibre group, in either arrival order, merge into the whole
+    /// group's metrics with the means taken over all three fibres.
+    #[test]
+    fn add_slice_merges_metrics_over_the_whole_group() {
+        let m = |first: u32, z1: Vec<f64>| FiberGroupMetrics {
+            schema_version: crate::SCHEMA_VERSION,
+            group: "g".into(),
+            step: 4,
+            t_plus: 1.0,
+            first_fiber: first,
+            group_fibers: 3,
+            centre_of_mass: vec![first as f64; 3 * z1.len()],
+            sigma2: z1.iter().map(|z| 2.0 * z).collect(),
+            end_to_end: vec![1.0; z1.len()],
+            mean_abs_z1: 0.0,
+            mean_sigma2: 0.0,
+            z1,
+        };
+        let mut t = Tiles::default();
+        assert!(t.add_slice(m(1, vec![-0.5, 1.0])).is_none());
+        let w = t.add_slice(m(0, vec![0.5])).expect("complete");
+        assert_eq!(w.z1, vec![0.5, -0.5, 1.0]);
+        assert_eq!(
+            w.centre_of_mass,
+            vec![0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+        );
+        assert!((w.mean_abs_z1 - 2.0 / 3.0).abs() < 1e-15);
+        assert!((w.mean_sigma2 - 2.0 / 3.0).abs() < 1e-15);
+        assert_eq!(w.first_fiber, 0);
     }
 }

@@ -7,7 +7,7 @@
 use crate::bootstrap::{self, weighted_mean, Interval};
 use crate::plot::{line_plot, Series};
 use crate::{io_err, AnalysisError};
-use fiberflow_messages::pieces::{merge_metrics, merge_states, Tiles};
+use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::{decode, FiberGroupMetrics, FiberGroupState};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -151,12 +151,7 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 if s.check().is_err() {
                     continue;
                 }
-                let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
-                let (n, total) = (s.segments_per_fiber.len() as u32, s.group_fibers);
-                let Some(s) = state_tiles
-                    .add(&g, k, first, n, total, s)
-                    .and_then(merge_states)
-                else {
+                let Some(s) = state_tiles.add_slice(s) else {
                     continue;
                 };
                 let r = by.entry(s.group.clone()).or_default();
@@ -178,12 +173,7 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 if mt.check().is_err() {
                     continue;
                 }
-                let (g, k, first) = (mt.group.clone(), mt.step, mt.first_fiber);
-                let (n, total) = (mt.z1.len() as u32, mt.group_fibers);
-                if let Some(mt) = metric_tiles
-                    .add(&g, k, first, n, total, mt)
-                    .and_then(merge_metrics)
-                {
+                if let Some(mt) = metric_tiles.add_slice(mt) {
                     by.entry(mt.group.clone())
                         .or_default()
                         .from_metrics

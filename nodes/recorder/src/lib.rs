@@ -7,7 +7,7 @@ pub mod pointcloud;
 pub mod recover;
 
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
-use fiberflow_messages::pieces::{self, Tiles};
+use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::topics::{type_of, Topics};
 use fiberflow_messages::{
     checkpoints, decode, encode, lifecycle, sanity, schema, FiberGroupState, Heartbeat,
@@ -60,7 +60,8 @@ pub struct RecordSummary {
     pub path: PathBuf,
     /// Step-stamped messages that an earlier segment already holds (not written again).
     pub already_recorded: u64,
-    /// Messages left out by the plan (`states_every`, `samples = false`).
+    /// States left out by the plan (`states_every`; samples are not subscribed to when the
+    /// plan leaves them out).
     pub decimated: u64,
     /// Wall seconds spent checking, encoding and writing messages (the rest is waiting).
     pub busy_s: f64,
@@ -241,9 +242,10 @@ impl Session<'_> {
         };
         let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
         let is_samples = type_name == "fiberflow_msgs/msg/FlowSamples";
-        // what the plan leaves out is read no further than its header (a state or samples
-        // message is tens of MB at scale): it only marks its node's progress
-        if (is_state && self.plan.states_every > 1) || (is_samples && !self.plan.samples) {
+        // states the plan leaves out are read no further than their header (a state is tens
+        // of MB at scale): they only mark their node's progress. (Without samples in the
+        // plan the recorder does not subscribe to them.)
+        if is_state && self.plan.states_every > 1 {
             let h = match fiberflow_messages::peek_group_header(bytes) {
                 Ok(h) => h,
                 Err(e) => {
@@ -251,12 +253,7 @@ impl Session<'_> {
                     return Ok(());
                 }
             };
-            let left_out = if is_state {
-                !self.plan.keeps_state(h.step)
-            } else {
-                true
-            };
-            if left_out {
+            if !self.plan.keeps_state(h.step) {
                 let stamp = sanity::Stamp {
                     step: Some(h.step),
                     owner: Some(h.group.clone()),
@@ -266,12 +263,10 @@ impl Session<'_> {
                     self.drops.drop_one(topic, &why);
                     return Ok(());
                 }
-                let map = if is_state {
-                    &mut self.state_step
-                } else {
-                    &mut self.samples_step
-                };
-                let e = map.entry((h.group, h.first_fiber)).or_insert(h.step);
+                let e = self
+                    .state_step
+                    .entry((h.group, h.first_fiber))
+                    .or_insert(h.step);
                 *e = (*e).max(h.step);
                 self.summary.decimated += 1;
                 return self.maybe_commit();
@@ -398,16 +393,9 @@ impl Session<'_> {
         self.summary.messages += 1;
         *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
         if let Some(s) = st {
-            let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
-            let n = s.segments_per_fiber.len() as u32;
-            let total = s.group_fibers;
-            let whole = self
-                .tiles
-                .add(&g, k, first, n, total, s)
-                .and_then(pieces::merge_states);
-            if let Some(whole) = whole {
+            if let Some(whole) = self.tiles.add_slice(s) {
                 let pc = pointcloud::from_state(&whole);
-                let ptopic = self.topics.fiber_points(&g);
+                let ptopic = self.topics.fiber_points(&whole.group);
                 let c = self.out.channel(&ptopic, schema::POINT_CLOUD2_NAME)?;
                 self.out.write(c, self.sim_nanos, &pc)?;
             }
@@ -728,6 +716,33 @@ mod tests {
     use fiberflow_bus::inproc::InprocBus;
     use fiberflow_messages::fuzz::{random_payload, Rng, TYPES};
 
+    type RecordResult = Result<RecordSummary, RecorderError>;
+
+    /// Runs `record` on a thread (the run's only expected node is "flow") and waits for
+    /// its first heartbeat on `hb`.
+    fn start_recorder(
+        bus: &BusHandle,
+        run: &'static str,
+        path: &Path,
+        plan: RecordPlan,
+        hb: &mut Inbox,
+    ) -> std::thread::JoinHandle<RecordResult> {
+        let (b2, p2) = (bus.clone(), path.to_path_buf());
+        let h = std::thread::spawn(move || {
+            record(
+                b2,
+                run,
+                &p2,
+                &RunMetadata::default(),
+                &["flow".to_string()],
+                &plan,
+                Arc::new(AtomicBool::new(false)),
+            )
+        });
+        assert!(hb.recv::<Heartbeat>(Duration::from_secs(10)).is_some());
+        h
+    }
+
     fn topic_for(t: &Topics, type_name: &str, group: &str) -> String {
         match type_name {
             "fiberflow_msgs/msg/RunAnnouncement" => t.announce(),
@@ -755,20 +770,7 @@ mod tests {
             steps: 400,
             ..Default::default()
         };
-        let expect: Vec<String> = vec!["flow".into()];
-        let (b2, p2) = (bus.clone(), path.clone());
-        let h = std::thread::spawn(move || {
-            record(
-                b2,
-                "fz",
-                &p2,
-                &RunMetadata::default(),
-                &expect,
-                &plan,
-                Arc::new(AtomicBool::new(false)),
-            )
-        });
-        assert!(hb.recv::<Heartbeat>(Duration::from_secs(10)).is_some());
+        let h = start_recorder(&bus, "fz", &path, plan, &mut hb);
         let mut r = Rng::new(11);
         let mut refused = 0u64;
         let names = [
@@ -864,20 +866,7 @@ mod tests {
             checkpoint_root: Some(ck_root.clone()),
             ..Default::default()
         };
-        let expect: Vec<String> = vec!["flow".into()];
-        let (b2, p2) = (bus.clone(), path.clone());
-        let h = std::thread::spawn(move || {
-            record(
-                b2,
-                "dec",
-                &p2,
-                &RunMetadata::default(),
-                &expect,
-                &plan,
-                Arc::new(AtomicBool::new(false)),
-            )
-        });
-        assert!(hb.recv::<Heartbeat>(Duration::from_secs(10)).is_some());
+        let h = start_recorder(&bus, "dec", &path, plan, &mut hb);
         for k in 0..=10u64 {
             bus.publish(&t.fiber_state("g"), &encode(&tidy_state("g", k)))
                 .unwrap();

@@ -70,14 +70,11 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
             if m.channel.topic.ends_with("/state") {
                 if let Ok(s) = decode::<FiberGroupState>(&m.data) {
                     if s.check().is_ok() {
-                        let (g, k, first) = (s.group.clone(), s.step, s.first_fiber);
-                        let n = s.segments_per_fiber.len() as u32;
-                        let total = s.group_fibers;
-                        if let Some(whole) = tiles
-                            .add(&g, k, first, n, total, s)
-                            .and_then(fiberflow_messages::pieces::merge_states)
-                        {
-                            states.entry(g).or_default().insert(k, whole);
+                        if let Some(whole) = tiles.add_slice(s) {
+                            states
+                                .entry(whole.group.clone())
+                                .or_default()
+                                .insert(whole.step, whole);
                         }
                     }
                 }
