@@ -39,6 +39,7 @@ macro_rules! message {
 message!(RunAnnouncement);
 message!(FlowStatus);
 message!(FlowProfiles);
+message!(FlowSlice);
 message!(FlowSamples);
 message!(FiberGroupState);
 message!(FiberGroupMetrics);

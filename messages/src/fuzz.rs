@@ -95,8 +95,9 @@ impl Rng {
 }
 
 /// The message type names a payload can be made for.
-pub const TYPES: [&str; 7] = [
+pub const TYPES: [&str; 8] = [
     "fiberflow_msgs/msg/RunAnnouncement",
+    "fiberflow_msgs/msg/FlowSlice",
     "fiberflow_msgs/msg/FlowStatus",
     "fiberflow_msgs/msg/FlowProfiles",
     "fiberflow_msgs/msg/FlowSamples",
@@ -211,6 +212,23 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 omega_z_rms: col(r),
             })
         }
+        "fiberflow_msgs/msg/FlowSlice" => {
+            let (nu, nv) = (r.below(8) as usize, r.below(8) as usize);
+            let m = r.len_near(nu * nv);
+            encode(&FlowSlice {
+                schema_version: SCHEMA_VERSION,
+                step: r.step(),
+                t_plus: r.float(),
+                name: "streaks".into(),
+                quantity: "u_fluct_plus".into(),
+                origin: r.floats(3),
+                axis_u: vec![1.0, 0.0, 0.0],
+                axis_v: vec![0.0, 0.0, 1.0],
+                u_plus: r.floats(nu),
+                v_plus: r.floats(nv),
+                values: r.floats(m).into_iter().map(|x| x as f32).collect(),
+            })
+        }
         "fiberflow_msgs/msg/FlowSamples" => {
             let n = r.below(60) as usize;
             let (a, b) = (r.len_near(3 * n), r.len_near(9 * n));
@@ -293,7 +311,7 @@ mod tests {
     fn checks_survive_random_structured_messages() {
         let groups = vec!["case1".to_string(), "case2".to_string()];
         let mut r = Rng::new(7);
-        let mut accepted = [0u32; 7];
+        let mut accepted = [0u32; TYPES.len()];
         for i in 0..100_000 {
             let t = TYPES[i % TYPES.len()];
             let b = random_payload(t, &mut r, &groups);
@@ -321,7 +339,11 @@ mod tests {
         }
         // the generator reaches both sides of every check
         for (t, n) in TYPES.iter().zip(accepted) {
-            assert!(n > 100 && n < 100_000 / 7, "{t}: {n} of ~14286 accepted");
+            assert!(
+                n > 100 && (n as usize) < 100_000 / TYPES.len(),
+                "{t}: {n} of {} accepted",
+                100_000 / TYPES.len()
+            );
         }
     }
 

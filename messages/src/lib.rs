@@ -5,6 +5,7 @@
 pub mod checkpoints;
 pub mod codec;
 pub mod fuzz;
+pub mod palette;
 pub mod pieces;
 pub mod sanity;
 pub mod schema;

@@ -98,6 +98,38 @@ impl Sane for FlowProfiles {
     }
 }
 
+impl Sane for FlowSlice {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        if self.name.is_empty() {
+            return Err("empty slice name".into());
+        }
+        for (name, v) in [
+            ("origin", &self.origin),
+            ("axis_u", &self.axis_u),
+            ("axis_v", &self.axis_v),
+        ] {
+            len(name, v.len(), 3)?;
+            finite(name, v)?;
+        }
+        let unit = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() - 1.0).abs() < 1e-6;
+        if !unit(&self.axis_u) || !unit(&self.axis_v) {
+            return Err("axis_u and axis_v must be unit vectors".into());
+        }
+        if self.u_plus.is_empty() || self.v_plus.is_empty() {
+            return Err("a slice needs at least one sample each way".into());
+        }
+        finite("u_plus", &self.u_plus)?;
+        finite("v_plus", &self.v_plus)?;
+        let n = self.u_plus.len().checked_mul(self.v_plus.len());
+        len("values", self.values.len(), n.unwrap_or(usize::MAX))?;
+        match self.values.iter().position(|x| !x.is_finite()) {
+            Some(i) => Err(format!("values[{i}] is not finite")),
+            None => Ok(()),
+        }
+    }
+}
+
 impl Sane for FlowSamples {
     fn check(&self) -> Result<(), String> {
         time(self.t_plus)?;
@@ -221,6 +253,7 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         }),
         "fiberflow_msgs/msg/FlowStatus" => go::<FlowStatus>(bytes, |m| st(m.step, None, 0)),
         "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None, 0)),
+        "fiberflow_msgs/msg/FlowSlice" => go::<FlowSlice>(bytes, |m| st(m.step, None, 0)),
         "fiberflow_msgs/msg/FlowSamples" => {
             go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }

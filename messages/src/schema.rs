@@ -3,6 +3,7 @@
 pub const RUN_ANNOUNCEMENT: &str = include_str!("../msg/RunAnnouncement.msg");
 pub const FLOW_STATUS: &str = include_str!("../msg/FlowStatus.msg");
 pub const FLOW_PROFILES: &str = include_str!("../msg/FlowProfiles.msg");
+pub const FLOW_SLICE: &str = include_str!("../msg/FlowSlice.msg");
 pub const FLOW_SAMPLES: &str = include_str!("../msg/FlowSamples.msg");
 pub const FIBER_GROUP_STATE: &str = include_str!("../msg/FiberGroupState.msg");
 pub const FIBER_GROUP_METRICS: &str = include_str!("../msg/FiberGroupMetrics.msg");
@@ -18,6 +19,7 @@ pub fn text(type_name: &str) -> &'static str {
         "fiberflow_msgs/msg/FlowStatus" => FLOW_STATUS,
         "fiberflow_msgs/msg/FlowSamples" => FLOW_SAMPLES,
         "fiberflow_msgs/msg/FlowProfiles" => FLOW_PROFILES,
+        "fiberflow_msgs/msg/FlowSlice" => FLOW_SLICE,
         "fiberflow_msgs/msg/FiberGroupState" => FIBER_GROUP_STATE,
         "fiberflow_msgs/msg/FiberGroupMetrics" => FIBER_GROUP_METRICS,
         "fiberflow_msgs/msg/Heartbeat" => HEARTBEAT,
@@ -35,6 +37,7 @@ pub fn validate(type_name: &str, bytes: &[u8]) -> Result<(), crate::DecodeError>
         "fiberflow_msgs/msg/FlowStatus" => decode::<FlowStatus>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FlowSamples" => decode::<FlowSamples>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FlowProfiles" => decode::<FlowProfiles>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FlowSlice" => decode::<FlowSlice>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FiberGroupState" => decode::<FiberGroupState>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FiberGroupMetrics" => decode::<FiberGroupMetrics>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/Heartbeat" => decode::<Heartbeat>(bytes).map(|_| ()),

@@ -28,6 +28,14 @@ impl Topics {
     pub fn flow_profiles(&self) -> String {
         format!("fiberflow/{}/flow/profiles", self.run)
     }
+    /// A flow slice for viewers (`name` as in [`crate::FlowSlice::name`]).
+    pub fn flow_slice(&self, name: &str) -> String {
+        format!("fiberflow/{}/flow/slices/{name}", self.run)
+    }
+    /// The recorder's `sensor_msgs/Image` rendering of a flow slice (not on the bus).
+    pub fn flow_slice_image(&self, name: &str) -> String {
+        format!("fiberflow/{}/flow/slices/{name}/image", self.run)
+    }
     pub fn flow_samples(&self, group: &str) -> String {
         format!("fiberflow/{}/flow/samples/{group}", self.run)
     }
@@ -54,6 +62,7 @@ pub fn type_of(topic: &str) -> Option<&'static str> {
         ("control", 5) if parts[3] == "heartbeat" => Some("fiberflow_msgs/msg/Heartbeat"),
         ("flow", 4) if parts[3] == "status" => Some("fiberflow_msgs/msg/FlowStatus"),
         ("flow", 4) if parts[3] == "profiles" => Some("fiberflow_msgs/msg/FlowProfiles"),
+        ("flow", 5) if parts[3] == "slices" => Some("fiberflow_msgs/msg/FlowSlice"),
         // flow/samples/<group>, or flow/samples/<group>/<shard> for a sharded group
         ("flow", 5 | 6) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
         ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),

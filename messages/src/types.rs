@@ -56,6 +56,26 @@ pub struct FlowProfiles {
     pub omega_z_rms: Vec<f64>,
 }
 
+/// A plane of the flow for viewers (the near-wall streaks, a cross-section), every few
+/// coupling steps. Sample (i, j) sits at `origin + u_plus[i]·axis_u + v_plus[j]·axis_v`
+/// (wall units; `axis_u`, `axis_v` unit vectors) and has value `values[j·len(u_plus) + i]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlowSlice {
+    pub schema_version: u32,
+    pub step: u64,
+    pub t_plus: f64,
+    /// `"streaks"` (wall-parallel plane at y+ ≈ 15) or `"cross_section"` (a y–z plane).
+    pub name: String,
+    /// `"u_fluct_plus"`: streamwise velocity minus its x–z plane mean, wall units.
+    pub quantity: String,
+    pub origin: Vec<f64>,
+    pub axis_u: Vec<f64>,
+    pub axis_v: Vec<f64>,
+    pub u_plus: Vec<f64>,
+    pub v_plus: Vec<f64>,
+    pub values: Vec<f32>,
+}
+
 /// Fluid velocity and velocity gradient at a group's segment centres (state of `step`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FlowSamples {

@@ -199,8 +199,12 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             )?;
             println!("{table}");
             let rrd = out_dir.join("run.rrd");
-            fiberflow_viewer::view(m, &fiberflow_viewer::Sink::Save(rrd.clone()), 1)
-                .with_context(|| format!("writing {}", rrd.display()))?;
+            fiberflow_viewer::view(
+                m,
+                &fiberflow_viewer::Sink::Save(rrd.clone()),
+                &fiberflow_viewer::ViewOptions::default(),
+            )
+            .with_context(|| format!("writing {}", rrd.display()))?;
             println!("Rerun scene: {} (rerun {})", rrd.display(), rrd.display());
         }
     }

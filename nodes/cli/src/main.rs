@@ -148,9 +148,18 @@ enum Cmd {
         /// Stream to a running viewer, e.g. rerun+http://127.0.0.1:9876/proxy.
         #[arg(long)]
         connect: Option<String>,
-        /// Show every n-th step.
-        #[arg(long, default_value_t = 1)]
+        /// Show fibre shapes every n-th step (0: one per whole t+; the series keep every step).
+        #[arg(long, default_value_t = 0)]
         every: u64,
+        /// Fibres per case in the stratified sample (a smaller case is shown whole).
+        #[arg(long, default_value_t = 300)]
+        per_case: usize,
+        /// The most coiled fibres (largest final σ²) added per case.
+        #[arg(long, default_value_t = 20)]
+        most_coiled: usize,
+        /// σ² thresholds of the coiling events, comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = fiberflow_analysis::coiling::DEFAULT_THRESHOLDS)]
+        coil_thresholds: Vec<f64>,
     },
     /// Compare DNS statistics (stats.csv from a spin-up) with the reference DNS data.
     FlowReport {
@@ -306,6 +315,9 @@ fn main() -> Result<()> {
             spawn,
             connect,
             every,
+            per_case,
+            most_coiled,
+            coil_thresholds,
         } => {
             let sink = match (save, spawn, connect) {
                 (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
@@ -313,8 +325,25 @@ fn main() -> Result<()> {
                 (None, _, None) => fiberflow_viewer::Sink::Spawn,
                 _ => anyhow::bail!("choose one of --save, --spawn, --connect"),
             };
-            fiberflow_viewer::view(&mcap, &sink, every.max(1))
-                .with_context(|| format!("viewing {}", mcap.display()))
+            let opts = fiberflow_viewer::ViewOptions {
+                every,
+                sampling: fiberflow_viewer::select::Sampling {
+                    per_case,
+                    most_coiled,
+                },
+                coil_thresholds,
+            };
+            let s = fiberflow_viewer::view(&mcap, &sink, &opts)
+                .with_context(|| format!("viewing {}", mcap.display()))?;
+            tracing::info!(
+                groups = s.groups,
+                fibres = s.fibres,
+                shown = s.shown,
+                coiling_events = s.events,
+                flow_slices = s.slices,
+                "scene written"
+            );
+            Ok(())
         }
         Cmd::FlowReport {
             stats,

@@ -1,10 +1,29 @@
-//! The viewer: logs a recording as a rich Rerun scene (SDK 0.36.3) on a `t+` timeline —
-//! the channel box, every fibre as a line strip coloured by its coiling σ², joints as
-//! points, centre-of-mass trails, and time series of ⟨|z1|⟩, ⟨σ²⟩ and MSD_23 per case.
-//! Each case is its own entity subtree (`world/<case>`, `plots/*/<case>`).
+//! The viewer: logs a recording as a Rerun scene (SDK 0.36.3) for inspecting coiling.
+//!
+//! - **Gallery**: every shown fibre re-centred at its centre of mass on a grid, one band per
+//!   case, ordered by initial layer and then final σ², coloured by σ² (paper §4.3).
+//! - **Channel**: the same fibres in the periodic box, with the near-wall streaks and a
+//!   cross-section of u' when the recording has flow slices.
+//! - **Per-fibre series**: σ², |z1|, end-to-end distance and wall distance x2+ of each
+//!   fibre; every fibre is one entity (`fibres/<case>/<layer>/f<i>`), so selecting it in any
+//!   view highlights it in all of them.
+//! - **Coiling events**: the first t+ each fibre's σ² reaches each threshold, in a text log
+//!   and as a marker over the fibre in the gallery.
+//!
+//! Time: a `t+` timeline with one frame per whole t+ (frame `#20` is t+ = 20) and a `step`
+//! timeline with every recorded step. At scale a stratified sample per case plus the most
+//! coiled fibres is shown ([`select`]).
 
-use fiberflow_messages::{decode, FiberGroupState, RunAnnouncement};
-use std::collections::BTreeMap;
+pub mod blueprint;
+pub mod gallery;
+pub mod paths;
+pub mod read;
+pub mod select;
+pub mod shape;
+pub mod slices;
+
+use read::{GroupInfo, Item};
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
@@ -13,6 +32,8 @@ pub enum ViewerError {
     Read { path: String, reason: String },
     #[error("rerun: {0}")]
     Rerun(String),
+    #[error("{0} has no fibre states to show")]
+    Empty(String),
 }
 
 /// Where the scene goes.
@@ -24,6 +45,38 @@ pub enum Sink {
     Spawn,
     /// Stream to a running viewer (`rerun+http://127.0.0.1:9876/proxy`).
     Connect(String),
+}
+
+/// What to show.
+#[derive(Debug, Clone)]
+pub struct ViewOptions {
+    /// Show fibre shapes every this many steps; 0 (the default) shows them at the steps on
+    /// the `t+` timeline (one per whole t+). The first and last state are always shown; the
+    /// per-fibre series have every step.
+    pub every: u64,
+    pub sampling: select::Sampling,
+    /// σ² thresholds of the coiling events.
+    pub coil_thresholds: Vec<f64>,
+}
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        Self {
+            every: 0,
+            sampling: select::Sampling::default(),
+            coil_thresholds: fiberflow_analysis::coiling::DEFAULT_THRESHOLDS.to_vec(),
+        }
+    }
+}
+
+/// What a scene holds.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SceneSummary {
+    pub groups: usize,
+    pub fibres: usize,
+    pub shown: usize,
+    pub events: usize,
+    pub slices: usize,
 }
 
 /// Colour map for σ² in [0, 1.5]: dark blue (straight) -> teal -> yellow (coiled).
@@ -44,56 +97,179 @@ pub fn sigma2_colour(s2: f64) -> [u8; 3] {
     [c(0), c(1), c(2)]
 }
 
-fn err<E: std::fmt::Display>(e: E) -> ViewerError {
+/// One colour per case for the per-fibre series.
+const CASE_COLOURS: [[u8; 3]; 6] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+];
+
+/// Onset marker colours, one per threshold (light to strong).
+const ONSET_COLOURS: [[u8; 3]; 3] = [[200, 200, 200], [255, 165, 0], [255, 40, 40]];
+
+pub(crate) fn err<E: std::fmt::Display>(e: E) -> ViewerError {
     ViewerError::Rerun(e.to_string())
 }
 
-/// Logs the recording at `mcap` to `sink`. `every` thins the steps shown (1 = all).
-pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
-    use fiberflow_messages::sanity::Sane;
-    let read_err = |p: &Path, e: String| ViewerError::Read {
-        path: p.display().to_string(),
-        reason: e,
-    };
-    // a run folder: every segment in order; states that fail their checks are skipped
-    let segs = fiberflow_messages::segments::segment_paths(mcap)
-        .map_err(|e| read_err(mcap, e.to_string()))?;
-    let mut states: BTreeMap<String, BTreeMap<u64, FiberGroupState>> = BTreeMap::new();
+/// Sets the `step` timeline, and the `t+` timeline when the step stands for a whole t+.
+fn set_time(rec: &rerun::RecordingStream, step: u64, t_plus: f64, dt_plus: f64) {
+    rec.set_time_sequence("step", step as i64);
+    match shape::whole_t_plus(t_plus, dt_plus) {
+        Some(n) => rec.set_time_sequence("t+", n),
+        None => rec.disable_timeline("t+"),
+    }
+}
+
+/// A shown fibre: its entity, gallery cell and its σ² over time (for the events).
+struct Shown {
+    path: String,
+    cell: [f64; 3],
+    sigma2: Vec<(u64, f64, f64)>,
+}
+
+/// Logs the recording at `mcap` (a file or run folder) to `sink`.
+pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary, ViewerError> {
+    // pass 1: groups, layers, final σ², box and time step
+    let mut groups: BTreeMap<String, GroupInfo> = BTreeMap::new();
     let mut box_plus = [942.48, 300.0, 471.24];
-    // a sharded group's slices, put back together per step
-    let mut tiles = fiberflow_messages::pieces::Tiles::default();
-    for seg in &segs {
-        let bytes = std::fs::read(seg).map_err(|e| read_err(seg, e.to_string()))?;
-        let stream = mcap::MessageStream::new(&bytes).map_err(|e| read_err(seg, e.to_string()))?;
-        for m in stream {
-            let Ok(m) = m else { break };
-            if m.channel.topic.ends_with("/state") {
-                if let Ok(s) = decode::<FiberGroupState>(&m.data) {
-                    if s.check().is_ok() {
-                        if let Some(whole) = tiles.add_slice(s) {
-                            states
-                                .entry(whole.group.clone())
-                                .or_default()
-                                .insert(whole.step, whole);
-                        }
-                    }
-                }
-            } else if m.channel.topic.ends_with("/control/announce") {
-                if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
-                    if a.check().is_ok() {
-                        box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
-                    }
-                }
+    let mut dt_plus: Option<f64> = None;
+    let mut dt_seen: Option<f64> = None;
+    read::for_each(mcap, |it| match &it {
+        Item::Announce(a) => {
+            box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
+            dt_plus = Some(a.dt_plus);
+        }
+        Item::State(s) => groups.entry(s.group.clone()).or_default().add(&it),
+        Item::Metrics(m) => {
+            if m.step > 0 && dt_seen.is_none() {
+                dt_seen = Some(m.t_plus / m.step as f64);
             }
+            groups.entry(m.group.clone()).or_default().add(&it)
+        }
+        Item::Slice(_) => {}
+    })?;
+    groups.retain(|_, g| !g.layer.is_empty());
+    if groups.is_empty() {
+        return Err(ViewerError::Empty(mcap.display().to_string()));
+    }
+    let dt_plus = dt_plus.or(dt_seen).unwrap_or(1.0);
+    let h_plus = 0.5 * box_plus[1];
+
+    // which fibres, where in the gallery
+    let chosen: Vec<Vec<usize>> = groups
+        .values()
+        .map(|g| select::choose(&g.layer, &g.final_sigma2, opts.sampling))
+        .collect();
+    let longest = groups.values().map(|g| g.contour_plus).fold(0.0, f64::max);
+    let g = gallery::layout(&chosen.iter().map(Vec::len).collect::<Vec<_>>(), longest);
+    let mut shown: HashMap<String, HashMap<usize, Shown>> = HashMap::new();
+    let mut entities = Vec::new();
+    for (c, (name, info)) in groups.iter().enumerate() {
+        let digits = paths::digits(info.fibres);
+        let m = shown.entry(name.clone()).or_default();
+        for (rank, &f) in chosen[c].iter().enumerate() {
+            let layer = info.layer[f];
+            let path = paths::fibre(name, layer, f, digits);
+            entities.push(blueprint::FibreEntity {
+                path: path.clone(),
+                label: format!("{name} {} f{f}", paths::layer_name(layer)),
+                colour: CASE_COLOURS[c % CASE_COLOURS.len()],
+            });
+            m.insert(
+                f,
+                Shown {
+                    path,
+                    cell: g.centres[c][rank],
+                    sigma2: Vec::new(),
+                },
+            );
         }
     }
+
     let builder = rerun::RecordingStreamBuilder::new("fiberflow");
     let rec = match sink {
         Sink::Save(p) => builder.save(p).map_err(err)?,
         Sink::Spawn => builder.spawn().map_err(err)?,
         Sink::Connect(url) => builder.connect_grpc_opts(url.clone()).map_err(err)?,
     };
-    send_blueprint(&rec, &states.keys().cloned().collect::<Vec<_>>())?;
+    // the channel camera: above the lower half, looking at a quarter of the box
+    let eye = blueprint::Eye {
+        position: [
+            (0.22 * box_plus[0]) as f32,
+            (0.1 * box_plus[1]) as f32,
+            (0.95 * box_plus[2]) as f32,
+        ],
+        look_target: [
+            (0.45 * box_plus[0]) as f32,
+            (-0.35 * box_plus[1]) as f32,
+            (0.5 * box_plus[2]) as f32,
+        ],
+    };
+    blueprint::send(&rec, &entities, &eye)?;
+    log_static(&rec, box_plus, &groups, &g, opts)?;
+
+    // pass 2: shapes, series, slices
+    let mut log_err: Option<ViewerError> = None;
+    let mut slices = 0usize;
+    read::for_each(mcap, |it| {
+        if log_err.is_some() {
+            return;
+        }
+        let r = match &it {
+            Item::State(s) => {
+                let last = groups.get(&s.group).map_or(0, |g| g.last_state_step);
+                let wanted = match opts.every {
+                    0 => shape::whole_t_plus(s.t_plus, dt_plus).is_some(),
+                    k => s.step % k == 0,
+                };
+                match shown.get(&s.group) {
+                    Some(m) if wanted || s.step == 0 || s.step == last => {
+                        log_state(&rec, s, m, box_plus, dt_plus)
+                    }
+                    _ => Ok(()),
+                }
+            }
+            Item::Metrics(mt) => match shown.get_mut(&mt.group) {
+                Some(m) => log_metrics(&rec, mt, m, h_plus, dt_plus),
+                None => Ok(()),
+            },
+            Item::Slice(sl) => {
+                slices += 1;
+                set_time(&rec, sl.step, sl.t_plus, dt_plus);
+                slices::log(&rec, sl)
+            }
+            Item::Announce(_) => Ok(()),
+        };
+        if let Err(e) = r {
+            log_err = Some(e);
+        }
+    })?;
+    if let Some(e) = log_err {
+        return Err(e);
+    }
+    let events = log_events(&rec, &shown, &opts.coil_thresholds, dt_plus, g.cell_plus)?;
+    rec.flush_blocking().map_err(err)?;
+    Ok(SceneSummary {
+        groups: groups.len(),
+        fibres: groups.values().map(|g| g.fibres).sum(),
+        shown: entities.len(),
+        events,
+        slices,
+    })
+}
+
+fn log_static(
+    rec: &rerun::RecordingStream,
+    box_plus: [f64; 3],
+    groups: &BTreeMap<String, GroupInfo>,
+    g: &gallery::Gallery,
+    opts: &ViewOptions,
+) -> Result<(), ViewerError> {
+    rec.log_static("/", &rerun::ViewCoordinates::RIGHT_HAND_Y_UP())
+        .map_err(err)?;
     let h = 0.5 * box_plus[1];
     rec.log_static(
         "world/channel",
@@ -104,244 +280,173 @@ pub fn view(mcap: &Path, sink: &Sink, every: u64) -> Result<(), ViewerError> {
         .with_colors([rerun::Color::from_rgb(150, 150, 150)]),
     )
     .map_err(err)?;
-    rec.log_static(
-        "legend",
-        &rerun::TextDocument::from_markdown(
-            "# fiberflow\n\nFibres are line strips coloured by their coiling σ² = Σ|ẑᵢ − ẑ|²/(N−1): \
-             **dark blue = straight (0)**, teal ≈ 0.75, **yellow = coiled (≥ 1.5)**. \
-             Joints are points; thin lines are centre-of-mass trails. Streamwise x1 is drawn \
-             wrapped into the periodic box. Plots: ⟨|z1|⟩, ⟨σ²⟩ and MSD_23 per case on the `t+` timeline.",
-        ),
-    )
-    .map_err(err)?;
-    for (group, steps) in &states {
-        let Some(first) = steps.values().next() else {
-            continue;
-        };
-        let com0 = coms(first);
-        let mut trails: Vec<Vec<[f32; 3]>> = vec![Vec::new(); com0.len()];
-        for (k, s) in steps {
-            if k % every != 0 && *k != *steps.keys().last().unwrap_or(&0) {
-                continue;
-            }
-            rec.set_duration_secs("t+", s.t_plus);
-            let (strips, colours, joints, s2, z1) = fibres(s, box_plus);
-            rec.log(
-                format!("world/{group}/fibres"),
-                &rerun::LineStrips3D::new(strips)
-                    .with_colors(
-                        colours
-                            .iter()
-                            .map(|c| rerun::Color::from_rgb(c[0], c[1], c[2])),
-                    )
-                    .with_radii([rerun::Radius::new_scene_units(1.2)]),
-            )
-            .map_err(err)?;
-            rec.log(
-                format!("world/{group}/joints"),
-                &rerun::Points3D::new(joints).with_radii([rerun::Radius::new_scene_units(1.6)]),
-            )
-            .map_err(err)?;
-            let com = coms(s);
-            for (t, c) in trails.iter_mut().zip(&com) {
-                t.push(wrap(*c, box_plus));
-            }
-            // trails are re-logged every 10th shown step to keep the file small
-            if trails[0].len() % 10 == 1 {
-                rec.log(
-                    format!("world/{group}/trails"),
-                    &rerun::LineStrips3D::new(split_wrapped(&trails, box_plus))
-                        .with_colors([rerun::Color::from_unmultiplied_rgba(200, 200, 200, 50)])
-                        .with_radii([rerun::Radius::new_ui_points(0.5)]),
-                )
-                .map_err(err)?;
-            }
-            let n = s2.len().max(1) as f64;
-            let msd = com
-                .iter()
-                .zip(&com0)
-                .map(|(a, b)| (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2))
-                .sum::<f64>()
-                / n;
-            rec.log(
-                format!("plots/abs_z1/{group}"),
-                &rerun::Scalars::single(z1.iter().map(|z| z.abs()).sum::<f64>() / n),
-            )
-            .map_err(err)?;
-            rec.log(
-                format!("plots/sigma2/{group}"),
-                &rerun::Scalars::single(s2.iter().sum::<f64>() / n),
-            )
-            .map_err(err)?;
-            rec.log(
-                format!("plots/msd23_from_start/{group}"),
-                &rerun::Scalars::single(msd),
-            )
-            .map_err(err)?;
-        }
-    }
-    rec.flush_blocking().map_err(err)?;
-    Ok(())
-}
-
-/// Layout for a first open: the 3-D scene with the legend beside the three time series.
-fn send_blueprint(rec: &rerun::RecordingStream, groups: &[String]) -> Result<(), ViewerError> {
-    use rerun::blueprint::{
-        Blueprint, BlueprintActivation, ContainerLike, Horizontal, Spatial3DView, TextDocumentView,
-        TimePanel, TimeSeriesView, Vertical,
-    };
-    let left: Vec<ContainerLike> = vec![
-        Spatial3DView::new("Fibres (colour: coiling σ²)")
-            .with_origin("world")
-            // trails exist under world/<case>/trails; hidden at first open so fibres stand out
-            .with_contents(
-                std::iter::once("+ /world/**".to_string())
-                    .chain(groups.iter().map(|g| format!("- /world/{g}/trails"))),
-            )
-            .into(),
-        TextDocumentView::new("Legend").with_origin("legend").into(),
-    ];
-    let right: Vec<ContainerLike> = vec![
-        TimeSeriesView::new("mean |z1| (alignment)")
-            .with_origin("plots/abs_z1")
-            .into(),
-        TimeSeriesView::new("mean σ² (coiling)")
-            .with_origin("plots/sigma2")
-            .into(),
-        TimeSeriesView::new("MSD_23 from t = 0")
-            .with_origin("plots/msd23_from_start")
-            .into(),
-    ];
-    let root = Horizontal::new([
-        Vertical::new(left).with_row_shares([0.8, 0.2]).into(),
-        Vertical::new(right).into(),
-    ])
-    .with_column_shares([0.62, 0.38]);
-    Blueprint::new(root)
-        .with_time_panel(
-            TimePanel::new()
-                .with_timeline("t+")
-                .with_play_state(rerun::blueprint::components::PlayState::Following),
+    for (c, (name, info)) in groups.iter().enumerate() {
+        let l = g.labels[c];
+        rec.log_static(
+            paths::band_label(name),
+            &rerun::Points2D::new([[l[0] as f32, l[1] as f32]])
+                .with_labels([format!(
+                    "{name}: N {} x l+ {:.1}, density ratio {:.0}",
+                    info.segments, info.segment_length, info.density_ratio
+                )])
+                .with_colors([rerun::Color::from_rgb(
+                    CASE_COLOURS[c % 6][0],
+                    CASE_COLOURS[c % 6][1],
+                    CASE_COLOURS[c % 6][2],
+                )])
+                .with_radii([rerun::Radius::new_scene_units(0.15 * g.cell_plus as f32)])
+                .with_show_labels(true),
         )
-        .send(rec, BlueprintActivation::default())
+        .map_err(err)?;
+    }
+    let thresholds = opts
+        .coil_thresholds
+        .iter()
+        .map(|t| format!("{t}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let text = format!(
+        "# How to read this scene\n\n\
+         **Colour of a fibre: its coiling σ² = Σ|z_i − z|²/(N−1)** (paper §4.3): dark blue = \
+         straight (0), teal = 0.75, yellow = coiled (1.5 or more).\n\n\
+         **Gallery** (top left): every shown fibre moved to its own cell at its centre of mass, \
+         seen from the side (x1 streamwise to the right, x2 wall-normal up). One band of rows \
+         per case, labelled with its fibres (segments N x segment length l+, density ratio). \
+         In a band fibres go by initial layer (near wall, next, middle), then by final σ², \
+         left to right and top to bottom: the most coiled of each layer come last.\n\n\
+         **Channel** (bottom left): the same fibres in the periodic box (x1 wrapped); the grey \
+         box is the channel, 2h = {:.0} wall units high. Where the recording has flow slices: \
+         the streaks, u' at y+ ≈ 15 above the lower wall, and a cross-section at x1 = 0, blue \
+         slow / red fast, ±4 u_tau.\n\n\
+         **Plots** (right): σ², |z1|, end-to-end distance and wall distance x2+ of every shown \
+         fibre, one colour per case. **Click a fibre** in either 3-D view (or a line in a \
+         plot): it is one entity `fibres/<case>/<layer>/f<i>` and lights up in all four plots.\n\n\
+         **Coiling events**: the first t+ a fibre's σ² reaches {thresholds}; listed under \
+         *Coiling events* and marked over the fibre in the gallery (grey, orange, red = \
+         lowest to highest threshold).\n\n\
+         **Time**: the `t+` timeline has one frame per whole t+ (frame #20 = t+ 20); the \
+         `step` timeline has every recorded step.",
+        box_plus[1]
+    );
+    rec.log_static("legend", &rerun::TextDocument::from_markdown(text))
         .map_err(err)
 }
 
-fn coms(s: &FiberGroupState) -> Vec<[f64; 3]> {
-    let mut out = Vec::with_capacity(s.segments_per_fiber.len());
-    let mut seg = 0usize;
-    for &n in &s.segments_per_fiber {
-        let n = n as usize;
-        let mut c = [0.0; 3];
-        for i in seg..seg + n {
-            for a in 0..3 {
-                c[a] += s.centre[3 * i + a] / n as f64;
-            }
+fn log_state(
+    rec: &rerun::RecordingStream,
+    s: &fiberflow_messages::FiberGroupState,
+    shown: &HashMap<usize, Shown>,
+    box_plus: [f64; 3],
+    dt_plus: f64,
+) -> Result<(), ViewerError> {
+    set_time(rec, s.step, s.t_plus, dt_plus);
+    let firsts = shape::first_segments(s);
+    let mut fibres: Vec<(&usize, &Shown)> = shown.iter().collect();
+    fibres.sort_by_key(|(f, _)| **f);
+    for (&f, sh) in fibres {
+        if f >= firsts.len() {
+            continue;
         }
-        out.push(c);
-        seg += n;
+        let fibre = shape::shape(s, f, firsts[f]);
+        let c = sigma2_colour(fibre.sigma2);
+        rec.log(
+            sh.path.as_str(),
+            &rerun::LineStrips2D::new([shape::side_view(&fibre, sh.cell)])
+                .with_colors([rerun::Color::from_rgb(c[0], c[1], c[2])])
+                .with_radii([rerun::Radius::new_scene_units(0.7)]),
+        )
+        .map_err(err)?;
+
+        rec.log(
+            sh.path.as_str(),
+            &rerun::DynamicArchetype::new(paths::ARCHETYPE)
+                .with_component::<rerun::components::LineStrip3D>(
+                    paths::CHANNEL_STRIP,
+                    [shape::in_box(&fibre, box_plus)],
+                ),
+        )
+        .map_err(err)?;
     }
-    out
+    Ok(())
 }
 
-fn wrap(c: [f64; 3], b: [f64; 3]) -> [f32; 3] {
-    [
-        c[0].rem_euclid(b[0]) as f32,
-        c[1] as f32,
-        c[2].rem_euclid(b[2]) as f32,
-    ]
+fn log_metrics(
+    rec: &rerun::RecordingStream,
+    m: &fiberflow_messages::FiberGroupMetrics,
+    shown: &mut HashMap<usize, Shown>,
+    h_plus: f64,
+    dt_plus: f64,
+) -> Result<(), ViewerError> {
+    set_time(rec, m.step, m.t_plus, dt_plus);
+    let n = m.sigma2.len();
+    for (&f, sh) in shown.iter_mut() {
+        if f >= n || 3 * f + 2 >= m.centre_of_mass.len() {
+            continue;
+        }
+        let vals = [
+            m.sigma2[f],
+            m.z1.get(f).map_or(f64::NAN, |z| z.abs()),
+            m.end_to_end.get(f).copied().unwrap_or(f64::NAN),
+            shape::wall_distance(m.centre_of_mass[3 * f + 1], h_plus),
+        ];
+        let mut arch = rerun::DynamicArchetype::new(paths::ARCHETYPE);
+        for ((name, _), v) in paths::SERIES.iter().zip(vals) {
+            arch = arch.with_component::<rerun::components::Scalar>(*name, [v]);
+        }
+        rec.log(sh.path.as_str(), &arch).map_err(err)?;
+        sh.sigma2.push((m.step, m.t_plus, m.sigma2[f]));
+    }
+    Ok(())
 }
 
-/// Breaks trails where they wrap around the periodic box.
-fn split_wrapped(trails: &[Vec<[f32; 3]>], b: [f64; 3]) -> Vec<Vec<[f32; 3]>> {
-    let mut out = Vec::new();
-    for t in trails {
-        let mut cur: Vec<[f32; 3]> = Vec::new();
-        for p in t {
-            if let Some(q) = cur.last() {
-                if ((p[0] - q[0]).abs() as f64) > 0.5 * b[0]
-                    || ((p[2] - q[2]).abs() as f64) > 0.5 * b[2]
-                {
-                    out.push(std::mem::take(&mut cur));
+/// Coiling events of every shown fibre (onset as in `fiberflow_analysis::coiling`): a text
+/// log line per event and a marker over the fibre in the gallery, at the first step at or
+/// after the onset.
+fn log_events(
+    rec: &rerun::RecordingStream,
+    shown: &HashMap<String, HashMap<usize, Shown>>,
+    thresholds: &[f64],
+    dt_plus: f64,
+    cell_plus: f64,
+) -> Result<usize, ViewerError> {
+    let mut events = Vec::new();
+    for (group, fibres) in shown {
+        for (&f, sh) in fibres {
+            let t: Vec<f64> = sh.sigma2.iter().map(|x| x.1).collect();
+            let s2: Vec<f64> = sh.sigma2.iter().map(|x| x.2).collect();
+            for (k, &thr) in thresholds.iter().enumerate() {
+                if let Some(on) = fiberflow_analysis::coiling::first_crossing(&t, &s2, thr) {
+                    let at = sh.sigma2.iter().find(|x| x.1 >= on).or(sh.sigma2.last());
+                    if let Some(&(step, t_at, _)) = at {
+                        events.push((step, t_at, on, group.clone(), f, k, thr, sh));
+                    }
                 }
             }
-            cur.push(*p);
-        }
-        if cur.len() > 1 {
-            out.push(cur);
         }
     }
-    out
-}
-
-type FibreScene = (
-    Vec<Vec<[f32; 3]>>,
-    Vec<[u8; 3]>,
-    Vec<[f32; 3]>,
-    Vec<f64>,
-    Vec<f64>,
-);
-
-/// Line strips (joints, shifted so the fibre's centre of mass lies in the box), colours by
-/// σ², all joints, σ² and z1 per fibre.
-fn fibres(s: &FiberGroupState, b: [f64; 3]) -> FibreScene {
-    let mut strips = Vec::new();
-    let mut colours = Vec::new();
-    let mut joints = Vec::new();
-    let mut s2s = Vec::new();
-    let mut z1s = Vec::new();
-    let mut seg = 0usize;
-    for (f, &n) in s.segments_per_fiber.iter().enumerate() {
-        let n = n as usize;
-        let l = s.segment_length.get(f).copied().unwrap_or(0.0);
-        let mut com = [0.0; 3];
-        let mut zs = [0.0; 3];
-        for i in seg..seg + n {
-            for a in 0..3 {
-                com[a] += s.centre[3 * i + a] / n as f64;
-                zs[a] += s.axis[3 * i + a];
-            }
-        }
-        let shift = [
-            com[0].rem_euclid(b[0]) - com[0],
-            0.0,
-            com[2].rem_euclid(b[2]) - com[2],
-        ];
-        let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
-            .sqrt()
-            .max(1e-300);
-        let mut s2 = 0.0;
-        let mut strip = Vec::with_capacity(n + 1);
-        for i in seg..seg + n {
-            let c = &s.centre[3 * i..3 * i + 3];
-            let z = &s.axis[3 * i..3 * i + 3];
-            for a in 0..3 {
-                s2 += (z[a] - zs[a] / norm).powi(2);
-            }
-            let start = [
-                c[0] - 0.5 * l * z[0] + shift[0],
-                c[1] - 0.5 * l * z[1],
-                c[2] - 0.5 * l * z[2] + shift[2],
-            ];
-            strip.push([start[0] as f32, start[1] as f32, start[2] as f32]);
-            if i + 1 == seg + n {
-                let end = [
-                    c[0] + 0.5 * l * z[0] + shift[0],
-                    c[1] + 0.5 * l * z[1],
-                    c[2] + 0.5 * l * z[2] + shift[2],
-                ];
-                strip.push([end[0] as f32, end[1] as f32, end[2] as f32]);
-            }
-        }
-        let s2 = if n > 1 { s2 / (n - 1) as f64 } else { 0.0 };
-        joints.extend_from_slice(&strip);
-        strips.push(strip);
-        colours.push(sigma2_colour(s2));
-        s2s.push(s2);
-        z1s.push(zs[0] / norm);
-        seg += n;
+    events.sort_by(|a, b| (a.0, &a.3, a.4, a.5).cmp(&(b.0, &b.3, b.4, b.5)));
+    for (step, t_at, on, group, f, k, thr, sh) in &events {
+        set_time(rec, *step, *t_at, dt_plus);
+        let text = format!("{} reached σ² = {thr} at t+ {on:.1}", sh.path);
+        rec.log(
+            paths::events(group),
+            &rerun::TextLog::new(text).with_level(rerun::TextLogLevel::INFO),
+        )
+        .map_err(err)?;
+        let c = ONSET_COLOURS[(*k).min(ONSET_COLOURS.len() - 1)];
+        let cell = sh.cell;
+        // a dot above the fibre's cell (gallery y points down)
+        let above = [cell[0] as f32, (cell[1] - 0.42 * cell_plus) as f32];
+        rec.log(
+            paths::onset(&sh.path),
+            &rerun::Points2D::new([above])
+                .with_colors([rerun::Color::from_rgb(c[0], c[1], c[2])])
+                .with_radii([rerun::Radius::new_scene_units(0.06 * cell_plus as f32)]),
+        )
+        .map_err(err)?;
+        let _ = f;
     }
-    (strips, colours, joints, s2s, z1s)
+    Ok(events.len())
 }
 
 #[cfg(test)]

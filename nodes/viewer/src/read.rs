@@ -1,0 +1,131 @@
+//! Reading a recording for the scene: every segment of a run in order, each message checked
+//! (messages that fail their checks are skipped), sharded groups' slices merged back into
+//! whole groups.
+
+use crate::ViewerError;
+use fiberflow_messages::pieces::Tiles;
+use fiberflow_messages::sanity::Sane;
+use fiberflow_messages::{decode, FiberGroupMetrics, FiberGroupState, FlowSlice, RunAnnouncement};
+use std::path::Path;
+
+/// One message the scene uses, whole.
+#[derive(Debug)]
+pub enum Item {
+    Announce(RunAnnouncement),
+    State(FiberGroupState),
+    Metrics(FiberGroupMetrics),
+    Slice(FlowSlice),
+}
+
+/// Calls `f` with every usable message of the recording at `mcap` (a file or run folder),
+/// in recording order.
+pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError> {
+    let read_err = |p: &Path, e: String| ViewerError::Read {
+        path: p.display().to_string(),
+        reason: e,
+    };
+    let segs = fiberflow_messages::segments::segment_paths(mcap)
+        .map_err(|e| read_err(mcap, e.to_string()))?;
+    let mut states = Tiles::default();
+    let mut metrics = Tiles::default();
+    for seg in &segs {
+        let bytes = std::fs::read(seg).map_err(|e| read_err(seg, e.to_string()))?;
+        let stream = mcap::MessageStream::new(&bytes).map_err(|e| read_err(seg, e.to_string()))?;
+        // a recording cut short by a killed recorder ends early; what came before is used
+        for m in stream.map_while(Result::ok) {
+            let topic = m.channel.topic.as_str();
+            match fiberflow_messages::topics::type_of(topic) {
+                Some("fiberflow_msgs/msg/FiberGroupState") => {
+                    if let Ok(s) = decode::<FiberGroupState>(&m.data) {
+                        if s.check().is_ok() {
+                            if let Some(whole) = states.add_slice(s) {
+                                f(Item::State(whole));
+                            }
+                        }
+                    }
+                }
+                Some("fiberflow_msgs/msg/FiberGroupMetrics") => {
+                    if let Ok(s) = decode::<FiberGroupMetrics>(&m.data) {
+                        if s.check().is_ok() {
+                            if let Some(whole) = metrics.add_slice(s) {
+                                f(Item::Metrics(whole));
+                            }
+                        }
+                    }
+                }
+                Some("fiberflow_msgs/msg/RunAnnouncement") => {
+                    if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
+                        if a.check().is_ok() {
+                            f(Item::Announce(a));
+                        }
+                    }
+                }
+                Some("fiberflow_msgs/msg/FlowSlice") => {
+                    if let Ok(s) = decode::<FlowSlice>(&m.data) {
+                        if s.check().is_ok() {
+                            f(Item::Slice(s));
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+    Ok(())
+}
+
+/// What the first pass learns about a group: enough to choose and lay out its fibres.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GroupInfo {
+    pub fibres: usize,
+    /// Initial layer per fibre (from the first state).
+    pub layer: Vec<u8>,
+    /// σ² per fibre at the last step with metrics (or a state).
+    pub final_sigma2: Vec<f64>,
+    final_step: Option<u64>,
+    /// Step of the group's last state.
+    pub last_state_step: u64,
+    /// Longest contour length N·l of the group's fibres, wall units.
+    pub contour_plus: f64,
+    /// Segment length, segments and density ratio of the first fibre, for the band label.
+    pub segment_length: f64,
+    pub segments: u32,
+    pub density_ratio: f64,
+}
+
+impl GroupInfo {
+    /// Takes in one whole message of this group.
+    pub fn add(&mut self, item: &Item) {
+        match item {
+            Item::State(s) => {
+                if self.layer.is_empty() {
+                    self.fibres = s.segments_per_fiber.len();
+                    self.layer = s.layer.clone();
+                    self.contour_plus = s
+                        .segments_per_fiber
+                        .iter()
+                        .zip(&s.segment_length)
+                        .map(|(&n, &l)| n as f64 * l)
+                        .fold(0.0, f64::max);
+                    self.segment_length = s.segment_length.first().copied().unwrap_or(0.0);
+                    self.segments = s.segments_per_fiber.first().copied().unwrap_or(0);
+                    self.density_ratio = s.density_ratio.first().copied().unwrap_or(0.0);
+                }
+                self.last_state_step = self.last_state_step.max(s.step);
+                // a state stands in for metrics only where no metrics came
+                if self.final_step.is_none_or(|k| s.step > k) {
+                    let firsts = crate::shape::first_segments(s);
+                    self.final_sigma2 = (0..s.segments_per_fiber.len())
+                        .map(|f| crate::shape::shape(s, f, firsts[f]).sigma2)
+                        .collect();
+                    self.final_step = Some(s.step);
+                }
+            }
+            Item::Metrics(m) if self.final_step.is_none_or(|k| m.step >= k) => {
+                self.final_sigma2 = m.sigma2.clone();
+                self.final_step = Some(m.step);
+            }
+            _ => {}
+        }
+    }
+}
