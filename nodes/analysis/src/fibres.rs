@@ -60,8 +60,31 @@ struct Row {
     sigma2: Vec<f64>,
 }
 
-/// Per-fibre metrics of a state (paper §4.3: ẑ = Σẑ_i/|Σẑ_i|, z1 = ẑ·ê1,
-/// σ² = Σ|ẑ_i − ẑ|²/(N−1)), from its segment centres and axes.
+/// Centre of mass, z1 and σ² of the fibre whose segments are `seg0 .. seg0 + n` in a state
+/// (paper §4.3: ẑ = Σẑ_i/|Σẑ_i|, z1 = ẑ·ê1, σ² = Σ|ẑ_i − ẑ|²/(N−1), 0 for N = 1).
+pub fn fibre_of_state(s: &FiberGroupState, seg0: usize, n: usize) -> ([f64; 3], f64, f64) {
+    let mut c = [0.0; 3];
+    let mut zs = [0.0; 3];
+    for i in seg0..seg0 + n {
+        for a in 0..3 {
+            c[a] += s.centre[3 * i + a] / n as f64;
+            zs[a] += s.axis[3 * i + a];
+        }
+    }
+    let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
+        .sqrt()
+        .max(1e-300);
+    let zh = [zs[0] / norm, zs[1] / norm, zs[2] / norm];
+    let mut var = 0.0;
+    for i in seg0..seg0 + n {
+        for a in 0..3 {
+            var += (s.axis[3 * i + a] - zh[a]).powi(2);
+        }
+    }
+    (c, zh[0], if n > 1 { var / (n - 1) as f64 } else { 0.0 })
+}
+
+/// Per-fibre metrics of a state ([`fibre_of_state`] for every fibre).
 fn row_of_state(s: &FiberGroupState) -> Row {
     let nf = s.segments_per_fiber.len();
     let mut row = Row {
@@ -72,30 +95,11 @@ fn row_of_state(s: &FiberGroupState) -> Row {
     };
     let mut seg = 0usize;
     for &n in &s.segments_per_fiber {
-        let n = n as usize;
-        let mut c = [0.0; 3];
-        let mut zs = [0.0; 3];
-        for i in seg..seg + n {
-            for a in 0..3 {
-                c[a] += s.centre[3 * i + a] / n as f64;
-                zs[a] += s.axis[3 * i + a];
-            }
-        }
-        let norm = (zs[0] * zs[0] + zs[1] * zs[1] + zs[2] * zs[2])
-            .sqrt()
-            .max(1e-300);
-        let zh = [zs[0] / norm, zs[1] / norm, zs[2] / norm];
-        let mut var = 0.0;
-        for i in seg..seg + n {
-            for a in 0..3 {
-                var += (s.axis[3 * i + a] - zh[a]).powi(2);
-            }
-        }
+        let (c, z1, s2) = fibre_of_state(s, seg, n as usize);
         row.com.push(c);
-        row.z1.push(zh[0]);
-        row.sigma2
-            .push(if n > 1 { var / (n - 1) as f64 } else { 0.0 });
-        seg += n;
+        row.z1.push(z1);
+        row.sigma2.push(s2);
+        seg += n as usize;
     }
     row
 }

@@ -425,7 +425,7 @@ fn log_events(
         }
     }
     events.sort_by(|a, b| (a.0, &a.3, a.4, a.5).cmp(&(b.0, &b.3, b.4, b.5)));
-    for (step, t_at, on, group, f, k, thr, sh) in &events {
+    for (step, t_at, on, group, _, k, thr, sh) in &events {
         set_time(rec, *step, *t_at, dt_plus);
         let text = format!("{} reached σ² = {thr} at t+ {on:.1}", sh.path);
         rec.log(
@@ -444,7 +444,6 @@ fn log_events(
                 .with_radii([rerun::Radius::new_scene_units(0.06 * cell_plus as f32)]),
         )
         .map_err(err)?;
-        let _ = f;
     }
     Ok(events.len())
 }

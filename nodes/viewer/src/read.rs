@@ -83,6 +83,8 @@ pub struct GroupInfo {
     /// σ² per fibre at the last step with metrics (or a state).
     pub final_sigma2: Vec<f64>,
     final_step: Option<u64>,
+    /// Whether the final σ² came from metrics (states then no longer stand in).
+    from_metrics: bool,
     /// Step of the group's last state.
     pub last_state_step: u64,
     /// Longest contour length N·l of the group's fibres, wall units.
@@ -112,8 +114,8 @@ impl GroupInfo {
                     self.density_ratio = s.density_ratio.first().copied().unwrap_or(0.0);
                 }
                 self.last_state_step = self.last_state_step.max(s.step);
-                // a state stands in for metrics only where no metrics came
-                if self.final_step.is_none_or(|k| s.step > k) {
+                // a state stands in for metrics only in a recording without metrics
+                if !self.from_metrics && self.final_step.is_none_or(|k| s.step > k) {
                     let firsts = crate::shape::first_segments(s);
                     self.final_sigma2 = (0..s.segments_per_fiber.len())
                         .map(|f| crate::shape::shape(s, f, firsts[f]).sigma2)
@@ -121,9 +123,12 @@ impl GroupInfo {
                     self.final_step = Some(s.step);
                 }
             }
-            Item::Metrics(m) if self.final_step.is_none_or(|k| m.step >= k) => {
+            Item::Metrics(m)
+                if !self.from_metrics || self.final_step.is_none_or(|k| m.step >= k) =>
+            {
                 self.final_sigma2 = m.sigma2.clone();
                 self.final_step = Some(m.step);
+                self.from_metrics = true;
             }
             _ => {}
         }

@@ -24,32 +24,21 @@ pub fn first_segments(s: &FiberGroupState) -> Vec<usize> {
     out
 }
 
-/// Fibre `f` of a state whose first segment is `seg0`.
+/// Fibre `f` of a state whose first segment is `seg0` (centre of mass and σ² as the
+/// analysis computes them, [`fiberflow_analysis::fibres::fibre_of_state`]).
 pub fn shape(s: &FiberGroupState, f: usize, seg0: usize) -> Shape {
     let n = s.segments_per_fiber.get(f).copied().unwrap_or(0) as usize;
     let l = s.segment_length.get(f).copied().unwrap_or(0.0);
     let at = |v: &[f64], i: usize| [v[3 * i], v[3 * i + 1], v[3 * i + 2]];
-    let mut com = [0.0; 3];
-    let mut zs = [0.0; 3];
     let mut joints = Vec::with_capacity(n + 1);
     for i in seg0..seg0 + n {
         let (c, z) = (at(&s.centre, i), at(&s.axis, i));
-        for a in 0..3 {
-            com[a] += c[a] / n as f64;
-            zs[a] += z[a];
-        }
         joints.push([0, 1, 2].map(|a| c[a] - 0.5 * l * z[a]));
         if i + 1 == seg0 + n {
             joints.push([0, 1, 2].map(|a| c[a] + 0.5 * l * z[a]));
         }
     }
-    let norm = zs.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-300);
-    let mut s2 = 0.0;
-    for i in seg0..seg0 + n {
-        let z = at(&s.axis, i);
-        s2 += (0..3).map(|a| (z[a] - zs[a] / norm).powi(2)).sum::<f64>();
-    }
-    let sigma2 = if n > 1 { s2 / (n - 1) as f64 } else { 0.0 };
+    let (com, _, sigma2) = fiberflow_analysis::fibres::fibre_of_state(s, seg0, n);
     Shape {
         joints,
         com,
@@ -181,9 +170,25 @@ mod tests {
             assert!((p[0] - q[0]).abs() < 1e-4);
             assert!((p[1] - 20.0 + (q[1] + 20.0)).abs() < 1e-4);
         }
-        let com_w: f64 = w.iter().map(|p| p[0] as f64).sum::<f64>();
-        assert!(w.iter().all(|p| (p[1] as f64 - (p[1] as f64)).abs() < 1e-9));
-        assert!(com_w > 0.0);
+        // wrapping shifts x1 by whole box lengths only, and leaves x2 alone
+        let shift = w[0][0] as f64 - sh.joints[0][0];
+        assert!(
+            ((shift / b[0]).round() * b[0] - shift).abs() < 1e-3,
+            "{shift}"
+        );
+        assert!(shift != 0.0);
+        for (p, q) in w.iter().zip(&sh.joints) {
+            assert!((p[1] as f64 - q[1]).abs() < 1e-4);
+        }
+        // the gallery copy has its centre of mass on the cell
+        let seg_centre_mean = |j: &[[f32; 3]], a: usize| {
+            (0..j.len() - 1)
+                .map(|k| 0.5 * (j[k][a] + j[k + 1][a]) as f64)
+                .sum::<f64>()
+                / (j.len() - 1) as f64
+        };
+        assert!((seg_centre_mean(&g, 0) - 10.0).abs() < 1e-3);
+        assert!((seg_centre_mean(&g, 1) + 20.0).abs() < 1e-3);
         for k in 1..w.len() {
             for a in 0..3 {
                 let dw = w[k][a] - w[k - 1][a];
