@@ -21,5 +21,10 @@ with open(path, "rb") as f:
             last_step[decoded.group] = decoded.step
         if schema.name == "sensor_msgs/msg/PointCloud2":
             assert decoded.point_step == 16 and len(decoded.data) == 16 * decoded.width
+        if schema.name == "sensor_msgs/msg/Image":
+            assert decoded.encoding == "rgb8" and decoded.step == 3 * decoded.width
+            assert len(decoded.data) == decoded.step * decoded.height > 0
+        if schema.name == "fiberflow_msgs/msg/FlowSlice":
+            assert len(decoded.values) == len(decoded.u_plus) * len(decoded.v_plus)
     summary = reader.get_summary()
 print(json.dumps({"counts": counts, "last_step": last_step, "channels": len(summary.channels)}))

@@ -309,6 +309,30 @@ fn shortened_quick_run_produces_sane_analysis() {
     ] {
         assert!(a.join(f).exists(), "missing {f}");
     }
+    // the flow slices (streaks and cross-section, every 4 steps of 0..=24) are in the
+    // scene, and in the raw MCAP both as themselves and as sensor_msgs/Image, which an
+    // independent ROS 2 decoder reads
+    assert!(
+        stdout.contains("300 of 300 fibres shown") && stdout.contains("14 flow slices"),
+        "scene summary:\n{stdout}"
+    );
+    let o = Command::new("python3")
+        .arg(root().join("tests/decode_all.py"))
+        .arg(out.join("run.mcap"))
+        .output()
+        .expect("python3");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "decode failed: {text}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    for t in [
+        "\"fiberflow_msgs/msg/FlowSlice\": 14",
+        "\"sensor_msgs/msg/Image\": 14",
+    ] {
+        assert!(text.contains(t), "expected {t}: {text}");
+    }
     let summary = std::fs::read_to_string(a.join("summary.md")).unwrap();
     assert!(
         summary.contains("## Coiling onsets") && summary.contains("| case4 | 0.1 | middle |"),

@@ -215,6 +215,15 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
         "fiberflow_msgs/msg/FlowSlice" => {
             let (nu, nv) = (r.below(8) as usize, r.below(8) as usize);
             let m = r.len_near(nu * nv);
+            // half the time increasing coordinates, so slices also pass the checks
+            let mut coords = |n: usize| {
+                let mut c = r.floats(n);
+                if r.below(2) == 0 {
+                    c.sort_by(f64::total_cmp);
+                }
+                c
+            };
+            let (u_plus, v_plus) = (coords(nu), coords(nv));
             encode(&FlowSlice {
                 schema_version: SCHEMA_VERSION,
                 step: r.step(),
@@ -224,8 +233,8 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 origin: r.floats(3),
                 axis_u: vec![1.0, 0.0, 0.0],
                 axis_v: vec![0.0, 0.0, 1.0],
-                u_plus: r.floats(nu),
-                v_plus: r.floats(nv),
+                u_plus,
+                v_plus,
                 values: r.floats(m).into_iter().map(|x| x as f32).collect(),
             })
         }

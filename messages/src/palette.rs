@@ -1,5 +1,10 @@
 //! Colour maps shared by the recorder's image channels and the viewer.
 
+/// Colour range of the streamwise velocity fluctuation u' in flow slices, wall units
+/// (±4 u_tau; white = 0, blue slow, red fast), shared by the recorder's images and the
+/// viewer.
+pub const U_FLUCT_RANGE_PLUS: f64 = 4.0;
+
 /// Diverging blue–white–red for a signed value in [−range, range] (clamped outside):
 /// blue slow, red fast.
 pub fn diverging(x: f64, range: f64) -> [u8; 3] {

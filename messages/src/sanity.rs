@@ -121,6 +121,11 @@ impl Sane for FlowSlice {
         }
         finite("u_plus", &self.u_plus)?;
         finite("v_plus", &self.v_plus)?;
+        for (name, c) in [("u_plus", &self.u_plus), ("v_plus", &self.v_plus)] {
+            if c.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(format!("{name} must increase strictly"));
+            }
+        }
         let n = self.u_plus.len().checked_mul(self.v_plus.len());
         len("values", self.values.len(), n.unwrap_or(usize::MAX))?;
         match self.values.iter().position(|x| !x.is_finite()) {

@@ -11,6 +11,9 @@ pub const HEARTBEAT: &str = include_str!("../msg/Heartbeat.msg");
 /// `sensor_msgs/msg/PointCloud2` with its dependencies, in MCAP ros2msg form.
 pub const POINT_CLOUD2: &str = include_str!("../msg/PointCloud2.msg");
 pub const POINT_CLOUD2_NAME: &str = "sensor_msgs/msg/PointCloud2";
+/// `sensor_msgs/msg/Image` with its dependencies, in MCAP ros2msg form.
+pub const IMAGE: &str = include_str!("../msg/Image.msg");
+pub const IMAGE_NAME: &str = "sensor_msgs/msg/Image";
 
 /// Schema text by ROS 2 type name ("" if unknown).
 pub fn text(type_name: &str) -> &'static str {
@@ -24,6 +27,7 @@ pub fn text(type_name: &str) -> &'static str {
         "fiberflow_msgs/msg/FiberGroupMetrics" => FIBER_GROUP_METRICS,
         "fiberflow_msgs/msg/Heartbeat" => HEARTBEAT,
         POINT_CLOUD2_NAME => POINT_CLOUD2,
+        IMAGE_NAME => IMAGE,
         _ => "",
     }
 }

@@ -1,6 +1,10 @@
 //! Topic names: slash paths under `fiberflow/<run>/`, identical to Rerun entity paths and
 //! (with `/` kept) to iceoryx2 service names.
 
+/// The flow slices the flow node publishes: the wall-parallel plane of u' near the lower
+/// wall and the y–z cross-section at x = 0.
+pub const FLOW_SLICE_NAMES: [&str; 2] = ["streaks", "cross_section"];
+
 /// Topic builder for one run.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Topics {
@@ -28,7 +32,7 @@ impl Topics {
     pub fn flow_profiles(&self) -> String {
         format!("fiberflow/{}/flow/profiles", self.run)
     }
-    /// A flow slice for viewers (`name` as in [`crate::FlowSlice::name`]).
+    /// A flow slice for viewers (`name` one of [`FLOW_SLICE_NAMES`]).
     pub fn flow_slice(&self, name: &str) -> String {
         format!("fiberflow/{}/flow/slices/{name}", self.run)
     }

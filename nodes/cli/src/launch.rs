@@ -199,13 +199,21 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             )?;
             println!("{table}");
             let rrd = out_dir.join("run.rrd");
-            fiberflow_viewer::view(
+            let s = fiberflow_viewer::view(
                 m,
                 &fiberflow_viewer::Sink::Save(rrd.clone()),
                 &fiberflow_viewer::ViewOptions::default(),
             )
             .with_context(|| format!("writing {}", rrd.display()))?;
-            println!("Rerun scene: {} (rerun {})", rrd.display(), rrd.display());
+            println!(
+                "Rerun scene: {} ({} of {} fibres shown, {} coiling events, {} flow slices; rerun {})",
+                rrd.display(),
+                s.shown,
+                s.fibres,
+                s.events,
+                s.slices,
+                rrd.display()
+            );
         }
     }
     Ok(LaunchOutcome {

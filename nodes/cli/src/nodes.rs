@@ -54,6 +54,9 @@ impl NodeSpec {
 pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     let t = fiberflow_messages::topics::Topics::new(&lf.run.id);
     let mut v = vec![t.announce(), t.flow_status(), t.flow_profiles()];
+    for name in fiberflow_messages::topics::FLOW_SLICE_NAMES {
+        v.push(t.flow_slice(name));
+    }
     for n in ["flow", "recorder", "launcher"] {
         v.push(t.heartbeat(n));
     }

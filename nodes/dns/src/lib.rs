@@ -16,6 +16,7 @@ pub mod poisson;
 pub mod regrid;
 pub mod rhs;
 pub mod sample;
+pub mod slice;
 pub mod solver;
 pub mod stats;
 pub mod timestep;

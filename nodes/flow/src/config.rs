@@ -54,6 +54,14 @@ pub struct FlowNodeConfig {
     /// `"trilinear"` (default) or `"tricubic"`.
     #[serde(default)]
     pub interpolation: Interpolation,
+    /// Publish the flow slices for viewers (u' at `streaks_y_plus` and a cross-section)
+    /// every this many coupling steps, 0 = never (DNS only).
+    #[serde(default = "default_slices_every")]
+    pub slices_every: u64,
+    /// Height of the wall-parallel slice above the lower wall, wall units (the nearest
+    /// row of cell centres is taken).
+    #[serde(default = "default_streaks_y_plus")]
+    pub streaks_y_plus: f64,
 }
 
 fn default_dt() -> f64 {
@@ -68,6 +76,12 @@ fn default_profiles_every() -> u64 {
 fn default_status_every() -> u64 {
     10
 }
+fn default_slices_every() -> u64 {
+    10
+}
+fn default_streaks_y_plus() -> f64 {
+    15.0
+}
 
 impl FlowNodeConfig {
     pub fn validate(&self) -> Result<(), FlowError> {
@@ -78,6 +92,12 @@ impl FlowNodeConfig {
         } = &self.source
         {
             dns.validate()?;
+            if !(self.streaks_y_plus > 0.0 && self.streaks_y_plus <= dns.re_tau) {
+                return Err(FlowError::Config(format!(
+                    "flow.streaks_y_plus must be in (0, {}] (wall units above the lower wall, up to the centreline; got {})",
+                    dns.re_tau, self.streaks_y_plus
+                )));
+            }
             if *regrid && restart.is_none() {
                 return Err(FlowError::Config(
                     "flow.source.regrid = true needs flow.source.restart (the field to move onto this grid)".into(),
@@ -132,6 +152,8 @@ mod tests {
             status_every: 10,
             profiles_every: 100,
             interpolation: Interpolation::Trilinear,
+            slices_every: 10,
+            streaks_y_plus: 15.0,
         };
         assert!(src(true, Some("a.ckpt")).validate().is_ok());
         assert!(src(false, None).validate().is_ok());
@@ -140,5 +162,33 @@ mod tests {
             e.contains("flow.source.regrid") && e.contains("flow.source.restart"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn streaks_height_must_lie_in_the_lower_half() {
+        let cfg = |y: f64| FlowNodeConfig {
+            source: FlowSource::Dns {
+                dns: DnsConfig::with_cells(16, 16, 16),
+                restart: None,
+                regrid: false,
+            },
+            spinup: None,
+            steps: 10,
+            dt_plus: 0.2,
+            join_timeout_s: 30.0,
+            status_every: 10,
+            profiles_every: 100,
+            interpolation: Interpolation::Trilinear,
+            slices_every: 10,
+            streaks_y_plus: y,
+        };
+        assert!(cfg(15.0).validate().is_ok());
+        for bad in [0.0, -3.0, 1e4, f64::NAN] {
+            let e = cfg(bad).validate().unwrap_err().to_string();
+            assert!(
+                e.contains("flow.streaks_y_plus") && e.contains("(0, "),
+                "{e}"
+            );
+        }
     }
 }

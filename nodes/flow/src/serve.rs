@@ -11,8 +11,8 @@ use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
-    encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowStatus, Heartbeat,
-    RunAnnouncement, SCHEMA_VERSION,
+    encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowSlice, FlowStatus,
+    Heartbeat, RunAnnouncement, SCHEMA_VERSION,
 };
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -141,6 +141,43 @@ enum Field {
 pub struct ServeSummary {
     pub steps: u64,
     pub drops: DropCounter,
+}
+
+/// Publishes the viewers' flow slices of the field at step `k` (DESIGN §3: u' at
+/// `streaks_y_plus` and the x = 0 cross-section).
+fn publish_slices(
+    bus: &BusHandle,
+    t: &Topics,
+    solver: &Solver,
+    cfg: &FlowNodeConfig,
+    k: u64,
+) -> Result<(), FlowError> {
+    use fiberflow_dns::slice;
+    let (g, re) = (&solver.grid, solver.cfg.re_tau);
+    let [streaks, cross] = fiberflow_messages::topics::FLOW_SLICE_NAMES;
+    for (name, p) in [
+        (
+            streaks,
+            slice::streaks(g, &solver.vel, re, cfg.streaks_y_plus),
+        ),
+        (cross, slice::cross_section(g, &solver.vel, re)),
+    ] {
+        let msg = FlowSlice {
+            schema_version: SCHEMA_VERSION,
+            step: k,
+            t_plus: k as f64 * cfg.dt_plus,
+            name: name.into(),
+            quantity: "u_fluct_plus".into(),
+            origin: p.origin_plus.to_vec(),
+            axis_u: p.axis_u.to_vec(),
+            axis_v: p.axis_v.to_vec(),
+            u_plus: p.u_plus,
+            v_plus: p.v_plus,
+            values: p.values,
+        };
+        bus.publish(&t.flow_slice(name), &encode(&msg))?;
+    }
+    Ok(())
 }
 
 fn heartbeat(
@@ -346,6 +383,13 @@ pub fn serve(
                 .unwrap_or_else(|| t.flow_samples(&group));
             bus.publish(&topic, &encode(&msg))?;
             timing.publishing_s += t0.elapsed().as_secs_f64();
+        }
+        if let Field::Dns(solver, _) = &field {
+            if cfg.slices_every > 0 && (k.is_multiple_of(cfg.slices_every) || k == run.steps) {
+                let t0 = Instant::now();
+                publish_slices(&bus, &t, solver, cfg, k)?;
+                timing.publishing_s += t0.elapsed().as_secs_f64();
+            }
         }
         if k == run.steps {
             break;

@@ -1,10 +1,13 @@
 //! The recorder: subscribes to everything under a run's prefix and writes a chunked,
 //! zstd-compressed, indexed MCAP with ros2msg schemas, storing payloads as received;
-//! derives a `sensor_msgs/PointCloud2` channel per fibre group for generic viewers;
+//! derives a `sensor_msgs/PointCloud2` channel per fibre group and a `sensor_msgs/Image`
+//! channel per flow slice for generic viewers;
 //! flushes a chunk at least every second so a killed recorder loses at most that much.
 
+pub mod image;
 pub mod pointcloud;
 pub mod recover;
+pub mod ros;
 
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::pieces::Tiles;
@@ -392,6 +395,16 @@ impl Session<'_> {
         self.out.write(c, self.sim_nanos, bytes)?;
         self.summary.messages += 1;
         *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
+        if type_name == "fiberflow_msgs/msg/FlowSlice" {
+            // checked before it got here
+            if let Ok(sl) = decode::<fiberflow_messages::FlowSlice>(bytes) {
+                let img = image::encode(&image::from_slice(&sl));
+                let c = self
+                    .out
+                    .channel(&self.topics.flow_slice_image(&sl.name), schema::IMAGE_NAME)?;
+                self.out.write(c, self.sim_nanos, &img)?;
+            }
+        }
         if let Some(s) = st {
             if let Some(whole) = self.tiles.add_slice(s) {
                 let pc = pointcloud::from_state(&whole);
@@ -540,6 +553,7 @@ pub fn record(
             format!("{}/control/**", t.prefix()),
             t.flow_status(),
             t.flow_profiles(),
+            format!("{}/flow/slices/**", t.prefix()),
             format!("{}/fibers/**", t.prefix()),
         ]
     };
@@ -749,6 +763,7 @@ mod tests {
             "fiberflow_msgs/msg/FlowStatus" => t.flow_status(),
             "fiberflow_msgs/msg/FlowProfiles" => t.flow_profiles(),
             "fiberflow_msgs/msg/FlowSamples" => t.flow_samples(group),
+            "fiberflow_msgs/msg/FlowSlice" => t.flow_slice("streaks"),
             "fiberflow_msgs/msg/FiberGroupState" => t.fiber_state(group),
             "fiberflow_msgs/msg/FiberGroupMetrics" => t.fiber_metrics(group),
             _ => t.heartbeat(group),
@@ -811,6 +826,7 @@ mod tests {
         );
         let bytes = std::fs::read(&path).unwrap();
         let mut written = 0;
+        let (mut slices, mut images) = (0, 0);
         for m in mcap::MessageStream::new(&bytes).unwrap() {
             let m = m.unwrap();
             if let Some(ty) = type_of(&m.channel.topic) {
@@ -820,9 +836,21 @@ mod tests {
                     m.channel.topic
                 );
                 written += 1;
+                slices += usize::from(ty == "fiberflow_msgs/msg/FlowSlice");
+            }
+            if m.channel.topic == t.flow_slice_image("streaks") {
+                let img: image::Image = cdr::deserialize(&m.data).unwrap();
+                assert_eq!(img.data.len(), (img.step * img.height) as usize);
+                assert!(img.width >= 1 && img.height >= 1);
+                images += 1;
             }
         }
         assert!(written > 1000, "only {written} sensible messages recorded");
+        // every slice recorded got its image, and only those
+        assert!(
+            slices > 0 && images == slices,
+            "{slices} slices, {images} images"
+        );
         std::fs::remove_file(&path).ok();
     }
 

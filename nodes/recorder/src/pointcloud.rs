@@ -1,19 +1,10 @@
 //! `sensor_msgs/PointCloud2` of a fibre group's joints (x, y, z as float32, fibre id as
 //! uint32), so generic MCAP viewers draw fibres as points with no converter.
 
+use crate::ros::Header;
 use fiberflow_messages::FiberGroupState;
 use serde::Serialize;
 
-#[derive(Serialize)]
-struct Time {
-    sec: i32,
-    nanosec: u32,
-}
-#[derive(Serialize)]
-struct Header {
-    stamp: Time,
-    frame_id: String,
-}
 #[derive(Serialize)]
 struct PointField {
     name: String,
@@ -69,15 +60,8 @@ pub fn from_state(s: &FiberGroupState) -> Vec<u8> {
         }
         seg += n;
     }
-    let secs = s.t_plus.max(0.0);
     let pc = PointCloud2 {
-        header: Header {
-            stamp: Time {
-                sec: secs.floor() as i32,
-                nanosec: ((secs - secs.floor()) * 1e9) as u32,
-            },
-            frame_id: "channel".into(),
-        },
+        header: Header::at_t_plus(s.t_plus, "channel"),
         height: 1,
         width: count,
         fields: ["x", "y", "z"]

@@ -25,7 +25,7 @@ pub fn layout(counts: &[usize], longest_plus: f64) -> Gallery {
     let mut labels = Vec::with_capacity(counts.len());
     for &n in counts {
         let width = n.clamp(1, columns) as f64;
-        labels.push([0.5 * (width - 1.0) * cell, (row - 0.6) * cell, 0.0]);
+        labels.push([0.5 * (width - 1.0) * cell, (row - 0.55) * cell, 0.0]);
         centres.push(
             (0..n)
                 .map(|i| {
@@ -34,8 +34,8 @@ pub fn layout(counts: &[usize], longest_plus: f64) -> Gallery {
                 })
                 .collect(),
         );
-        // a half-row gap between case bands
-        row += n.div_ceil(columns).max(1) as f64 + 0.5;
+        // a one-row gap between case bands, for the next band's label
+        row += n.div_ceil(columns).max(1) as f64 + 1.0;
     }
     Gallery {
         cell_plus: cell,
@@ -68,16 +68,18 @@ mod tests {
         assert_eq!(c[1][0] - c[0][0], g.cell_plus);
         assert_eq!(c[15][1], c[0][1] + g.cell_plus);
         assert_eq!(c[15][0], c[0][0]);
-        // case 0 takes 4 rows (50 / 15), then half a row of gap: case 1 starts 4.5 rows down
+        // case 0 takes 4 rows (50 / 15), then a row of gap: case 1 starts 5 rows down
         let top = |k: usize| g.centres[k][0][1];
-        assert!((top(1) - top(0) - 4.5 * g.cell_plus).abs() < 1e-9);
-        assert!((top(2) - top(1) - 4.5 * g.cell_plus).abs() < 1e-9);
-        // every band's label sits above its first row, below the band before it
+        assert!((top(1) - top(0) - 5.0 * g.cell_plus).abs() < 1e-9);
+        assert!((top(2) - top(1) - 5.0 * g.cell_plus).abs() < 1e-9);
+        // every band's label sits in the gap above its first row: at least half a cell
+        // clear of the fibres' cells (which reach half a cell from their centres) on
+        // both sides
         for k in 0..3 {
-            assert!(g.labels[k][1] < top(k) - 0.5 * g.cell_plus);
+            assert!(g.labels[k][1] <= top(k) - 0.5 * g.cell_plus);
             if k > 0 {
                 let last_row_before = g.centres[k - 1].last().unwrap()[1];
-                assert!(g.labels[k][1] > last_row_before + 0.5 * g.cell_plus);
+                assert!(g.labels[k][1] >= last_row_before + 1.4 * g.cell_plus);
             }
         }
     }

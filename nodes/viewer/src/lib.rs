@@ -239,7 +239,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
             Item::Slice(sl) => {
                 slices += 1;
                 set_time(&rec, sl.step, sl.t_plus, dt_plus);
-                slices::log(&rec, sl)
+                slices::log(&rec, sl, h_plus)
             }
             Item::Announce(_) => Ok(()),
         };
@@ -316,8 +316,9 @@ fn log_static(
          left to right and top to bottom: the most coiled of each layer come last.\n\n\
          **Channel** (bottom left): the same fibres in the periodic box (x1 wrapped); the grey \
          box is the channel, 2h = {:.0} wall units high. Where the recording has flow slices: \
-         the streaks, u' at y+ ≈ 15 above the lower wall, and a cross-section at x1 = 0, blue \
-         slow / red fast, ±4 u_tau.\n\n\
+         the streaks, u' at y+ ≈ 15 above the lower wall (drawn on the wall, under the fibres), \
+         and a cross-section at x1 = 0; blue slow, red fast, white = the plane's mean, \
+         ±4 u_tau.\n\n\
          **Plots** (right): σ², |z1|, end-to-end distance and wall distance x2+ of every shown \
          fibre, one colour per case. **Click a fibre** in either 3-D view (or a line in a \
          plot): it is one entity `fibres/<case>/<layer>/f<i>` and lights up in all four plots.\n\n\

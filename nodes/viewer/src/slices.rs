@@ -1,19 +1,34 @@
 //! Flow slices in the channel view: each plane as a mesh with one vertex per sample,
-//! coloured by u' (diverging map, ±4 u_tau).
+//! coloured by u' (diverging map, ±4 u_tau). A wall-parallel plane (the streaks) is drawn
+//! on the nearer wall, under every fibre, so it hides none of them.
 
 use crate::{err, ViewerError};
+use fiberflow_messages::palette::U_FLUCT_RANGE_PLUS;
 use fiberflow_messages::FlowSlice;
 
-/// Logs one slice at `world/slices/<name>` (the time must be set).
-pub fn log(rec: &rerun::RecordingStream, s: &FlowSlice) -> Result<(), ViewerError> {
-    let (nu, nv) = (s.u_plus.len(), s.v_plus.len());
-    let mut positions = Vec::with_capacity(nu * nv);
+/// Where each sample of a slice is drawn (row by row, `u` fastest): at its own position,
+/// except that a wall-parallel plane is moved onto the nearer wall (y = ±`h_plus`).
+pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
+    let (a, b) = (&s.axis_u, &s.axis_v);
+    let normal_y = a[2] * b[0] - a[0] * b[2];
+    let wall_y = (normal_y.abs() > 0.99).then(|| h_plus.copysign(s.origin[1]));
+    let mut out = Vec::with_capacity(s.u_plus.len() * s.v_plus.len());
     for &v in &s.v_plus {
         for &u in &s.u_plus {
-            positions
-                .push([0, 1, 2].map(|a| (s.origin[a] + u * s.axis_u[a] + v * s.axis_v[a]) as f32));
+            let mut p = [0, 1, 2].map(|i| s.origin[i] + u * a[i] + v * b[i]);
+            if let Some(y) = wall_y {
+                p[1] = y;
+            }
+            out.push(p.map(|x| x as f32));
         }
     }
+    out
+}
+
+/// Logs one slice at `world/slices/<name>` (the time must be set).
+pub fn log(rec: &rerun::RecordingStream, s: &FlowSlice, h_plus: f64) -> Result<(), ViewerError> {
+    let (nu, nv) = (s.u_plus.len(), s.v_plus.len());
+    let positions = positions(s, h_plus);
     let mut triangles = Vec::with_capacity(2 * nu.saturating_sub(1) * nv.saturating_sub(1));
     for j in 0..nv.saturating_sub(1) {
         for i in 0..nu.saturating_sub(1) {
@@ -26,7 +41,7 @@ pub fn log(rec: &rerun::RecordingStream, s: &FlowSlice) -> Result<(), ViewerErro
         }
     }
     let colours = s.values.iter().map(|&x| {
-        let c = fiberflow_messages::palette::diverging(x as f64, 4.0);
+        let c = fiberflow_messages::palette::diverging(x as f64, U_FLUCT_RANGE_PLUS);
         rerun::Color::from_rgb(c[0], c[1], c[2])
     });
     rec.log(
@@ -36,4 +51,42 @@ pub fn log(rec: &rerun::RecordingStream, s: &FlowSlice) -> Result<(), ViewerErro
             .with_vertex_colors(colours),
     )
     .map_err(err)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn slice(name: &str, origin_y: f64, axis_u: [f64; 3], axis_v: [f64; 3]) -> FlowSlice {
+        FlowSlice {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            step: 0,
+            t_plus: 0.0,
+            name: name.into(),
+            quantity: "u_fluct_plus".into(),
+            origin: vec![0.0, origin_y, 0.0],
+            axis_u: axis_u.to_vec(),
+            axis_v: axis_v.to_vec(),
+            u_plus: vec![0.0, 10.0, 20.0],
+            v_plus: vec![-100.0, 5.0],
+            values: vec![0.0; 6],
+        }
+    }
+
+    #[test]
+    fn streaks_lie_on_the_nearer_wall_and_a_cross_section_where_it_is() {
+        let s = slice("streaks", -135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+        let p = positions(&s, 150.0);
+        assert_eq!(p.len(), 6);
+        assert!(p.iter().all(|q| q[1] == -150.0));
+        // x from u, z from v, row by row
+        assert_eq!(p[1], [10.0, -150.0, -100.0]);
+        assert_eq!(p[5], [20.0, -150.0, 5.0]);
+        let upper = slice("streaks", 135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+        assert!(positions(&upper, 150.0).iter().all(|q| q[1] == 150.0));
+        let c = slice("cross_section", 0.0, [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]);
+        let p = positions(&c, 150.0);
+        assert_eq!(p[0], [0.0, -100.0, 0.0]);
+        assert_eq!(p[5], [0.0, 5.0, 20.0]);
+    }
 }
