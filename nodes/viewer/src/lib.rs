@@ -214,6 +214,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     // pass 2: shapes, series, slices
     let mut log_err: Option<ViewerError> = None;
     let mut slices = 0usize;
+    let mut slice_meshes = slices::Logged::default();
     read::for_each(mcap, |it| {
         if log_err.is_some() {
             return;
@@ -239,7 +240,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
             Item::Slice(sl) => {
                 slices += 1;
                 set_time(&rec, sl.step, sl.t_plus, dt_plus);
-                slices::log(&rec, sl, h_plus)
+                slices::log(&rec, &mut slice_meshes, sl, h_plus)
             }
             Item::Announce(_) => Ok(()),
         };

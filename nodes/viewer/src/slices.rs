@@ -25,32 +25,61 @@ pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
     out
 }
 
-/// Logs one slice at `world/slices/<name>` (the time must be set).
-pub fn log(rec: &rerun::RecordingStream, s: &FlowSlice, h_plus: f64) -> Result<(), ViewerError> {
-    let (nu, nv) = (s.u_plus.len(), s.v_plus.len());
-    let positions = positions(s, h_plus);
-    let mut triangles = Vec::with_capacity(2 * nu.saturating_sub(1) * nv.saturating_sub(1));
+/// Two triangles per quad of neighbouring samples (row by row, `nu` per row).
+fn triangles(nu: usize, nv: usize) -> Vec<[u32; 3]> {
+    let mut t = Vec::with_capacity(2 * nu.saturating_sub(1) * nv.saturating_sub(1));
     for j in 0..nv.saturating_sub(1) {
         for i in 0..nu.saturating_sub(1) {
             let a = (j * nu + i) as u32;
             let b = a + 1;
             let c = a + nu as u32;
             let d = c + 1;
-            triangles.push([a, b, d]);
-            triangles.push([a, d, c]);
+            t.push([a, b, d]);
+            t.push([a, d, c]);
         }
     }
+    t
+}
+
+/// The slices' geometry already in the scene, by name: a plane keeps its samples for a
+/// whole run, so after the first time only its colours are logged (they are what changes).
+#[derive(Default)]
+pub struct Logged {
+    geometry: std::collections::HashMap<String, Vec<[f32; 3]>>,
+}
+
+/// Logs one slice at `world/slices/<name>` (the time must be set): the mesh the first time
+/// (or when its samples moved), the vertex colours alone afterwards.
+pub fn log(
+    rec: &rerun::RecordingStream,
+    logged: &mut Logged,
+    s: &FlowSlice,
+    h_plus: f64,
+) -> Result<(), ViewerError> {
+    let path = format!("world/slices/{}", s.name);
     let colours = s.values.iter().map(|&x| {
         let c = fiberflow_messages::palette::diverging(x as f64, U_FLUCT_RANGE_PLUS);
         rerun::Color::from_rgb(c[0], c[1], c[2])
     });
+    let positions = positions(s, h_plus);
+    if logged.geometry.get(&s.name) == Some(&positions) {
+        return rec
+            .log(
+                path.as_str(),
+                &rerun::Mesh3D::update_fields().with_vertex_colors(colours),
+            )
+            .map_err(err);
+    }
+    let tris = triangles(s.u_plus.len(), s.v_plus.len());
     rec.log(
-        format!("world/slices/{}", s.name),
-        &rerun::Mesh3D::new(positions)
-            .with_triangle_indices(triangles)
+        path,
+        &rerun::Mesh3D::new(positions.clone())
+            .with_triangle_indices(tris)
             .with_vertex_colors(colours),
     )
-    .map_err(err)
+    .map_err(err)?;
+    logged.geometry.insert(s.name.clone(), positions);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -88,5 +117,13 @@ mod tests {
         let p = positions(&c, 150.0);
         assert_eq!(p[0], [0.0, -100.0, 0.0]);
         assert_eq!(p[5], [0.0, 5.0, 20.0]);
+    }
+
+    #[test]
+    fn triangles_cover_each_quad_once_and_index_inside() {
+        let t = triangles(3, 2);
+        assert_eq!(t, vec![[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]]);
+        assert!(triangles(5, 7).iter().flatten().all(|&i| i < 35));
+        assert!(triangles(1, 4).is_empty());
     }
 }
