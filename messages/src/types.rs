@@ -158,4 +158,8 @@ pub mod lifecycle {
     pub const RUNNING: u8 = 2;
     pub const DONE: u8 = 3;
     pub const FAILED: u8 = 4;
+    /// A fibre node has waited long for the samples of `step` (and has sent its state of
+    /// `step` again): the flow node sends those samples again if it already served them.
+    /// Lockstep survives a message the transport lost.
+    pub const WAITING: u8 = 5;
 }

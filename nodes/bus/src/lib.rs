@@ -5,6 +5,7 @@
 pub mod iceoryx2_bus;
 pub mod inbox;
 pub mod inproc;
+pub mod lossy;
 pub mod zenoh_bus;
 
 pub use inbox::{DropCounter, Inbox};

@@ -120,9 +120,10 @@ impl ZenohBus {
         .map_err(terr)?;
         if s.mode == ZenohMode::Peer && !s.connect.is_empty() {
             // a peer's open waits for its connections (and the peers they tell it of) at
-            // most this long; on a busy machine the default 500 ms ran out before a healthy
+            // most this long (15 s); on a busy machine the default 500 ms, and once 5 s while
+            // tests compiled beside the run, ran out before a healthy
             // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
-            c.insert_json5("scouting/delay", "5000").map_err(terr)?;
+            c.insert_json5("scouting/delay", "15000").map_err(terr)?;
         }
         // lockstep messages are sent with CongestionControl::Block: a link whose queue stays
         // full for this long is closed and its message lost. zenoh's 5 s is too short for

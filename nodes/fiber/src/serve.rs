@@ -16,6 +16,10 @@ use nalgebra::{Matrix3, Vector3};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+/// The shortest wait for samples after which the node sends its state again (a message
+/// lost in transit would otherwise stall the lockstep until the step timeout).
+const RESEND_AFTER_MIN: Duration = Duration::from_secs(5);
+
 #[derive(Debug, thiserror::Error)]
 pub enum FiberNodeError {
     #[error(transparent)]
@@ -197,8 +201,13 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(timeout_s);
     // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
     let mut timing = (0.0, 0.0, 0.0);
+    // the longest wait for samples so far: a wait three times as long (at least
+    // RESEND_AFTER_MIN) means a message was probably lost
+    let mut longest_wait = Duration::ZERO;
     for k in start..ann.steps {
         let wait_from = Instant::now();
+        let mut resend_after = (3 * longest_wait).max(RESEND_AFTER_MIN);
+        let mut resend_at = wait_from + resend_after;
         let samples = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
@@ -207,7 +216,22 @@ pub fn serve(
                     "node {node}: no flow samples for step {k} within {timeout_s:.0} s"
                 )));
             }
-            if let Some((topic, s)) = samples_in.recv::<FlowSamples>(left) {
+            let now = Instant::now();
+            if now >= resend_at {
+                // our state or the samples were lost in transit: send the state again and
+                // say we wait (the flow node resends samples it already served)
+                tracing::info!(
+                    step = k,
+                    waited_s = format!("{:.1}", wait_from.elapsed().as_secs_f64()),
+                    "no samples yet: sending the state again"
+                );
+                publish_state(&group, k)?;
+                hb(lifecycle::WAITING, k, samples_in.drops.total())?;
+                resend_after *= 2;
+                resend_at = now + resend_after;
+            }
+            let wait = left.min(resend_at.saturating_duration_since(now));
+            if let Some((topic, s)) = samples_in.recv::<FlowSamples>(wait) {
                 let n = group.segment_count();
                 if s.group != name || s.first_fiber != piece.first_fiber {
                     samples_in
@@ -225,6 +249,7 @@ pub fn serve(
             }
         };
         let (mut waited_s, mut stepped_s, mut published_s) = timing;
+        longest_wait = longest_wait.max(wait_from.elapsed());
         waited_s += wait_from.elapsed().as_secs_f64();
         let t0 = Instant::now();
         let fluid: Vec<FluidSample> = samples

@@ -143,6 +143,38 @@ pub struct ServeSummary {
     pub drops: DropCounter,
 }
 
+/// How often the flow node looks at heartbeats while it waits for states.
+const HEARTBEAT_POLL: Duration = Duration::from_millis(200);
+
+/// The samples last published to each piece: (step, topic, encoded message).
+type Served = BTreeMap<(String, u32), (u64, String, Vec<u8>)>;
+
+/// Answers fibre nodes that wait (lifecycle WAITING) for samples this node already
+/// published: the message was lost in transit, so it goes out again. A node waiting for a
+/// step not served yet has re-sent its state instead; nothing to do here.
+fn answer_waiting(
+    bus: &BusHandle,
+    hb_in: &mut Inbox,
+    served: &Served,
+    run: &RunInfo,
+) -> Result<(), FlowError> {
+    while let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::ZERO) {
+        if hb.state != lifecycle::WAITING {
+            continue;
+        }
+        let Some(p) = run.pieces.iter().find(|p| p.node() == hb.node) else {
+            continue;
+        };
+        if let Some((step, topic, bytes)) = served.get(&(p.group.clone(), p.first_fiber)) {
+            if *step == hb.step {
+                tracing::info!(node = %hb.node, step, "node waits for samples already sent: sending them again");
+                bus.publish(topic, bytes)?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Publishes the viewers' flow slices of the field at step `k` (DESIGN §3: u' at
 /// `streaks_y_plus` and the x = 0 cross-section).
 fn publish_slices(
@@ -284,6 +316,8 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
     // states of the step being served, by (group, first fibre)
     let mut pending: BTreeMap<(String, u32), FiberGroupState> = BTreeMap::new();
+    // the samples last published to each piece, to send again when a node waits for them
+    let mut served: Served = BTreeMap::new();
     // running plane/time statistics of the served field, published as FlowProfiles
     let mut stats: Option<fiberflow_dns::stats::RunningStats> = resumed_stats;
     if run.start_step > 0 {
@@ -309,7 +343,8 @@ pub fn serve(
                     run.step_timeout_s
                 )));
             }
-            let Some((topic, bytes)) = st_in.recv_raw(left) else {
+            answer_waiting(&bus, &mut hb_in, &served, run)?;
+            let Some((topic, bytes)) = st_in.recv_raw(left.min(HEARTBEAT_POLL)) else {
                 continue;
             };
             if !topic.ends_with("/state") {
@@ -381,7 +416,9 @@ pub fn serve(
                 .find(|p| p.group == group && p.first_fiber == first_fiber)
                 .map(|p| p.samples_topic(&t))
                 .unwrap_or_else(|| t.flow_samples(&group));
-            bus.publish(&topic, &encode(&msg))?;
+            let bytes = encode(&msg);
+            bus.publish(&topic, &bytes)?;
+            served.insert((group.clone(), first_fiber), (k, topic, bytes));
             timing.publishing_s += t0.elapsed().as_secs_f64();
         }
         if let Field::Dns(solver, _) = &field {
