@@ -144,6 +144,8 @@ pub fn t_plus_to_nanos(t_plus: f64) -> u64 {
 
 /// How long the recorder waits, after the flow node's DONE, for anything more to arrive.
 const QUIET_AFTER_FLOW_DONE: Duration = Duration::from_secs(3);
+/// How long it waits after every fibre node's last state when no DONE came.
+const QUIET_AFTER_LAST_STATES: Duration = Duration::from_secs(10);
 
 /// What the recorder needs to know of the run beyond its topics.
 #[derive(Debug, Clone, Default)]
@@ -615,7 +617,15 @@ pub fn record(
             last_flush = Instant::now();
         }
         let Some((topic, bytes)) = inbox.recv_raw(Duration::from_millis(50)) else {
-            if flow_done && finish_at.is_none() && last_message.elapsed() > QUIET_AFTER_FLOW_DONE {
+            // every fibre node's state of the last step is in: the run is over even if the
+            // flow node's DONE was lost in transit
+            let last_states_in = !plan.groups.is_empty()
+                && sess.state_step.len() >= plan.pieces.len().max(plan.groups.len())
+                && sess.state_step.values().all(|&k| k == plan.steps);
+            if (flow_done || (last_states_in && last_message.elapsed() > QUIET_AFTER_LAST_STATES))
+                && finish_at.is_none()
+                && last_message.elapsed() > QUIET_AFTER_FLOW_DONE
+            {
                 let missing: Vec<_> = expected.difference(&done).cloned().collect();
                 tracing::warn!(nodes = %missing.join(", "), "no DONE from these nodes; finishing after the flow node's DONE");
                 break;
