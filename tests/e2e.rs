@@ -37,6 +37,23 @@ fn transports_give_bitwise_identical_states() {
     assert!(md["fiberflow.node_configs"].contains_key("case1"));
 }
 
+/// Runs tests/decode_all.py (the independent Python reader and ROS 2 decoder) on a
+/// recording; its JSON summary, after asserting it succeeded.
+fn decode_all(mcap: &std::path::Path) -> String {
+    let o = Command::new("python3")
+        .arg(root().join("tests/decode_all.py"))
+        .arg(mcap)
+        .output()
+        .expect("python3");
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "decode failed: {text}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    text
+}
+
 /// The MCAP opens with the Python `mcap` reader and every message decodes with the
 /// independent `mcap-ros2-support` CDR decoder against the stored `.msg` schemas.
 #[test]
@@ -48,17 +65,7 @@ fn recording_decodes_with_independent_reader() {
     );
     let out = scratch("python");
     launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
-    let o = Command::new("python3")
-        .arg(root().join("tests/decode_all.py"))
-        .arg(out.join("run.mcap"))
-        .output()
-        .expect("python3");
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "decode failed: {text}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let text = decode_all(&out.join("run.mcap"));
     for t in [
         "FiberGroupState",
         "FiberGroupMetrics",
@@ -316,17 +323,7 @@ fn shortened_quick_run_produces_sane_analysis() {
         stdout.contains("300 of 300 fibres shown") && stdout.contains("14 flow slices"),
         "scene summary:\n{stdout}"
     );
-    let o = Command::new("python3")
-        .arg(root().join("tests/decode_all.py"))
-        .arg(out.join("run.mcap"))
-        .output()
-        .expect("python3");
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        o.status.success(),
-        "decode failed: {text}\n{}",
-        String::from_utf8_lossy(&o.stderr)
-    );
+    let text = decode_all(&out.join("run.mcap"));
     for t in [
         "\"fiberflow_msgs/msg/FlowSlice\": 14",
         "\"sensor_msgs/msg/Image\": 14",

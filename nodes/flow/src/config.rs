@@ -137,36 +137,9 @@ impl FlowNodeConfig {
 mod tests {
     use super::*;
 
-    #[test]
-    fn regrid_needs_a_restart_field() {
-        let src = |regrid, restart: Option<&str>| FlowNodeConfig {
-            source: FlowSource::Dns {
-                dns: DnsConfig::with_cells(16, 16, 16),
-                restart: restart.map(PathBuf::from),
-                regrid,
-            },
-            spinup: None,
-            steps: 10,
-            dt_plus: 0.2,
-            join_timeout_s: 30.0,
-            status_every: 10,
-            profiles_every: 100,
-            interpolation: Interpolation::Trilinear,
-            slices_every: 10,
-            streaks_y_plus: 15.0,
-        };
-        assert!(src(true, Some("a.ckpt")).validate().is_ok());
-        assert!(src(false, None).validate().is_ok());
-        let e = src(true, None).validate().unwrap_err().to_string();
-        assert!(
-            e.contains("flow.source.regrid") && e.contains("flow.source.restart"),
-            "{e}"
-        );
-    }
-
-    #[test]
-    fn streaks_height_must_lie_in_the_lower_half() {
-        let cfg = |y: f64| FlowNodeConfig {
+    /// A valid DNS flow configuration on a 16³ grid.
+    fn dns_config() -> FlowNodeConfig {
+        FlowNodeConfig {
             source: FlowSource::Dns {
                 dns: DnsConfig::with_cells(16, 16, 16),
                 restart: None,
@@ -180,7 +153,35 @@ mod tests {
             profiles_every: 100,
             interpolation: Interpolation::Trilinear,
             slices_every: 10,
+            streaks_y_plus: 15.0,
+        }
+    }
+
+    #[test]
+    fn regrid_needs_a_restart_field() {
+        let src = |regrid, restart: Option<&str>| {
+            let mut c = dns_config();
+            c.source = FlowSource::Dns {
+                dns: DnsConfig::with_cells(16, 16, 16),
+                restart: restart.map(PathBuf::from),
+                regrid,
+            };
+            c
+        };
+        assert!(src(true, Some("a.ckpt")).validate().is_ok());
+        assert!(src(false, None).validate().is_ok());
+        let e = src(true, None).validate().unwrap_err().to_string();
+        assert!(
+            e.contains("flow.source.regrid") && e.contains("flow.source.restart"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn streaks_height_must_lie_in_the_lower_half() {
+        let cfg = |y: f64| FlowNodeConfig {
             streaks_y_plus: y,
+            ..dns_config()
         };
         assert!(cfg(15.0).validate().is_ok());
         for bad in [0.0, -3.0, 1e4, f64::NAN] {
