@@ -206,7 +206,7 @@ impl Sane for FiberGroupMetrics {
 
 impl Sane for Heartbeat {
     fn check(&self) -> Result<(), String> {
-        if self.node.is_empty() || self.state > lifecycle::WAITING {
+        if self.node.is_empty() || self.state > lifecycle::FINISHING {
             return Err(format!(
                 "heartbeat of {:?} with unknown state {}",
                 self.node, self.state

@@ -162,4 +162,8 @@ pub mod lifecycle {
     /// `step` again): the flow node sends those samples again if it already served them.
     /// Lockstep survives a message the transport lost.
     pub const WAITING: u8 = 5;
+    /// The recorder has the flow node's DONE of the last step and is finishing the file. The
+    /// flow node sends its DONE again until it sees this, so a DONE the transport lost as
+    /// the flow process exits cannot keep the recorder open.
+    pub const FINISHING: u8 = 6;
 }

@@ -135,11 +135,25 @@ impl Iceoryx2Bus {
 
 /// Drains every subscriber, then sleeps until the run's next publish.
 fn receive_loop(sh: &Shared, listener: &Listener<Svc>) {
+    // a subscriber that cannot receive (e.g. cannot map a publisher's memory) is reported
+    // once per topic: its messages would otherwise vanish without a trace
+    let mut failing = std::collections::HashSet::new();
     while !sh.stop.load(Ordering::SeqCst) {
         if let Ok(subs) = sh.subscribers.lock() {
             for (topic, s, tx) in subs.iter() {
-                while let Ok(Some(sample)) = s.receive() {
-                    let _ = tx.send((topic.clone(), sample.payload().to_vec()));
+                loop {
+                    match s.receive() {
+                        Ok(Some(sample)) => {
+                            let _ = tx.send((topic.clone(), sample.payload().to_vec()));
+                        }
+                        Ok(None) => break,
+                        Err(e) => {
+                            if failing.insert(topic.clone()) {
+                                tracing::warn!(topic = %topic, error = ?e, "iceoryx2 receive failed");
+                            }
+                            break;
+                        }
+                    }
                 }
             }
         }

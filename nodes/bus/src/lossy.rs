@@ -5,19 +5,53 @@ use crate::{Bus, BusError, BusHandle, Subscription};
 use std::collections::HashMap;
 use std::sync::Mutex;
 
-/// Loses the `nth` (1-based) publish on each topic ending in `suffix`, for every rule.
+/// Decides whether a publish is lost: (topic, 1-based count of publishes on that topic so
+/// far, payload).
+type Rule = Box<dyn Fn(&str, usize, &[u8]) -> bool + Send + Sync>;
+
+/// Loses the publishes its rules pick and passes everything else on.
 pub struct LossyBus {
     inner: BusHandle,
-    rules: Vec<(String, usize)>,
+    rules: Vec<Rule>,
     counts: Mutex<HashMap<String, usize>>,
     lost: Mutex<Vec<String>>,
 }
 
 impl LossyBus {
+    /// Loses the `nth` (1-based) publish on each topic ending in `suffix`, for every rule.
     pub fn new(inner: BusHandle, rules: &[(&str, usize)]) -> Self {
+        let rules = rules
+            .iter()
+            .map(|(suffix, nth)| {
+                let (suffix, nth) = (suffix.to_string(), *nth);
+                Box::new(move |topic: &str, n: usize, _: &[u8]| {
+                    topic.ends_with(suffix.as_str()) && n == nth
+                }) as Rule
+            })
+            .collect();
+        Self::with_rules(inner, rules)
+    }
+
+    /// Loses the first publish on a topic ending in `suffix` whose payload `pick` selects.
+    pub fn first_matching(
+        inner: BusHandle,
+        suffix: &str,
+        pick: impl Fn(&[u8]) -> bool + Send + Sync + 'static,
+    ) -> Self {
+        let suffix = suffix.to_string();
+        let done = std::sync::atomic::AtomicBool::new(false);
+        let rule = Box::new(move |topic: &str, _: usize, payload: &[u8]| {
+            topic.ends_with(suffix.as_str())
+                && pick(payload)
+                && !done.swap(true, std::sync::atomic::Ordering::SeqCst)
+        }) as Rule;
+        Self::with_rules(inner, vec![rule])
+    }
+
+    fn with_rules(inner: BusHandle, rules: Vec<Rule>) -> Self {
         Self {
             inner,
-            rules: rules.iter().map(|(s, n)| (s.to_string(), *n)).collect(),
+            rules,
             counts: Mutex::new(HashMap::new()),
             lost: Mutex::new(Vec::new()),
         }
@@ -41,11 +75,7 @@ impl Bus for LossyBus {
             *n += 1;
             *n
         };
-        if self
-            .rules
-            .iter()
-            .any(|(suffix, nth)| topic.ends_with(suffix.as_str()) && *nth == n)
-        {
+        if self.rules.iter().any(|lose| lose(topic, n, payload)) {
             self.lost
                 .lock()
                 .map_err(|_| poisoned())?

@@ -610,6 +610,28 @@ mod tests {
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder
     /// included); returns every recorded state by (topic, step).
     fn run_on(bus: BusHandle, out: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
+        recorded(&run_launch_on(bus, out), "/state")
+            .into_iter()
+            .map(|(topic, bytes)| {
+                let s: fiberflow_messages::FiberGroupState =
+                    fiberflow_messages::decode(&bytes).unwrap();
+                ((topic, s.step), bytes)
+            })
+            .collect()
+    }
+
+    /// Every recorded message on a topic ending in `suffix`, in log order.
+    fn recorded(mcap_bytes: &[u8], suffix: &str) -> Vec<(String, Vec<u8>)> {
+        mcap::MessageStream::new(mcap_bytes)
+            .unwrap()
+            .map(|m| m.unwrap())
+            .filter(|m| m.channel.topic.ends_with(suffix))
+            .map(|m| (m.channel.topic.clone(), m.data.to_vec()))
+            .collect()
+    }
+
+    /// Runs the 30-step analytic-shear launch on `bus`; returns the recording's bytes.
+    fn run_launch_on(bus: BusHandle, out: &Path) -> Vec<u8> {
         let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/analytic-shear.toml");
         let (lf, text) = LaunchFile::load_with(&file, &["run.steps=30".to_string()]).unwrap();
         std::fs::create_dir_all(out.join("config")).unwrap();
@@ -631,17 +653,37 @@ mod tests {
         nodes.extend(lf.fibre_nodes().unwrap());
         nodes.push("recorder".into());
         run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
-        let bytes = std::fs::read(out.join("run.mcap")).unwrap();
-        let mut states = BTreeMap::new();
-        for m in mcap::MessageStream::new(&bytes).unwrap() {
-            let m = m.unwrap();
-            if m.channel.topic.ends_with("/state") {
-                let s: fiberflow_messages::FiberGroupState =
-                    fiberflow_messages::decode(&m.data).unwrap();
-                states.insert((m.channel.topic.clone(), s.step), m.data.to_vec());
-            }
-        }
-        states
+        std::fs::read(out.join("run.mcap")).unwrap()
+    }
+
+    /// The flow node's DONE is lost in transit: the flow node, hearing nothing from the
+    /// recorder, sends it again; the recorder records it and confirms (FINISHING), so the
+    /// run ends on the DONE and not on the recorder's no-DONE fallback.
+    #[test]
+    fn a_lost_done_is_sent_again_until_the_recorder_confirms() {
+        use fiberflow_messages::{lifecycle, Heartbeat};
+        let dir = std::env::temp_dir().join(format!("ff-lost-done-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let is_done = |b: &[u8]| {
+            fiberflow_messages::decode::<Heartbeat>(b).is_ok_and(|h| h.state == lifecycle::DONE)
+        };
+        let lossy = Arc::new(LossyBus::first_matching(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            "/heartbeat/flow",
+            is_done,
+        ));
+        let bytes = run_launch_on(lossy.clone(), &dir);
+        assert_eq!(lossy.lost().len(), 1, "{:?}", lossy.lost());
+        let beats = |node: &str, state: u8| {
+            recorded(&bytes, &format!("/heartbeat/{node}"))
+                .iter()
+                .map(|(_, b)| fiberflow_messages::decode::<Heartbeat>(b).unwrap())
+                .filter(|h| h.state == state && h.step == 30)
+                .count()
+        };
+        assert_eq!(beats("flow", lifecycle::DONE), 1, "the resent DONE is recorded");
+        assert!(beats("recorder", lifecycle::FINISHING) >= 1, "and confirmed");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A transport that loses a fibre node's samples (step 4 of `case1`) and a state

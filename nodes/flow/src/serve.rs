@@ -175,6 +175,40 @@ fn answer_waiting(
     Ok(())
 }
 
+/// Waits until the recorder says it has this node's DONE (lifecycle FINISHING or DONE),
+/// sending the DONE again after 1, 2, 4, … s: the run's end must not hang on one DONE the
+/// transport lost while this process was exiting. Gives up after the step timeout (the
+/// recorder then finishes on its own once the last states are in).
+fn await_recorder_finishing(
+    bus: &BusHandle,
+    t: &Topics,
+    hb_in: &mut Inbox,
+    run: &RunInfo,
+    dropped: u64,
+) -> Result<(), FlowError> {
+    let from = Instant::now();
+    let mut resend_after = Duration::from_secs(1);
+    let mut last_sent = Instant::now();
+    while from.elapsed().as_secs_f64() < run.step_timeout_s {
+        if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {
+            let finishing = hb.state == lifecycle::FINISHING || hb.state == lifecycle::DONE;
+            if hb.node == "recorder" && finishing {
+                return Ok(());
+            }
+        } else if last_sent.elapsed() >= resend_after {
+            tracing::info!("no word from the recorder on this node's DONE: sending it again");
+            heartbeat(bus, t, lifecycle::DONE, run.steps, dropped)?;
+            last_sent = Instant::now();
+            resend_after *= 2;
+        }
+    }
+    tracing::warn!(
+        waited_s = run.step_timeout_s,
+        "the recorder never confirmed this node's DONE"
+    );
+    Ok(())
+}
+
 /// Publishes the viewers' flow slices of the field at step `k` (DESIGN §3: u' at
 /// `streaks_y_plus` and the x = 0 cross-section).
 fn publish_slices(
@@ -537,6 +571,9 @@ pub fn serve(
         "where the flow node's time went"
     );
     heartbeat(&bus, &t, lifecycle::DONE, run.steps, st_in.drops.total())?;
+    if run.expected_nodes.iter().any(|n| n == "recorder") {
+        await_recorder_finishing(&bus, &t, &mut hb_in, run, st_in.drops.total())?;
+    }
     let mut drops = st_in.drops.clone();
     for (k, v) in hb_in.drops.by_topic {
         *drops.by_topic.entry(k).or_insert(0) += v;

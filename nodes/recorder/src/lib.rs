@@ -632,7 +632,10 @@ pub fn record(
             }
             continue;
         };
-        last_message = Instant::now();
+        // heartbeats (a flow node repeating its DONE) are not data still arriving
+        if type_of(&topic) != Some("fiberflow_msgs/msg/Heartbeat") {
+            last_message = Instant::now();
+        }
         let busy_from = Instant::now();
         match type_of(&topic) {
             Some("fiberflow_msgs/msg/RunAnnouncement") => {
@@ -643,7 +646,18 @@ pub fn record(
                     // a node is done when it says so at the run's last step (the launcher
                     // stops the recorder when a node fails; a stray heartbeat must not)
                     if hb.state == lifecycle::DONE && hb.step == plan.steps {
-                        flow_done |= hb.node == "flow";
+                        if hb.node == "flow" {
+                            // the flow node sends its DONE until it hears this
+                            flow_done = true;
+                            let ack = Heartbeat {
+                                schema_version: SCHEMA_VERSION,
+                                node: "recorder".into(),
+                                state: lifecycle::FINISHING,
+                                step: plan.steps,
+                                dropped: sess.drops.total(),
+                            };
+                            bus.publish(&t.heartbeat("recorder"), &encode(&ack))?;
+                        }
                         done.insert(hb.node);
                         if expected.is_subset(&done) && finish_at.is_none() {
                             finish_at = Some(Instant::now() + Duration::from_millis(500));
