@@ -167,6 +167,41 @@ impl ZenohBus {
     }
 }
 
+impl ZenohBus {
+    /// Waits until every topic has at least one subscriber this session knows of (zenoh
+    /// drops a put for which it knows none, so a tool that publishes right after opening
+    /// loses what it sends before the peers' declarations arrive); returns the topics
+    /// still without one when `timeout` runs out.
+    pub fn await_subscribers(
+        &self,
+        topics: &[String],
+        timeout: std::time::Duration,
+    ) -> Result<Vec<String>, BusError> {
+        let publishers = topics
+            .iter()
+            .map(|t| {
+                self.session
+                    .declare_publisher(t.clone())
+                    .wait()
+                    .map_err(terr)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            let mut missing = Vec::new();
+            for (t, p) in topics.iter().zip(&publishers) {
+                if !p.matching_status().wait().map_err(terr)?.matching() {
+                    missing.push(t.clone());
+                }
+            }
+            if missing.is_empty() || std::time::Instant::now() >= deadline {
+                return Ok(missing);
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+    }
+}
+
 impl Bus for ZenohBus {
     fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError> {
         self.session

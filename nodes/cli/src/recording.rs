@@ -142,12 +142,19 @@ pub fn inject_cmd(
     structured: bool,
 ) -> Result<()> {
     let bus = zenoh(connect, vec![])?;
-    std::thread::sleep(Duration::from_millis(500));
     let mut rng = fiberflow_messages::fuzz::Rng::new(seed);
     let full: Vec<String> = topics
         .iter()
         .map(|t| format!("fiberflow/{run}/{t}"))
         .collect();
+    // what is sent before the run's subscriptions are known here would go nowhere
+    let unheard = bus.await_subscribers(&full, Duration::from_secs(30))?;
+    if !unheard.is_empty() {
+        tracing::warn!(topics = %unheard.join(", "), "no subscriber after 30 s; injecting anyway");
+    }
+    // one topic's first subscriber may be known before the others' (every node's
+    // declarations arrive over its own link)
+    std::thread::sleep(Duration::from_millis(500));
     // the run's group names, so that structured messages also name real groups
     let groups: Vec<String> = full
         .iter()
