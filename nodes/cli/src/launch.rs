@@ -681,8 +681,15 @@ mod tests {
                 .filter(|h| h.state == state && h.step == 30)
                 .count()
         };
-        assert_eq!(beats("flow", lifecycle::DONE), 1, "the resent DONE is recorded");
-        assert!(beats("recorder", lifecycle::FINISHING) >= 1, "and confirmed");
+        assert_eq!(
+            beats("flow", lifecycle::DONE),
+            1,
+            "the resent DONE is recorded"
+        );
+        assert!(
+            beats("recorder", lifecycle::FINISHING) >= 1,
+            "and confirmed"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 

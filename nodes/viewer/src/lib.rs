@@ -123,12 +123,24 @@ fn set_time(rec: &rerun::RecordingStream, step: u64, t_plus: f64, dt_plus: f64) 
     }
 }
 
-/// A shown fibre: its entity, gallery cell and its σ² over time (for the events).
+/// A shown fibre: its entity, gallery cell, its σ² over time (for the events) and its four
+/// series, sent as columns once the recording is read.
 struct Shown {
     path: String,
     cell: [f64; 3],
     sigma2: Vec<(u64, f64, f64)>,
+    series: Vec<SeriesRow>,
 }
+
+/// One step of a fibre's four series: step, whole t+ the step stands for, the values in
+/// the order of [`paths::SERIES`].
+type SeriesRow = (u64, Option<i64>, [f64; 4]);
+
+/// One `send_columns` call: the time columns and the four series columns.
+type SeriesChunk = (
+    Vec<rerun::TimeColumn>,
+    Vec<rerun::SerializedComponentColumn>,
+);
 
 /// Logs the recording at `mcap` (a file or run folder) to `sink`.
 pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary, ViewerError> {
@@ -184,6 +196,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                     path,
                     cell: g.centres[c][rank],
                     sigma2: Vec::new(),
+                    series: Vec::new(),
                 },
             );
         }
@@ -233,10 +246,12 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                     _ => Ok(()),
                 }
             }
-            Item::Metrics(mt) => match shown.get_mut(&mt.group) {
-                Some(m) => log_metrics(&rec, mt, m, h_plus, dt_plus),
-                None => Ok(()),
-            },
+            Item::Metrics(mt) => {
+                if let Some(m) = shown.get_mut(&mt.group) {
+                    collect_metrics(mt, m, h_plus, dt_plus);
+                }
+                Ok(())
+            }
             Item::Slice(sl) => {
                 slices += 1;
                 set_time(&rec, sl.step, sl.t_plus, dt_plus);
@@ -250,6 +265,14 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     })?;
     if let Some(e) = log_err {
         return Err(e);
+    }
+    for fibres in shown.values() {
+        for sh in fibres.values() {
+            for (indexes, columns) in series_columns(&sh.series)? {
+                rec.send_columns(sh.path.as_str(), indexes, columns)
+                    .map_err(err)?;
+            }
+        }
     }
     let events = log_events(&rec, &shown, &opts.coil_thresholds, dt_plus, g.cell_plus)?;
     rec.flush_blocking().map_err(err)?;
@@ -321,8 +344,10 @@ fn log_static(
          and a cross-section at x1 = 0; blue slow, red fast, white = the plane's mean, \
          ±4 u_tau.\n\n\
          **Plots** (right): σ², |z1|, end-to-end distance and wall distance x2+ of every shown \
-         fibre, one colour per case. **Click a fibre** in either 3-D view (or a line in a \
-         plot): it is one entity `fibres/<case>/<layer>/f<i>` and lights up in all four plots.\n\n\
+         fibre, one colour per case. **Click a fibre** in the gallery (or a line in a plot): it \
+         is one entity `fibres/<case>/<layer>/f<i>`, and the Selection panel shows its σ², \
+         |z1|, end-to-end distance and x2+ at the time cursor (move the cursor to follow \
+         them).\n\n\
          **Coiling events**: the first t+ a fibre's σ² reaches {thresholds}; listed under \
          *Coiling events* and marked over the fibre in the gallery (grey, orange, red = \
          lowest to highest threshold).\n\n\
@@ -372,15 +397,16 @@ fn log_state(
     Ok(())
 }
 
-fn log_metrics(
-    rec: &rerun::RecordingStream,
+/// Keeps the four series of every shown fibre at this step (sent as columns later: one
+/// chunk per fibre instead of a row per fibre and step, several times smaller).
+fn collect_metrics(
     m: &fiberflow_messages::FiberGroupMetrics,
     shown: &mut HashMap<usize, Shown>,
     h_plus: f64,
     dt_plus: f64,
-) -> Result<(), ViewerError> {
-    set_time(rec, m.step, m.t_plus, dt_plus);
+) {
     let n = m.sigma2.len();
+    let frame = shape::whole_t_plus(m.t_plus, dt_plus);
     for (&f, sh) in shown.iter_mut() {
         if f >= n || 3 * f + 2 >= m.centre_of_mass.len() {
             continue;
@@ -391,14 +417,43 @@ fn log_metrics(
             m.end_to_end.get(f).copied().unwrap_or(f64::NAN),
             shape::wall_distance(m.centre_of_mass[3 * f + 1], h_plus),
         ];
-        let mut arch = rerun::DynamicArchetype::new(paths::ARCHETYPE);
-        for ((name, _), v) in paths::SERIES.iter().zip(vals) {
-            arch = arch.with_component::<rerun::components::Scalar>(*name, [v]);
-        }
-        rec.log(sh.path.as_str(), &arch).map_err(err)?;
+        sh.series.push((m.step, frame, vals));
         sh.sigma2.push((m.step, m.t_plus, m.sigma2[f]));
     }
-    Ok(())
+}
+
+/// A fibre's series as `send_columns` input: the steps that stand for a whole t+ (on the
+/// `step` and `t+` timelines) and the others (`step` only), as a row-wise log with
+/// [`set_time`] would place them.
+fn series_columns(rows: &[SeriesRow]) -> Result<Vec<SeriesChunk>, ViewerError> {
+    let mut out = Vec::new();
+    for on_t_plus in [true, false] {
+        let part: Vec<&SeriesRow> = rows.iter().filter(|r| r.1.is_some() == on_t_plus).collect();
+        if part.is_empty() {
+            continue;
+        }
+        let mut indexes = vec![rerun::TimeColumn::new_sequence(
+            "step",
+            part.iter().map(|r| r.0 as i64),
+        )];
+        if on_t_plus {
+            indexes.push(rerun::TimeColumn::new_sequence(
+                "t+",
+                part.iter().filter_map(|r| r.1),
+            ));
+        }
+        let mut arch = rerun::DynamicArchetype::new(paths::ARCHETYPE);
+        for (k, (name, _)) in paths::SERIES.iter().enumerate() {
+            arch = arch
+                .with_component::<rerun::components::Scalar>(*name, part.iter().map(|r| r.2[k]));
+        }
+        let columns = rerun::AsComponents::as_serialized_batches(&arch)
+            .into_iter()
+            .map(|b| b.column_of_unit_batches().map_err(err))
+            .collect::<Result<Vec<_>, _>>()?;
+        out.push((indexes, columns));
+    }
+    Ok(out)
 }
 
 /// Coiling events of every shown fibre (onset as in `fiberflow_analysis::coiling`): a text
@@ -453,6 +508,42 @@ fn log_events(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Steps standing for a whole t+ go into a chunk on both timelines, the others into one
+    /// on `step` only; every chunk carries the four series with one value per row, in order.
+    #[test]
+    fn series_columns_split_by_timeline_and_keep_every_value() {
+        use rerun::external::arrow::array::Array as _;
+        let rows: Vec<SeriesRow> = (0..7u64)
+            .map(|k| {
+                let frame = (k % 5 == 0).then_some((k / 5) as i64);
+                (k, frame, [k as f64, 0.5, 20.0 - k as f64, 10.0 + k as f64])
+            })
+            .collect();
+        let chunks = series_columns(&rows).unwrap();
+        assert_eq!(chunks.len(), 2);
+        let (idx, cols) = &chunks[0];
+        assert_eq!(idx.len(), 2);
+        assert_eq!(idx[0].times_raw(), &[0, 5]);
+        assert_eq!(idx[1].timeline().name().as_str(), "t+");
+        assert_eq!(idx[1].times_raw(), &[0, 1]);
+        assert_eq!(cols.len(), 4);
+        let (idx, cols) = &chunks[1];
+        assert_eq!(idx.len(), 1);
+        assert_eq!(idx[0].times_raw(), &[1, 2, 3, 4, 6]);
+        let sigma2 = cols
+            .iter()
+            .find(|c| c.descriptor.component.as_str() == paths::component("sigma2"))
+            .expect("a sigma2 column");
+        assert_eq!(sigma2.list_array.len(), 5, "one value per row");
+        let values = sigma2
+            .list_array
+            .values()
+            .as_any()
+            .downcast_ref::<rerun::external::arrow::array::Float64Array>()
+            .expect("scalars are f64");
+        assert_eq!(values.values(), &[1.0, 2.0, 3.0, 4.0, 6.0]);
+    }
 
     #[test]
     fn colour_map_is_monotone_in_brightness() {
