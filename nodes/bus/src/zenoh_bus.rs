@@ -165,9 +165,7 @@ impl ZenohBus {
         let session = zenoh::open(c).wait().map_err(terr)?;
         Ok(Self { session })
     }
-}
 
-impl ZenohBus {
     /// Waits until every topic has at least one subscriber this session knows of (zenoh
     /// drops a put for which it knows none, so a tool that publishes right after opening
     /// loses what it sends before the peers' declarations arrive); returns the topics

@@ -191,11 +191,15 @@ fn await_recorder_finishing(
     let mut last_sent = Instant::now();
     while from.elapsed().as_secs_f64() < run.step_timeout_s {
         if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {
-            let finishing = hb.state == lifecycle::FINISHING || hb.state == lifecycle::DONE;
+            // FINISHING names the run's last step; DONE (file complete) carries step 0
+            let finishing = (hb.state == lifecycle::FINISHING && hb.step == run.steps)
+                || hb.state == lifecycle::DONE;
             if hb.node == "recorder" && finishing {
                 return Ok(());
             }
-        } else if last_sent.elapsed() >= resend_after {
+        }
+        // other nodes' heartbeats arriving must not hold the resend back
+        if last_sent.elapsed() >= resend_after {
             tracing::info!("no word from the recorder on this node's DONE: sending it again");
             heartbeat(bus, t, lifecycle::DONE, run.steps, dropped)?;
             last_sent = Instant::now();

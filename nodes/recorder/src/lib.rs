@@ -602,13 +602,7 @@ pub fn record(
             }
         }
         if !started && last_hb.elapsed() > Duration::from_millis(200) {
-            let hb = Heartbeat {
-                schema_version: SCHEMA_VERSION,
-                node: "recorder".into(),
-                state: lifecycle::READY,
-                step: 0,
-                dropped: sess.drops.total(),
-            };
+            let hb = own_heartbeat(lifecycle::READY, 0, sess.drops.total());
             bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
             last_hb = Instant::now();
         }
@@ -632,12 +626,13 @@ pub fn record(
             }
             continue;
         };
+        let kind = type_of(&topic);
         // heartbeats (a flow node repeating its DONE) are not data still arriving
-        if type_of(&topic) != Some("fiberflow_msgs/msg/Heartbeat") {
+        if kind != Some("fiberflow_msgs/msg/Heartbeat") {
             last_message = Instant::now();
         }
         let busy_from = Instant::now();
-        match type_of(&topic) {
+        match kind {
             Some("fiberflow_msgs/msg/RunAnnouncement") => {
                 started |= schema::validate("fiberflow_msgs/msg/RunAnnouncement", &bytes).is_ok()
             }
@@ -649,13 +644,8 @@ pub fn record(
                         if hb.node == "flow" {
                             // the flow node sends its DONE until it hears this
                             flow_done = true;
-                            let ack = Heartbeat {
-                                schema_version: SCHEMA_VERSION,
-                                node: "recorder".into(),
-                                state: lifecycle::FINISHING,
-                                step: plan.steps,
-                                dropped: sess.drops.total(),
-                            };
+                            let ack =
+                                own_heartbeat(lifecycle::FINISHING, plan.steps, sess.drops.total());
                             bus.publish(&t.heartbeat("recorder"), &encode(&ack))?;
                         }
                         done.insert(hb.node);
@@ -694,17 +684,22 @@ pub fn record(
     let mut summary = sess.summary;
     summary.drops = drops;
     // the file is complete: tell the run (a zenoh router waits for this before closing)
-    let hb = Heartbeat {
-        schema_version: SCHEMA_VERSION,
-        node: "recorder".into(),
-        state: lifecycle::DONE,
-        step: 0,
-        dropped: summary.drops.total(),
-    };
+    let hb = own_heartbeat(lifecycle::DONE, 0, summary.drops.total());
     if let Err(e) = bus.publish(&t.heartbeat("recorder"), &encode(&hb)) {
         tracing::warn!(error = %e, "could not announce the finished recording");
     }
     Ok(summary)
+}
+
+/// A heartbeat of the recorder itself.
+fn own_heartbeat(state: u8, step: u64, dropped: u64) -> Heartbeat {
+    Heartbeat {
+        schema_version: SCHEMA_VERSION,
+        node: "recorder".into(),
+        state,
+        step,
+        dropped,
+    }
 }
 
 fn write_provenance(out: &mut Out, meta: &RunMetadata) -> Result<(), RecorderError> {
