@@ -345,9 +345,9 @@ fn log_static(
          ±4 u_tau.\n\n\
          **Plots** (right): σ², |z1|, end-to-end distance and wall distance x2+ of every shown \
          fibre, one colour per case. **Click a fibre** in the gallery (or a line in a plot): it \
-         is one entity `fibres/<case>/<layer>/f<i>`, and the Selection panel shows its σ², \
-         |z1|, end-to-end distance and x2+ at the time cursor (move the cursor to follow \
-         them).\n\n\
+         is one entity `fibres/<case>/<layer>/f<i>`; its lines in the plots are drawn wider \
+         and the Selection panel shows its σ², |z1|, end-to-end distance and x2+ at the time \
+         cursor.\n\n\
          **Coiling events**: the first t+ a fibre's σ² reaches {thresholds}; listed under \
          *Coiling events* and marked over the fibre in the gallery (grey, orange, red = \
          lowest to highest threshold).\n\n\
