@@ -5,8 +5,8 @@
 
 Needs rerun-sdk==0.36.3, an X display (Xvfb :99 -screen 0 1600x1000x24) and xdotool.
 Writes selection-before.png and selection-after.png (1600 x 1000) in the current folder and
-prints how many pixels of the four plots (right half, above the legend) changed by more
-than a faint re-draw: a selected fibre's lines are drawn wider there.
+prints how many pixels of the plots (right half, above the legend) changed by more
+than a faint re-draw: a selected fibre's line is drawn opaque and wider there.
 """
 import os
 import signal

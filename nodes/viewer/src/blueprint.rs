@@ -1,7 +1,8 @@
-//! The layout a first open shows: the gallery and the channel view on the left, the four
-//! per-fibre time series on the right, legend and coiling events below them. Every fibre
-//! entity gets, per view, a visualizer that maps its custom components (`fibre:*`) onto
-//! the standard strip and series visualizers.
+//! The layout a first open shows: the gallery and the channel view on the left; on the
+//! right one tab per time series (σ² first) with one plot per case, and the legend and
+//! coiling events below them. Every fibre entity gets, in the channel view and in its
+//! case's plots, a visualizer that maps its custom components (`fibre:*`) onto the standard
+//! strip and series visualizers; its series name, colour and width are data on the entity.
 
 use crate::paths;
 use crate::ViewerError;
@@ -19,9 +20,54 @@ use rerun::AsComponents;
 /// A fibre entity as the blueprint refers to it.
 pub struct FibreEntity {
     pub path: String,
-    /// Series name in plot legends and tooltips.
-    pub label: String,
-    pub colour: [u8; 3],
+    /// Its case (fibre group): its lines go into that case's plots.
+    pub case: String,
+}
+
+/// A tab of plots: one series, one plot per case.
+pub struct PlotTab<'a> {
+    pub title: &'static str,
+    pub component: &'static str,
+    pub plots: Vec<CasePlot<'a>>,
+}
+
+/// One case's plot of one series: its title, its entity filter and the fibres whose
+/// custom component it maps onto the series visualizer.
+pub struct CasePlot<'a> {
+    pub title: String,
+    pub contents: String,
+    pub fibres: Vec<&'a str>,
+}
+
+/// The plot tabs for `fibres`: one tab per series of [`paths::SERIES`], in it one plot per
+/// case (cases in order of first appearance). A case's plot holds only its own fibres, so
+/// the wider line of a selected fibre is not buried under hundreds of others.
+pub fn plot_tabs(fibres: &[FibreEntity]) -> Vec<PlotTab<'_>> {
+    let mut cases: Vec<&str> = Vec::new();
+    for f in fibres {
+        if !cases.contains(&f.case.as_str()) {
+            cases.push(&f.case);
+        }
+    }
+    paths::SERIES
+        .iter()
+        .map(|series| PlotTab {
+            title: series.title,
+            component: series.component,
+            plots: cases
+                .iter()
+                .map(|case| CasePlot {
+                    title: format!("{} · {case}", series.short),
+                    contents: format!("+ /fibres/{case}/**"),
+                    fibres: fibres
+                        .iter()
+                        .filter(|f| f.case == *case)
+                        .map(|f| f.path.as_str())
+                        .collect(),
+                })
+                .collect(),
+        })
+        .collect()
 }
 
 fn mapped(visualizer: &str, target: &str, source: &str) -> Visualizer {
@@ -112,27 +158,25 @@ pub fn send(
             );
         channel = channel.with_override(f.path.as_str(), vis);
     }
-    let plots: Vec<TimeSeriesView> = paths::SERIES
-        .iter()
-        .map(|(component, title)| {
-            let mut v = TimeSeriesView::new(*title)
-                .with_origin("/")
-                .with_contents(["+ /fibres/**"]);
-            for f in fibres {
-                let vis = mapped("SeriesLines", "Scalars:scalars", component).with_overrides(
-                    &rerun::SeriesLines::new()
-                        .with_names([f.label.as_str()])
-                        .with_colors([rerun::Color::from_unmultiplied_rgba(
-                            f.colour[0],
-                            f.colour[1],
-                            f.colour[2],
-                            160,
-                        )])
-                        .with_widths([1.0]),
-                );
-                v = v.with_override(f.path.as_str(), vis);
-            }
-            v
+    let tabs: Vec<ContainerLike> = plot_tabs(fibres)
+        .into_iter()
+        .map(|tab| {
+            let views = tab.plots.into_iter().map(|plot| {
+                let mut v = TimeSeriesView::new(plot.title)
+                    .with_origin("/")
+                    .with_contents([plot.contents]);
+                for path in plot.fibres {
+                    v = v.with_override(
+                        path,
+                        mapped("SeriesLines", "Scalars:scalars", tab.component),
+                    );
+                }
+                ContainerLike::from(v)
+            });
+            Grid::new(views)
+                .with_name(tab.title)
+                .with_grid_columns(2)
+                .into()
         })
         .collect();
     // extra view properties the builder API does not offer, per view class: plot legends
@@ -155,7 +199,6 @@ pub fn send(
                 .as_serialized_batches(),
         ),
     ];
-    let plots: Vec<ContainerLike> = plots.into_iter().map(Into::into).collect();
     let notes: Vec<ContainerLike> = vec![
         TextDocumentView::new("Legend").with_origin("legend").into(),
         TextLogView::new("Coiling events")
@@ -166,7 +209,7 @@ pub fn send(
         Vertical::new(vec![ContainerLike::from(gallery), channel.into()])
             .with_row_shares([0.58, 0.42])
             .into(),
-        Vertical::new(vec![Grid::new(plots).into(), Tabs::new(notes).into()])
+        Vertical::new(vec![Tabs::new(tabs).into(), Tabs::new(notes).into()])
             .with_row_shares([0.68, 0.32])
             .into(),
     ])
@@ -262,5 +305,40 @@ mod tests {
         let mut classes: Vec<String> = view_classes(&msgs).into_iter().map(|v| v.1).collect();
         classes.sort();
         assert_eq!(classes, vec!["3D", "TimeSeries", "TimeSeries"]);
+    }
+
+    /// Each tab is one series; each fibre is in exactly one plot of each tab, its case's,
+    /// whose filter takes that case's entities only.
+    #[test]
+    fn every_fibre_is_plotted_once_per_series_in_its_case() {
+        let fibres: Vec<FibreEntity> = [("case2", 3), ("case1", 2), ("case2", 1)]
+            .iter()
+            .enumerate()
+            .flat_map(|(k, &(case, n))| {
+                (0..n).map(move |i| FibreEntity {
+                    path: format!("fibres/{case}/next/f{k}{i}"),
+                    case: case.to_string(),
+                })
+            })
+            .collect();
+        let tabs = plot_tabs(&fibres);
+        let components: Vec<&str> = tabs.iter().map(|t| t.component).collect();
+        assert_eq!(components, ["sigma2", "abs_z1", "end_to_end", "x2_plus"]);
+        for tab in &tabs {
+            let titles: Vec<&str> = tab.plots.iter().map(|p| p.title.as_str()).collect();
+            assert_eq!(titles.len(), 2, "one plot per case");
+            assert!(titles[0].ends_with("· case2") && titles[1].ends_with("· case1"));
+            for f in &fibres {
+                let holding: Vec<&CasePlot> = tab
+                    .plots
+                    .iter()
+                    .filter(|p| p.fibres.contains(&f.path.as_str()))
+                    .collect();
+                assert_eq!(holding.len(), 1, "{} in {}", f.path, tab.title);
+                assert_eq!(holding[0].contents, format!("+ /fibres/{}/**", f.case));
+            }
+            assert_eq!(tab.plots[0].fibres.len(), 4);
+            assert_eq!(tab.plots[1].fibres.len(), 2);
+        }
     }
 }

@@ -97,15 +97,46 @@ pub fn sigma2_colour(s2: f64) -> [u8; 3] {
     [c(0), c(1), c(2)]
 }
 
-/// One colour per case for the per-fibre series.
-const CASE_COLOURS: [[u8; 3]; 6] = [
+/// Line colours of the per-fibre series by initial layer: near wall, next, middle (other).
+const LAYER_COLOURS: [[u8; 3]; 4] = [
     [31, 119, 180],
     [255, 127, 14],
     [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
+    [127, 127, 127],
 ];
+
+/// Width (UI points) of a fibre's series lines. Below the viewer's 1.5-pixel minimum it
+/// draws them 1.5 px wide and proportionally faint; a selected fibre's line is one point
+/// wider in radius, so it is drawn opaque and clearly wider than the others.
+const SERIES_WIDTH: f32 = 0.5;
+
+/// How a fibre's lines look in its plots: name and colour (by initial layer).
+struct SeriesStyle {
+    label: String,
+    colour: [u8; 3],
+}
+
+/// The fibre's styles, logged once as static data on its entity: its series name, colour
+/// and width (every plot of it uses them, so the blueprint carries only the mapping of each
+/// plot's series) and its gallery line width.
+fn log_fibre_style(
+    rec: &rerun::RecordingStream,
+    path: &str,
+    style: &SeriesStyle,
+) -> Result<(), ViewerError> {
+    let [r, g, b] = style.colour;
+    rec.log_static(
+        path,
+        &[
+            &rerun::SeriesLines::new()
+                .with_names([style.label.as_str()])
+                .with_colors([rerun::Color::from_rgb(r, g, b)])
+                .with_widths([SERIES_WIDTH]) as &dyn rerun::AsComponents,
+            &rerun::LineStrips2D::update_fields().with_radii([rerun::Radius::new_scene_units(0.7)]),
+        ],
+    )
+    .map_err(err)
+}
 
 /// Onset marker colours, one per threshold (light to strong).
 const ONSET_COLOURS: [[u8; 3]; 3] = [[200, 200, 200], [255, 165, 0], [255, 40, 40]];
@@ -130,6 +161,17 @@ struct Shown {
     cell: [f64; 3],
     sigma2: Vec<(u64, f64, f64)>,
     series: Vec<SeriesRow>,
+    shapes: Vec<ShapeRow>,
+}
+
+/// One shown state of a fibre: step, whole t+ the step stands for, gallery strip, its
+/// colour (σ²) and channel strip.
+struct ShapeRow {
+    step: u64,
+    frame: Option<i64>,
+    gallery: Vec<[f32; 2]>,
+    colour: [u8; 3],
+    channel: Vec<[f32; 3]>,
 }
 
 /// One step of a fibre's four series: step, whole t+ the step stands for, the values in
@@ -179,6 +221,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     let g = gallery::layout(&chosen.iter().map(Vec::len).collect::<Vec<_>>(), longest);
     let mut shown: HashMap<String, HashMap<usize, Shown>> = HashMap::new();
     let mut entities = Vec::new();
+    let mut styles = Vec::new();
     for (c, (name, info)) in groups.iter().enumerate() {
         let digits = paths::digits(info.fibres);
         let m = shown.entry(name.clone()).or_default();
@@ -187,8 +230,11 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
             let path = paths::fibre(name, layer, f, digits);
             entities.push(blueprint::FibreEntity {
                 path: path.clone(),
+                case: name.clone(),
+            });
+            styles.push(SeriesStyle {
                 label: format!("{name} {} f{f}", paths::layer_name(layer)),
-                colour: CASE_COLOURS[c % CASE_COLOURS.len()],
+                colour: LAYER_COLOURS[usize::from(layer).min(LAYER_COLOURS.len() - 1)],
             });
             m.insert(
                 f,
@@ -197,6 +243,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                     cell: g.centres[c][rank],
                     sigma2: Vec::new(),
                     series: Vec::new(),
+                    shapes: Vec::new(),
                 },
             );
         }
@@ -222,6 +269,9 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
         ],
     };
     blueprint::send(&rec, &entities, &eye)?;
+    for (e, style) in entities.iter().zip(&styles) {
+        log_fibre_style(&rec, &e.path, style)?;
+    }
     log_static(&rec, box_plus, &groups, &g, opts)?;
 
     // pass 2: shapes, series, slices
@@ -239,12 +289,12 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                     0 => shape::whole_t_plus(s.t_plus, dt_plus).is_some(),
                     k => s.step % k == 0,
                 };
-                match shown.get(&s.group) {
-                    Some(m) if wanted || s.step == 0 || s.step == last => {
-                        log_state(&rec, s, m, box_plus, dt_plus)
+                if let Some(m) = shown.get_mut(&s.group) {
+                    if wanted || s.step == 0 || s.step == last {
+                        collect_state(s, m, box_plus, dt_plus);
                     }
-                    _ => Ok(()),
                 }
+                Ok(())
             }
             Item::Metrics(mt) => {
                 if let Some(m) = shown.get_mut(&mt.group) {
@@ -268,7 +318,10 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     }
     for fibres in shown.values() {
         for sh in fibres.values() {
-            for (indexes, columns) in series_columns(&sh.series)? {
+            let chunks = series_columns(&sh.series)?
+                .into_iter()
+                .chain(shape_columns(&sh.shapes)?);
+            for (indexes, columns) in chunks {
                 rec.send_columns(sh.path.as_str(), indexes, columns)
                     .map_err(err)?;
             }
@@ -313,11 +366,7 @@ fn log_static(
                     "{name}: N {} x l+ {:.1}, density ratio {:.0}",
                     info.segments, info.segment_length, info.density_ratio
                 )])
-                .with_colors([rerun::Color::from_rgb(
-                    CASE_COLOURS[c % 6][0],
-                    CASE_COLOURS[c % 6][1],
-                    CASE_COLOURS[c % 6][2],
-                )])
+                .with_colors([rerun::Color::from_rgb(220, 220, 220)])
                 .with_radii([rerun::Radius::new_scene_units(0.15 * g.cell_plus as f32)])
                 .with_show_labels(true),
         )
@@ -343,11 +392,12 @@ fn log_static(
          the streaks, u' at y+ ≈ 15 above the lower wall (drawn on the wall, under the fibres), \
          and a cross-section at x1 = 0; blue slow, red fast, white = the plane's mean, \
          ±4 u_tau.\n\n\
-         **Plots** (right): σ², |z1|, end-to-end distance and wall distance x2+ of every shown \
-         fibre, one colour per case. **Click a fibre** in the gallery (or a line in a plot): it \
-         is one entity `fibres/<case>/<layer>/f<i>`; its lines in the plots are drawn wider \
-         and the Selection panel shows its σ², |z1|, end-to-end distance and x2+ at the time \
-         cursor.\n\n\
+         **Plots** (right): one tab per series (σ², |z1|, end-to-end distance, wall distance \
+         x2+), in each one plot per case with every shown fibre of that case, coloured by \
+         initial layer: blue near wall, orange next, green middle. **Click a fibre** in the \
+         gallery (or a line in a plot): it is one entity `fibres/<case>/<layer>/f<i>`; its \
+         line in its case's plot is drawn opaque and wider in every tab, and the Selection \
+         panel shows its σ², |z1|, end-to-end distance and x2+ at the time cursor.\n\n\
          **Coiling events**: the first t+ a fibre's σ² reaches {thresholds}; listed under \
          *Coiling events* and marked over the fibre in the gallery (grey, orange, red = \
          lowest to highest threshold).\n\n\
@@ -359,42 +409,94 @@ fn log_static(
         .map_err(err)
 }
 
-fn log_state(
-    rec: &rerun::RecordingStream,
+/// Keeps the shapes of every shown fibre at this state (sent as columns later, like the
+/// series).
+fn collect_state(
     s: &fiberflow_messages::FiberGroupState,
-    shown: &HashMap<usize, Shown>,
+    shown: &mut HashMap<usize, Shown>,
     box_plus: [f64; 3],
     dt_plus: f64,
-) -> Result<(), ViewerError> {
-    set_time(rec, s.step, s.t_plus, dt_plus);
+) {
     let firsts = shape::first_segments(s);
-    let mut fibres: Vec<(&usize, &Shown)> = shown.iter().collect();
-    fibres.sort_by_key(|(f, _)| **f);
-    for (&f, sh) in fibres {
+    let frame = shape::whole_t_plus(s.t_plus, dt_plus);
+    for (&f, sh) in shown.iter_mut() {
         if f >= firsts.len() {
             continue;
         }
         let fibre = shape::shape(s, f, firsts[f]);
-        let c = sigma2_colour(fibre.sigma2);
-        rec.log(
-            sh.path.as_str(),
-            &rerun::LineStrips2D::new([shape::side_view(&fibre, sh.cell)])
-                .with_colors([rerun::Color::from_rgb(c[0], c[1], c[2])])
-                .with_radii([rerun::Radius::new_scene_units(0.7)]),
-        )
-        .map_err(err)?;
-
-        rec.log(
-            sh.path.as_str(),
-            &rerun::DynamicArchetype::new(paths::ARCHETYPE)
-                .with_component::<rerun::components::LineStrip3D>(
-                    paths::CHANNEL_STRIP,
-                    [shape::in_box(&fibre, box_plus)],
-                ),
-        )
-        .map_err(err)?;
+        sh.shapes.push(ShapeRow {
+            step: s.step,
+            frame,
+            gallery: shape::side_view(&fibre, sh.cell),
+            colour: sigma2_colour(fibre.sigma2),
+            channel: shape::in_box(&fibre, box_plus),
+        });
     }
-    Ok(())
+}
+
+/// The time columns of the rows that stand for a whole t+ (`on_t_plus`: on the `step` and
+/// `t+` timelines) or of the others (`step` only), as a row-wise log with [`set_time`]
+/// would place them.
+fn time_columns(
+    rows: &[(u64, Option<i64>)],
+    on_t_plus: bool,
+) -> Option<(Vec<usize>, Vec<rerun::TimeColumn>)> {
+    let part: Vec<usize> = (0..rows.len())
+        .filter(|&i| rows[i].1.is_some() == on_t_plus)
+        .collect();
+    if part.is_empty() {
+        return None;
+    }
+    let mut indexes = vec![rerun::TimeColumn::new_sequence(
+        "step",
+        part.iter().map(|&i| rows[i].0 as i64),
+    )];
+    if on_t_plus {
+        indexes.push(rerun::TimeColumn::new_sequence(
+            "t+",
+            part.iter().filter_map(|&i| rows[i].1),
+        ));
+    }
+    Some((part, indexes))
+}
+
+/// Serialized batches as columns of one-element rows.
+fn unit_columns(
+    batches: Vec<rerun::SerializedComponentBatch>,
+) -> Result<Vec<rerun::SerializedComponentColumn>, ViewerError> {
+    batches
+        .into_iter()
+        .map(|b| b.column_of_unit_batches().map_err(err))
+        .collect()
+}
+
+/// A fibre's shown states as `send_columns` input: per row its gallery strip (the standard
+/// `LineStrips2D`, with its σ² colour) and its channel strip (`fibre:channel_strip`).
+fn shape_columns(rows: &[ShapeRow]) -> Result<Vec<SeriesChunk>, ViewerError> {
+    let times: Vec<(u64, Option<i64>)> = rows.iter().map(|r| (r.step, r.frame)).collect();
+    let mut out = Vec::new();
+    for on_t_plus in [true, false] {
+        let Some((part, indexes)) = time_columns(&times, on_t_plus) else {
+            continue;
+        };
+        let gallery = rerun::LineStrips2D::update_fields()
+            .with_strips(part.iter().map(|&i| rows[i].gallery.clone()))
+            .with_colors(part.iter().map(|&i| {
+                let [r, g, b] = rows[i].colour;
+                rerun::Color::from_rgb(r, g, b)
+            }));
+        let channel = rerun::DynamicArchetype::new(paths::ARCHETYPE)
+            .with_component::<rerun::components::LineStrip3D>(
+                paths::CHANNEL_STRIP,
+                part.iter().map(|&i| rows[i].channel.clone()),
+            );
+        let mut columns = unit_columns(rerun::AsComponents::as_serialized_batches(&gallery))?;
+        columns.extend(unit_columns(rerun::AsComponents::as_serialized_batches(
+            &channel,
+        ))?);
+        out.push((indexes, columns));
+    }
+    Ok(out)
 }
 
 /// Keeps the four series of every shown fibre at this step (sent as columns later: one
@@ -426,31 +528,20 @@ fn collect_metrics(
 /// `step` and `t+` timelines) and the others (`step` only), as a row-wise log with
 /// [`set_time`] would place them.
 fn series_columns(rows: &[SeriesRow]) -> Result<Vec<SeriesChunk>, ViewerError> {
+    let times: Vec<(u64, Option<i64>)> = rows.iter().map(|r| (r.0, r.1)).collect();
     let mut out = Vec::new();
     for on_t_plus in [true, false] {
-        let part: Vec<&SeriesRow> = rows.iter().filter(|r| r.1.is_some() == on_t_plus).collect();
-        if part.is_empty() {
+        let Some((part, indexes)) = time_columns(&times, on_t_plus) else {
             continue;
-        }
-        let mut indexes = vec![rerun::TimeColumn::new_sequence(
-            "step",
-            part.iter().map(|r| r.0 as i64),
-        )];
-        if on_t_plus {
-            indexes.push(rerun::TimeColumn::new_sequence(
-                "t+",
-                part.iter().filter_map(|r| r.1),
-            ));
-        }
+        };
         let mut arch = rerun::DynamicArchetype::new(paths::ARCHETYPE);
-        for (k, (name, _)) in paths::SERIES.iter().enumerate() {
-            arch = arch
-                .with_component::<rerun::components::Scalar>(*name, part.iter().map(|r| r.2[k]));
+        for (k, series) in paths::SERIES.iter().enumerate() {
+            arch = arch.with_component::<rerun::components::Scalar>(
+                series.component,
+                part.iter().map(|&i| rows[i].2[k]),
+            );
         }
-        let columns = rerun::AsComponents::as_serialized_batches(&arch)
-            .into_iter()
-            .map(|b| b.column_of_unit_batches().map_err(err))
-            .collect::<Result<Vec<_>, _>>()?;
+        let columns = unit_columns(rerun::AsComponents::as_serialized_batches(&arch))?;
         out.push((indexes, columns));
     }
     Ok(out)
@@ -543,6 +634,51 @@ mod tests {
             .downcast_ref::<rerun::external::arrow::array::Float64Array>()
             .expect("scalars are f64");
         assert_eq!(values.values(), &[1.0, 2.0, 3.0, 4.0, 6.0]);
+    }
+
+    /// Shapes go out as one chunk per timeline set, each row one strip (all its points)
+    /// with its colour, in the gallery and the channel column.
+    #[test]
+    fn shape_columns_keep_one_strip_and_colour_per_row() {
+        use rerun::external::arrow::array::Array as _;
+        let rows: Vec<ShapeRow> = (0..4u64)
+            .map(|k| ShapeRow {
+                step: 10 * k,
+                frame: (k != 2).then_some(k as i64),
+                gallery: vec![[k as f32, 0.0]; 3],
+                colour: [k as u8, 0, 0],
+                channel: vec![[0.0, k as f32, 1.0]; 3],
+            })
+            .collect();
+        let chunks = shape_columns(&rows).unwrap();
+        assert_eq!(chunks.len(), 2);
+        let (idx, cols) = &chunks[0];
+        assert_eq!(idx[0].times_raw(), &[0, 10, 30]);
+        assert_eq!(idx[1].times_raw(), &[0, 1, 3]);
+        let names: Vec<&str> = cols
+            .iter()
+            .map(|c| c.descriptor.component.as_str())
+            .collect();
+        for want in [
+            "LineStrips2D:strips".to_string(),
+            "LineStrips2D:colors".to_string(),
+            paths::component(paths::CHANNEL_STRIP),
+        ] {
+            let col = cols
+                .iter()
+                .find(|c| c.descriptor.component.as_str() == want)
+                .unwrap_or_else(|| panic!("no {want} column in {names:?}"));
+            assert_eq!(col.list_array.len(), 3, "{want}: one entry per row");
+            assert_eq!(
+                col.list_array.value_length(1),
+                1,
+                "{want}: one strip per row"
+            );
+        }
+        let (idx, cols) = &chunks[1];
+        assert_eq!(idx.len(), 1);
+        assert_eq!(idx[0].times_raw(), &[20]);
+        assert!(cols.iter().all(|c| c.list_array.len() == 1));
     }
 
     #[test]

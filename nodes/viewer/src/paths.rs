@@ -40,16 +40,42 @@ pub fn band_label(group: &str) -> String {
 
 /// The custom components every fibre entity carries (archetype `fibre`): its channel-view
 /// strip and its four time series. Plots and the channel view map them onto the standard
-/// visualizers; the gallery uses the entity's standard `LineStrips3D`.
+/// visualizers; the gallery uses the entity's standard `LineStrips2D`.
 pub const ARCHETYPE: &str = "fibre";
 pub const CHANNEL_STRIP: &str = "channel_strip";
 
-/// (component, plot title) of the four per-fibre time series.
-pub const SERIES: [(&str, &str); 4] = [
-    ("sigma2", "σ² (coiling; 0 straight)"),
-    ("abs_z1", "|z1| (alignment with the flow; 1 aligned)"),
-    ("end_to_end", "end-to-end distance (wall units)"),
-    ("x2_plus", "wall distance x2+ (wall units)"),
+/// One of the four per-fibre time series.
+pub struct Series {
+    /// The custom component it is logged as.
+    pub component: &'static str,
+    /// Name of its tab of plots.
+    pub title: &'static str,
+    /// Name in a plot's title, before the case.
+    pub short: &'static str,
+}
+
+/// The four per-fibre time series.
+pub const SERIES: [Series; 4] = [
+    Series {
+        component: "sigma2",
+        title: "σ² (coiling; 0 straight)",
+        short: "σ²",
+    },
+    Series {
+        component: "abs_z1",
+        title: "|z1| (alignment; 1 along the flow)",
+        short: "|z1|",
+    },
+    Series {
+        component: "end_to_end",
+        title: "end-to-end distance (wall units)",
+        short: "end-to-end",
+    },
+    Series {
+        component: "x2_plus",
+        title: "wall distance x2+ (wall units)",
+        short: "x2+",
+    },
 ];
 
 /// The full name of a custom component as mappings refer to it.
