@@ -1,5 +1,6 @@
 //! Fibre-step throughput for N = 7 with all hydrodynamics (viscous + inertial drag):
-//! 1, 10³ and 10⁵ fibres, on one thread and on all threads.
+//! 1, 10³ and 10⁵ fibres, on one thread and on all threads; on one thread also one fibre
+//! at a time (`one_thread_unbatched`, no SIMD batching), the reference for the batched step.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use fiberflow_fiber_model::fibre::Fibre;
@@ -53,6 +54,10 @@ fn bench(c: &mut Criterion) {
         grp.throughput(Throughput::Elements(n as u64));
         grp.bench_with_input(BenchmarkId::new("one_thread", n), &n, |b, _| {
             b.iter(|| g.step_serial(&fluid, 0.01).expect("step"))
+        });
+        let (mut g, fluid) = group(n);
+        grp.bench_with_input(BenchmarkId::new("one_thread_unbatched", n), &n, |b, _| {
+            b.iter(|| g.step_serial_unbatched(&fluid, 0.01).expect("step"))
         });
         let (mut g, fluid) = group(n);
         grp.bench_with_input(BenchmarkId::new("all_threads", n), &n, |b, _| {

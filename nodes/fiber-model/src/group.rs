@@ -1,8 +1,10 @@
 //! A group of fibres stepped together (one fibre node owns one or more groups); fibres
 //! are independent (no fibre–fibre interaction, one-way coupling), so they step in parallel.
 
+use crate::batch;
 use crate::error::FibreError;
 use crate::fibre::Fibre;
+use crate::lanes::LANES;
 use crate::step::{step, FluidSample, ModelParams};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -67,30 +69,92 @@ impl FibreGroup {
         Ok(())
     }
 
-    /// Advances every fibre by `dt` (in parallel; deterministic: fibres are independent).
+    /// Advances every fibre by `dt`, in parallel, four fibres at a time where they can
+    /// share SIMD lanes ([`batch`]); deterministic: fibres are independent and every
+    /// fibre gets the same bits batched or not.
     pub fn step(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
         self.check(fluid)?;
         let params = self.params;
         let offsets = &self.offsets;
         self.fibres
-            .par_iter_mut()
+            .par_chunks_mut(LANES)
             .enumerate()
-            .try_for_each(|(k, f)| {
-                let s = &fluid[offsets[k]..offsets[k + 1]];
-                step(&params, f, s, dt).map_err(|e| match e {
-                    FibreError::Singular { .. } => FibreError::Singular { fibre: k },
-                    other => other,
-                })
+            .try_for_each_init(batch::Scratch::default, |scratch, (c, chunk)| {
+                step_chunk(&params, chunk, c * LANES, offsets, fluid, dt, scratch)
             })
     }
 
-    /// Advances on the current thread only (for single-thread benchmarks).
+    /// [`Self::step`] on the current thread only (for single-thread benchmarks).
     pub fn step_serial(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
         self.check(fluid)?;
-        for (k, f) in self.fibres.iter_mut().enumerate() {
-            let s = &fluid[self.offsets[k]..self.offsets[k + 1]];
-            step(&self.params, f, s, dt)?;
+        let mut scratch = batch::Scratch::default();
+        for (c, chunk) in self.fibres.chunks_mut(LANES).enumerate() {
+            step_chunk(
+                &self.params,
+                chunk,
+                c * LANES,
+                &self.offsets,
+                fluid,
+                dt,
+                &mut scratch,
+            )?;
         }
         Ok(())
     }
+
+    /// One fibre at a time with [`step`] on the current thread, never batched (the
+    /// reference the batched step is compared with, in tests and benchmarks).
+    pub fn step_serial_unbatched(
+        &mut self,
+        fluid: &[FluidSample],
+        dt: f64,
+    ) -> Result<(), FibreError> {
+        self.check(fluid)?;
+        for (k, f) in self.fibres.iter_mut().enumerate() {
+            step_one(&self.params, f, k, &self.offsets, fluid, dt)?;
+        }
+        Ok(())
+    }
+}
+
+/// Steps the fibres `first..first + chunk.len()`: together if [`batch::eligible`], else
+/// one by one.
+fn step_chunk(
+    params: &ModelParams,
+    chunk: &mut [Fibre],
+    first: usize,
+    offsets: &[usize],
+    fluid: &[FluidSample],
+    dt: f64,
+    scratch: &mut batch::Scratch,
+) -> Result<(), FibreError> {
+    if batch::eligible(params, chunk) {
+        let samples: [&[FluidSample]; LANES] = std::array::from_fn(|j| {
+            let k = (first + j).min(first + chunk.len() - 1);
+            &fluid[offsets[k]..offsets[k + 1]]
+        });
+        return batch::step(params, chunk, &samples[..chunk.len()], dt, scratch).map_err(|lane| {
+            FibreError::Singular {
+                fibre: first + lane,
+            }
+        });
+    }
+    for (j, f) in chunk.iter_mut().enumerate() {
+        step_one(params, f, first + j, offsets, fluid, dt)?;
+    }
+    Ok(())
+}
+
+fn step_one(
+    params: &ModelParams,
+    f: &mut Fibre,
+    k: usize,
+    offsets: &[usize],
+    fluid: &[FluidSample],
+    dt: f64,
+) -> Result<(), FibreError> {
+    step(params, f, &fluid[offsets[k]..offsets[k + 1]], dt).map_err(|e| match e {
+        FibreError::Singular { .. } => FibreError::Singular { fibre: k },
+        other => other,
+    })
 }

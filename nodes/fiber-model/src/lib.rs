@@ -3,6 +3,7 @@
 //! inertial cross-flow hydrodynamics, plus joint bending stiffness, gravity and wall
 //! contact. No transport dependency: plain state plus [`step::step`].
 
+pub mod batch;
 pub mod cases;
 pub mod checkpoint;
 pub mod dense;
@@ -10,6 +11,7 @@ pub mod error;
 pub mod fibre;
 pub mod group;
 pub mod hydro;
+pub mod lanes;
 pub mod metrics;
 pub mod step;
 
