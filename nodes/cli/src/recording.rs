@@ -100,6 +100,22 @@ pub fn replay_cmd(
     let segs = fiberflow_messages::segments::segment_paths(path)
         .with_context(|| format!("reading {}", path.display()))?;
     let bus = zenoh(connect, listen)?;
+    // zenoh drops a put whose subscribers it does not know yet: wait until every recorded
+    // topic has one (as `inject` does), then a little for the others' declarations
+    let mut topics: Vec<String> = Vec::new();
+    for seg in &segs {
+        let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
+        for m in mcap::MessageStream::new(&bytes)? {
+            let topic = &m?.channel.topic;
+            if !topic.ends_with("/points") && !topics.contains(topic) {
+                topics.push(topic.clone());
+            }
+        }
+    }
+    let unheard = bus.await_subscribers(&topics, Duration::from_secs(30))?;
+    if !unheard.is_empty() {
+        tracing::warn!(topics = %unheard.join(", "), "no subscriber after 30 s; replaying anyway");
+    }
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
