@@ -231,8 +231,9 @@ fn thomas(
     dinv[0] = d0;
     rp[0] = -(ps[1] - ps[0] + zqb[0] + zqb[1]);
     for k in 1..nj {
+        // lower(k) and upper(k - 1) are the same block, P_k + W_k
         let lower = pm[k] + wm[k];
-        let upper_prev = pm[k] + wm[k];
+        let upper_prev = lower;
         let m = lower.mul_m(dinv[k - 1]);
         let diag = wm[k] + wm[k + 1] - pm[k] - pm[k + 1];
         let (dk, det) = (diag - m.mul_m(upper_prev)).inverse();
