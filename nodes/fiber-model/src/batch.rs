@@ -1,35 +1,135 @@
 //! Four fibres with the same number of segments stepped at once: [`crate::step`]'s
-//! equations (paper eq. 5, 7–12) evaluated with one fibre per lane ([`crate::lanes`]),
-//! structure of arrays across the four fibres, so the arithmetic runs in SIMD registers.
-//! Lane by lane it performs exactly the floating-point operations of `step::step`, so each
-//! fibre gets the same bits either way (test `batch_matches_the_scalar_step_bit_for_bit`).
+//! equations (paper eq. 5, 7–12) evaluated with one fibre per lane ([`crate::lanes`]) on
+//! the group's lane storage ([`LaneSeg`], structure of arrays across the four fibres), so
+//! the arithmetic runs in SIMD registers and nothing is gathered. Lane by lane it performs
+//! exactly the floating-point operations of `step::step`, so each fibre gets the same
+//! bits either way (test `batch_matches_the_scalar_step_bit_for_bit`).
 //!
 //! Not covered here (the group falls back to `step::step`): joint twisting stiffness, the
 //! Tikhonov solve and the loads diagnostics.
 
-use crate::fibre::Fibre;
+use crate::fibre::{Segment, SegmentProps};
 use crate::lanes::{F4, LANES, M3, V3};
-use crate::step::{wall_contact, FluidSample, ModelParams};
+use crate::step::{FluidSample, ModelParams};
 use nalgebra::Vector3;
 
-/// Whether `fibres` can be stepped together under `p`: one to four fibres, all with the
-/// same number of segments, no twisting stiffness, exact solve.
-pub fn eligible(p: &ModelParams, fibres: &[Fibre]) -> bool {
-    let Some(n) = fibres.first().map(Fibre::len) else {
-        return false;
-    };
-    fibres.len() <= LANES
-        && n > 0
-        && fibres.iter().all(|f| f.len() == n)
-        && p.twisting_stiffness == 0.0
-        && p.tikhonov == 0.0
+/// Whether the model's terms are all covered by the lane step: no twisting stiffness,
+/// exact solve.
+pub fn model_allows_lanes(p: &ModelParams) -> bool {
+    p.twisting_stiffness == 0.0 && p.tikhonov == 0.0
 }
 
-/// Per-segment working arrays of a batch, reused from batch to batch (grown when a longer
+/// Segment i of four fibres (one per lane): the state of [`Segment`], lane-major.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LaneSeg {
+    pub r: V3,
+    pub z: V3,
+    pub v: V3,
+    pub w: V3,
+    pub n: V3,
+}
+
+impl LaneSeg {
+    /// The four segments in lanes 0..3.
+    pub fn of(s: [Segment; LANES]) -> Self {
+        let v = |f: fn(&Segment) -> Vector3<f64>| {
+            let x = s.map(|seg| f(&seg));
+            V3([0, 1, 2].map(|c| F4([x[0][c], x[1][c], x[2][c], x[3][c]])))
+        };
+        LaneSeg {
+            r: v(|s| s.r),
+            z: v(|s| s.z),
+            v: v(|s| s.v),
+            w: v(|s| s.w),
+            n: v(|s| s.n),
+        }
+    }
+
+    /// The segment in lane `l`.
+    pub fn get(&self, l: usize) -> Segment {
+        let at = |v: &V3| Vector3::new(v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]);
+        Segment {
+            r: at(&self.r),
+            z: at(&self.z),
+            v: at(&self.v),
+            w: at(&self.w),
+            n: at(&self.n),
+        }
+    }
+
+    /// Puts `s` into lane `l`.
+    pub fn set(&mut self, l: usize, s: Segment) {
+        for (dst, src) in [
+            (&mut self.r, s.r),
+            (&mut self.z, s.z),
+            (&mut self.v, s.v),
+            (&mut self.w, s.w),
+            (&mut self.n, s.n),
+        ] {
+            for c in 0..3 {
+                dst.0[c].0[l] = src[c];
+            }
+        }
+    }
+}
+
+/// A segment's constants in the step, per lane, computed once from its properties with
+/// exactly the operations `step::step` performs on them every step (so the bits match):
+/// the parts of the resistance (`hydro::resistance_axisymmetric`) that do not depend on
+/// the cross-flow speed, the buoyant mass and the inertia.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LaneConsts {
+    mass: F4,
+    length: F4,
+    /// l³.
+    l3: F4,
+    /// C_D ρ_f d (times the cross-flow speed, the inertial drag per length).
+    cd_rho_d: F4,
+    /// 3πμ l Y^A and 3πμ l X^A.
+    visc_perp: F4,
+    visc_par: F4,
+    /// πμ l³ Y^C, πμ l³ X^C and πμ l³ Y^H.
+    rot_perp: F4,
+    rot_par: F4,
+    strain: F4,
+    /// m − ρ_f m/ρ_s (gravity minus buoyancy per unit g).
+    buoyant_mass: F4,
+    inertia_perp: F4,
+    inertia_axial: F4,
+}
+
+impl LaneConsts {
+    /// The constants of four segments (`props[l]`, of a fibre of density `density[l]`).
+    pub fn new(p: &ModelParams, props: [&SegmentProps; LANES], density: [f64; LANES]) -> Self {
+        let of = |get: fn(&SegmentProps) -> f64| F4(props.map(get));
+        let pi = std::f64::consts::PI;
+        let mu = p.drag.viscosity;
+        let mass = of(|p| p.mass);
+        let l = of(|p| p.shape.length);
+        let l3 = l * l * l;
+        let pi_mu_l3 = F4::splat(pi * mu) * l3;
+        LaneConsts {
+            mass,
+            length: l,
+            l3,
+            cd_rho_d: F4::splat(p.drag.drag_coefficient * p.drag.fluid_density)
+                * of(|p| p.shape.diameter),
+            visc_perp: F4::splat(3.0 * pi * mu) * l * of(|p| p.shape.coeffs.ya),
+            visc_par: F4::splat(3.0 * pi * mu) * l * of(|p| p.shape.coeffs.xa),
+            rot_perp: pi_mu_l3 * of(|p| p.shape.coeffs.yc),
+            rot_par: pi_mu_l3 * of(|p| p.shape.coeffs.xc),
+            strain: pi_mu_l3 * of(|p| p.shape.coeffs.yh),
+            buoyant_mass: mass - F4::splat(p.drag.fluid_density) * (mass / F4(density)),
+            inertia_perp: of(|p| p.inertia_perp),
+            inertia_axial: of(|p| p.inertia_axial),
+        }
+    }
+}
+
+/// Per-segment working arrays of a block, reused from block to block (grown when a longer
 /// fibre comes, never shrunk; every entry read in a step was written earlier in it).
 #[derive(Debug, Default)]
 pub struct Scratch {
-    seg: Vec<Kept>,
     pa: Vec<Axi>,
     qa: Vec<Axi>,
     pm: Vec<M3>,
@@ -46,10 +146,9 @@ pub struct Scratch {
 
 impl Scratch {
     fn prepare(&mut self, n: usize) {
-        if self.seg.len() >= n {
+        if self.pa.len() >= n {
             return;
         }
-        self.seg.resize(n, Kept::default());
         for v in [&mut self.pa, &mut self.qa] {
             v.resize(n, Axi::default());
         }
@@ -70,13 +169,19 @@ impl Scratch {
     }
 }
 
-/// Steps `fibres` (see [`eligible`]) by `dt`; `fluid[l]` holds fibre l's samples. On a
-/// singular or non-finite system, returns the index in `fibres` of the first fibre
-/// affected (the fibres' states are then unspecified, as after a failed group step).
+/// Steps one block of the group's lane storage by `dt`: `seg` holds its segments,
+/// `consts[i * stride]` segment i's constants, `fluid[l]` lane l's samples; lanes from
+/// `used` on are padding (not checked). On a singular or non-finite system, returns the
+/// first lane affected (the block's state is then unspecified, as after a failed group
+/// step).
+#[allow(clippy::too_many_arguments)]
 pub fn step(
     p: &ModelParams,
-    fibres: &mut [Fibre],
-    fluid: &[&[FluidSample]],
+    seg: &mut [LaneSeg],
+    consts: &[LaneConsts],
+    stride: usize,
+    used: usize,
+    fluid: &[&[FluidSample]; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
@@ -85,34 +190,29 @@ pub fn step(
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above); `step_avx2` only enables
             // it for code generation and is otherwise the portable kernel.
-            return unsafe { step_avx2(p, fibres, fluid, dt, scratch) };
+            return unsafe { step_avx2(p, seg, consts, stride, used, fluid, dt, scratch) };
         }
     }
-    kernel(p, fibres, fluid, dt, scratch)
+    kernel(p, seg, consts, stride, used, fluid, dt, scratch)
 }
 
 /// [`kernel`] compiled for AVX2 (four `f64` per register). Only the instruction set
 /// changes: no fused multiply-add is enabled, so results are the same bits.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn step_avx2(
     p: &ModelParams,
-    fibres: &mut [Fibre],
-    fluid: &[&[FluidSample]],
+    seg: &mut [LaneSeg],
+    consts: &[LaneConsts],
+    stride: usize,
+    used: usize,
+    fluid: &[&[FluidSample]; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
-    kernel(p, fibres, fluid, dt, scratch)
+    kernel(p, seg, consts, stride, used, fluid, dt, scratch)
 }
-
-/// What the second half of the step needs of a segment's old state.
-#[derive(Debug, Clone, Copy, Default)]
-struct Kept {
-    z: V3,
-    n: V3,
-    half_length: F4,
-}
-
 /// An axisymmetric operator per lane (see `hydro::Axisymmetric`).
 #[derive(Debug, Clone, Copy, Default)]
 struct Axi {
@@ -152,22 +252,6 @@ impl Axi {
 /// The first lane (fibre index) where `ok` is false, among the `used` lanes.
 fn first_bad(ok: &[bool; LANES], used: usize) -> Option<usize> {
     (0..used).find(|&l| !ok[l])
-}
-
-/// One value per lane, `get` of each lane's item.
-#[inline(always)]
-fn of4<T>(items: &[&T; LANES], get: impl Fn(&T) -> f64) -> F4 {
-    F4([get(items[0]), get(items[1]), get(items[2]), get(items[3])])
-}
-
-/// The lanes' vectors as one lane vector.
-#[inline(always)]
-fn of4v(v: &[&Vector3<f64>; LANES]) -> V3 {
-    V3([
-        F4([v[0].x, v[1].x, v[2].x, v[3].x]),
-        F4([v[0].y, v[1].y, v[2].y, v[3].y]),
-        F4([v[0].z, v[1].z, v[2].z, v[3].z]),
-    ])
 }
 
 /// [`crate::step::rotate_pair`] per lane: the axis and the normal turned by the rotation
@@ -248,29 +332,27 @@ fn thomas(
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn kernel(
     p: &ModelParams,
-    fibres: &mut [Fibre],
-    fluid: &[&[FluidSample]],
+    seg: &mut [LaneSeg],
+    consts: &[LaneConsts],
+    stride: usize,
+    used: usize,
+    fluid: &[&[FluidSample]; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
-    let used = fibres.len();
-    let n = fibres.first().map_or(0, Fibre::len);
-    if used == 0 || used > LANES || fluid.len() != used || n == 0 {
+    let n = seg.len();
+    if used == 0 || used > LANES || n == 0 || consts.len() < 1 + (n - 1) * stride {
         return Err(0);
     }
-    if fibres
-        .iter()
-        .zip(fluid)
-        .any(|(f, s)| f.len() != n || s.len() != n)
-    {
+    if fluid.iter().any(|s| s.len() != n) {
         return Err(0);
     }
     scratch.prepare(n);
     let Scratch {
-        seg,
         pa,
         qa,
         pm,
@@ -284,38 +366,20 @@ fn kernel(
         v_new,
         w_new,
     } = scratch;
-    // unused lanes repeat fibre 0
-    let idx = [0, 1, 2, 3].map(|l| if l < used { l } else { 0 });
     let mut ok = [true; LANES];
-    let pi = std::f64::consts::PI;
-    let mu = p.drag.viscosity;
     let dt4 = F4::splat(dt);
     let half = F4::splat(0.5);
     let gravity = V3::splat([p.gravity.x, p.gravity.y, p.gravity.z]);
     let kb = F4::splat(p.bending_stiffness);
-    let fs: &[Fibre] = fibres;
-    let first = |l: usize| &fs[idx[l]].segments[0].z;
-    let mut z_next = of4v(&[first(0), first(1), first(2), first(3)]);
     for i in 0..n {
-        let seg_of = |l: usize| &fs[idx[l]].segments[i];
-        let props_of = |l: usize| &fs[idx[l]].props[i];
-        let fluid_of = |l: usize| &fluid[idx[l]][i];
-        let sg = [seg_of(0), seg_of(1), seg_of(2), seg_of(3)];
-        let pr = [props_of(0), props_of(1), props_of(2), props_of(3)];
-        let fl = [fluid_of(0), fluid_of(1), fluid_of(2), fluid_of(3)];
-        let gm = [&fl[0].grad, &fl[1].grad, &fl[2].grad, &fl[3].grad];
-        let z = z_next;
-        if i + 1 < n {
-            let next = |l: usize| &fs[idx[l]].segments[i + 1].z;
-            z_next = of4v(&[next(0), next(1), next(2), next(3)]);
-        }
-        let v = of4v(&[&sg[0].v, &sg[1].v, &sg[2].v, &sg[3].v]);
-        let w = of4v(&[&sg[0].w, &sg[1].w, &sg[2].w, &sg[3].w]);
-        let vel = of4v(&[&fl[0].vel, &fl[1].vel, &fl[2].vel, &fl[3].vel]);
-        let gr =
-            M3::from_fn(|a, b| F4([gm[0][(a, b)], gm[1][(a, b)], gm[2][(a, b)], gm[3][(a, b)]]));
-        let mass = of4(&pr, |p| p.mass);
-        let l = of4(&pr, |p| p.shape.length);
+        let c = &consts[i * stride];
+        let s = &seg[i];
+        let fl = [&fluid[0][i], &fluid[1][i], &fluid[2][i], &fluid[3][i]];
+        let z = s.z;
+        let (v, w) = (s.v, s.w);
+        let vel = V3([0, 1, 2].map(|a| F4(fl.map(|f| f.vel[a]))));
+        let gr = M3::from_fn(|a, b| F4(fl.map(|f| f.grad[(a, b)])));
+        let (mass, l) = (c.mass, c.length);
         // strain rate and fluid rotation (FluidSample::strain, ::rotation)
         let g = M3::from_fn(|a, b| half * (gr.0[a][b] + gr.0[b][a]));
         let omega = V3([
@@ -327,31 +391,19 @@ fn kernel(
         let rel = vel - v;
         let v_perp = (rel - z.scale(z.dot(rel))).norm();
         // hydro::resistance_axisymmetric
-        let l3 = l * l * l;
-        let cd_rho_d = F4::splat(p.drag.drag_coefficient * p.drag.fluid_density)
-            * of4(&pr, |p| p.shape.diameter)
-            * v_perp;
+        let cd_rho_d = c.cd_rho_d * v_perp;
         let zxgz = z.cross(g.mul_v(z));
-        let l3_24 = cd_rho_d * l3 / F4::splat(24.0);
-        let pi_mu_l3 = F4::splat(pi * mu) * l3;
+        let l3_24 = cd_rho_d * c.l3 / F4::splat(24.0);
         let ra = Axi {
-            perp: F4::splat(3.0 * pi * mu) * l * of4(&pr, |p| p.shape.coeffs.ya)
-                + half * cd_rho_d * l,
-            par: F4::splat(3.0 * pi * mu) * l * of4(&pr, |p| p.shape.coeffs.xa),
+            perp: c.visc_perp + half * cd_rho_d * l,
+            par: c.visc_par,
         };
         let rc = Axi {
-            perp: pi_mu_l3 * of4(&pr, |p| p.shape.coeffs.yc) + l3_24,
-            par: pi_mu_l3 * of4(&pr, |p| p.shape.coeffs.xc),
+            perp: c.rot_perp + l3_24,
+            par: c.rot_par,
         };
-        let h_g = zxgz.scale(pi_mu_l3 * of4(&pr, |p| p.shape.coeffs.yh) + l3_24);
-        let volume = mass
-            / F4([
-                fs[idx[0]].density,
-                fs[idx[1]].density,
-                fs[idx[2]].density,
-                fs[idx[3]].density,
-            ]);
-        let fw = gravity.scale(mass - F4::splat(p.drag.fluid_density) * volume);
+        let h_g = zxgz.scale(c.strain + l3_24);
+        let fw = gravity.scale(c.buoyant_mass);
         let m_dt = mass / dt4;
         let pinv = Axi {
             perp: m_dt + ra.perp,
@@ -360,8 +412,8 @@ fn kernel(
         .inverse(&mut ok);
         let s_t = v.scale(m_dt) + ra.apply(z, vel) + fw;
         let inertia = Axi {
-            perp: of4(&pr, |p| p.inertia_perp),
-            par: of4(&pr, |p| p.inertia_axial),
+            perp: c.inertia_perp,
+            par: c.inertia_axial,
         };
         let i_w = inertia.apply(z, w);
         let gyroscopic = w.cross(i_w);
@@ -373,7 +425,7 @@ fn kernel(
         let mut bend = V3::default();
         if p.bending_stiffness != 0.0 {
             if i + 1 < n {
-                bend = bend + z.cross(z_next).scale(kb);
+                bend = bend + z.cross(seg[i + 1].z).scale(kb);
             }
             if i > 0 {
                 bend = bend + z.cross(seg[i - 1].z).scale(kb);
@@ -382,11 +434,6 @@ fn kernel(
         let b_t = i_w.unscale(dt4) - gyroscopic + rc.apply(z, omega) + h_g + bend;
         let h = half * l;
         let zz = M3::outer(z);
-        seg[i] = Kept {
-            z,
-            n: of4v(&[&sg[0].n, &sg[1].n, &sg[2].n, &sg[3].n]),
-            half_length: h,
-        };
         pa[i] = pinv;
         qa[i] = qinv;
         pm[i] = pinv.matrix(&zz);
@@ -409,10 +456,11 @@ fn kernel(
     // velocities (eq. 5, 7)
     for i in 0..n {
         let z = seg[i].z;
+        let h = half * consts[i * stride].length;
         let yi = if i < nj { y[i] } else { V3::default() };
         let ym = if i > 0 { y[i - 1] } else { V3::default() };
         v_new[i] = ps[i] + pa[i].apply(z, yi - ym);
-        w_new[i] = qb[i] + qa[i].apply(z, z.cross(yi + ym).scale(seg[i].half_length));
+        w_new[i] = qb[i] + qa[i].apply(z, z.cross(yi + ym).scale(h));
     }
     for (l, good) in ok.iter_mut().enumerate().take(used) {
         *good = (0..n).all(|i| v_new[i].finite_in(l) && w_new[i].finite_in(l));
@@ -420,27 +468,74 @@ fn kernel(
     if let Some(l) = first_bad(&ok, used) {
         return Err(l);
     }
-    // rotations (eq. 12), then back to the fibres: positions (eq. 11), re-chaining, walls
-    for i in 0..n {
-        let (z, nn) = rotate_pair(seg[i].z, seg[i].n, w_new[i].scale(dt4));
+    // positions (eq. 11) and rotations (eq. 12)
+    for (i, s) in seg.iter_mut().enumerate() {
+        let (z, nn) = rotate_pair(s.z, s.n, w_new[i].scale(dt4));
         let nn = (nn - z.scale(z.dot(nn))).normalize();
-        for (l, f) in fibres.iter_mut().enumerate() {
-            let at = |v: &V3| Vector3::new(v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]);
-            let s = &mut f.segments[i];
-            s.v = at(&v_new[i]);
-            s.w = at(&w_new[i]);
-            s.r += dt * s.v;
-            s.z = at(&z);
-            s.n = at(&nn);
-        }
+        s.v = v_new[i];
+        s.w = w_new[i];
+        s.r = s.r + s.v.scale(dt4);
+        s.z = z;
+        s.n = nn;
     }
-    for f in fibres.iter_mut() {
-        f.rechain();
-        if let Some(hh) = p.wall_half_height {
-            wall_contact(f, hh);
-        }
+    rechain(seg, consts, stride);
+    if let Some(hh) = p.wall_half_height {
+        wall_contact(seg, consts, stride, hh);
     }
     Ok(())
+}
+
+/// `Fibre::rechain` in every lane: segments re-chained outward from the middle one.
+#[inline(always)]
+fn rechain(seg: &mut [LaneSeg], consts: &[LaneConsts], stride: usize) {
+    let n = seg.len();
+    let m = (n - 1) / 2;
+    let half = F4::splat(0.5);
+    let h = |i: usize| half * consts[i * stride].length;
+    for i in m + 1..n {
+        let prev = seg[i - 1];
+        seg[i].r = prev.r + prev.z.scale(h(i - 1)) + seg[i].z.scale(h(i));
+    }
+    for i in (0..m).rev() {
+        let next = seg[i + 1];
+        seg[i].r = next.r - next.z.scale(h(i + 1)) - seg[i].z.scale(h(i));
+    }
+}
+
+/// `step::wall_contact` in every lane: a fibre whose end points leave |x2| <= H is moved
+/// back along ê2 and its wall-ward ê2 velocities are zeroed.
+#[inline(always)]
+fn wall_contact(seg: &mut [LaneSeg], consts: &[LaneConsts], stride: usize, half_height: f64) {
+    let n = seg.len();
+    for l in 0..LANES {
+        let (mut ymin, mut ymax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (i, s) in seg.iter().enumerate() {
+            let h = 0.5 * consts[i * stride].length.0[l];
+            let lo = s.r.0[1].0[l] - h * s.z.0[1].0[l];
+            (ymin, ymax) = (ymin.min(lo), ymax.max(lo));
+        }
+        let last = &seg[n - 1];
+        let h = 0.5 * consts[(n - 1) * stride].length.0[l];
+        let hi = last.r.0[1].0[l] + h * last.z.0[1].0[l];
+        (ymin, ymax) = (ymin.min(hi), ymax.max(hi));
+        let mut shift = 0.0;
+        if ymax > half_height {
+            shift = half_height - ymax;
+            for s in seg.iter_mut() {
+                s.v.0[1].0[l] = s.v.0[1].0[l].min(0.0);
+            }
+        } else if ymin < -half_height {
+            shift = -half_height - ymin;
+            for s in seg.iter_mut() {
+                s.v.0[1].0[l] = s.v.0[1].0[l].max(0.0);
+            }
+        }
+        if shift != 0.0 {
+            for s in seg.iter_mut() {
+                s.r.0[1].0[l] += shift;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -478,21 +573,41 @@ mod tests {
     /// and touching a wall (centres within a fibre length of x2 = ±150); segment lengths
     /// and diameters vary, so a change in the order of operations shows in the bits.
     fn fibres(count: usize, segments: usize, seed: &mut u64) -> Vec<Fibre> {
+        fibres_of(count, &[segments], false, seed)
+    }
+
+    /// `count` fibres with `segments[k % len]` segments each; `alike`: every segment of
+    /// every fibre has the same length, diameter and density (the group keeps one set of
+    /// constants), else they vary.
+    fn fibres_of(count: usize, segments: &[usize], alike: bool, seed: &mut u64) -> Vec<Fibre> {
         (0..count)
             .map(|k| {
+                let segments = segments[k % segments.len()];
                 let y = match k % 3 {
                     0 => 149.0,
                     1 => -148.5,
                     _ => 100.0 * rnd(seed),
                 };
                 let axis = Vector3::new(rnd(seed), rnd(seed), rnd(seed) + 0.1);
-                let lengths: Vec<f64> = (0..segments).map(|_| 3.0 + rnd(seed)).collect();
+                let lengths: Vec<f64> = (0..segments)
+                    .map(|_| if alike { 3.0 } else { 3.0 + rnd(seed) })
+                    .collect();
+                let diameter = if alike {
+                    0.232
+                } else {
+                    0.232 + 0.05 * rnd(seed)
+                };
+                let density = if alike {
+                    1150.0
+                } else {
+                    1150.0 + 1150.0 * (k % 2) as f64
+                };
                 let mut f = Fibre::straight(
                     Vector3::new(500.0 * rnd(seed), y, 200.0 * rnd(seed)),
                     axis,
                     &lengths,
-                    &vec![0.232 + 0.05 * rnd(seed); segments],
-                    1150.0 + 1150.0 * (k % 2) as f64,
+                    &vec![diameter; segments],
+                    density,
                 )
                 .expect("valid fibre");
                 if k % 5 != 4 {
@@ -524,9 +639,8 @@ mod tests {
     }
 
     fn bits(g: &FibreGroup) -> Vec<u64> {
-        g.fibres
-            .iter()
-            .flat_map(|f| f.segments.iter())
+        (0..g.len())
+            .flat_map(|k| g.segments(k))
             .flat_map(|s| [s.r, s.z, s.v, s.w, s.n])
             .flat_map(|v| [v.x, v.y, v.z])
             .map(f64::to_bits)
@@ -536,17 +650,23 @@ mod tests {
     /// Batched (four fibres per SIMD pass, padded lanes for the remainder) and one fibre
     /// at a time give the same bits, step after step: with and without bending stiffness
     /// and gravity, for 1, 3 and 7 segments, with fibres at rest in still fluid (the
-    /// zero-rotation branch) and fibres pushed back from the walls.
+    /// zero-rotation branch) and fibres pushed back from the walls; with constants per
+    /// segment, with one set for the whole group (`alike`), and in groups mixing fibre
+    /// lengths (blocks stepped fibre by fibre).
     #[test]
     fn batch_matches_the_scalar_step_bit_for_bit() {
         let mut seed = 7u64;
-        for (segments, bending, gravity) in [
-            (7, 0.0, 0.0),
-            (7, 0.05, 9.81e-3),
-            (3, 0.0, 0.0),
-            (1, 0.0, 1e-3),
+        for (segments, alike, bending, gravity) in [
+            (&[7][..], false, 0.0, 0.0),
+            (&[7], false, 0.05, 9.81e-3),
+            (&[3], false, 0.0, 0.0),
+            (&[1], false, 0.0, 1e-3),
+            (&[7], true, 0.05, 9.81e-3),
+            (&[5], true, 0.0, 0.0),
+            (&[7, 7, 7, 7, 3, 7, 7, 7], true, 0.0, 0.0),
+            (&[7, 7, 7, 7, 3, 7, 7, 7], false, 0.05, 0.0),
         ] {
-            let fs = fibres(11, segments, &mut seed);
+            let fs = fibres_of(11, segments, alike, &mut seed);
             let mut batched = FibreGroup::new(params(bending, gravity), fs.clone());
             let mut serial = batched.clone();
             let mut single = FibreGroup::new(params(bending, gravity), fs);
@@ -556,8 +676,8 @@ mod tests {
                 batched.step(&fl, 0.2).expect("batched step");
                 serial.step_serial(&fl, 0.2).expect("serial batched step");
                 single.step_serial_unbatched(&fl, 0.2).expect("scalar step");
-                assert_eq!(bits(&batched), bits(&single), "N {segments}, step {step}");
-                assert_eq!(bits(&serial), bits(&single), "N {segments}, step {step}");
+                assert_eq!(bits(&batched), bits(&single), "N {segments:?}, step {step}");
+                assert_eq!(bits(&serial), bits(&single), "N {segments:?}, step {step}");
             }
         }
     }
@@ -573,5 +693,22 @@ mod tests {
             Err(crate::FibreError::Singular { fibre }) => assert_eq!(fibre, 5),
             other => panic!("expected fibre 5 to fail, got {other:?}"),
         }
+    }
+
+    /// The group's metrics, read from the lane storage, are those of each fibre.
+    #[test]
+    fn group_metrics_are_each_fibres_metrics() {
+        let mut seed = 5u64;
+        let mut g = FibreGroup::new(params(0.0, 0.0), fibres_of(9, &[7, 4], false, &mut seed));
+        for _ in 0..3 {
+            let fl = fluid(&g, &mut seed, false);
+            g.step(&fl, 0.2).expect("step");
+        }
+        let ms = g.metrics();
+        assert_eq!(ms.len(), 9);
+        for (k, m) in ms.iter().enumerate() {
+            assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
+        }
+        assert!(ms.iter().any(|m| m.sigma2 > 0.0), "the fibres bent");
     }
 }

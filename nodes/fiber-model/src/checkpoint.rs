@@ -8,6 +8,7 @@
 //! structure-of-arrays, 3 f64 per segment each, little-endian, after a header, and closed
 //! by an FNV-1a checksum; files are written atomically (temp file, fsync, rename).
 
+use crate::fibre::Segment;
 use crate::group::FibreGroup;
 use nalgebra::Vector3;
 use std::io::Write;
@@ -46,14 +47,16 @@ impl GroupSnapshot {
         let n = group.segment_count();
         let mut s = Self {
             step,
-            segments_per_fiber: group.fibres.iter().map(|f| f.len() as u32).collect(),
+            segments_per_fiber: (0..group.len())
+                .map(|k| group.fibre_len(k) as u32)
+                .collect(),
             centre: Vec::with_capacity(3 * n),
             axis: Vec::with_capacity(3 * n),
             velocity: Vec::with_capacity(3 * n),
             angular_velocity: Vec::with_capacity(3 * n),
             normal: Vec::with_capacity(3 * n),
         };
-        for seg in group.fibres.iter().flat_map(|f| f.segments.iter()) {
+        for seg in (0..group.len()).flat_map(|k| group.segments(k)) {
             s.centre.extend_from_slice(seg.r.as_slice());
             s.axis.extend_from_slice(seg.z.as_slice());
             s.velocity.extend_from_slice(seg.v.as_slice());
@@ -65,7 +68,9 @@ impl GroupSnapshot {
 
     /// Puts this state into `group` (built from the same configuration).
     pub fn restore(&self, group: &mut FibreGroup) -> Result<(), String> {
-        let shape: Vec<u32> = group.fibres.iter().map(|f| f.len() as u32).collect();
+        let shape: Vec<u32> = (0..group.len())
+            .map(|k| group.fibre_len(k) as u32)
+            .collect();
         if shape != self.segments_per_fiber {
             return Err(format!(
                 "it holds {} fibres / {} segments, the configured group {} / {}",
@@ -79,13 +84,19 @@ impl GroupSnapshot {
             ));
         }
         let v3 = |a: &[f64], i: usize| Vector3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2]);
-        let segments = group.fibres.iter_mut().flat_map(|f| f.segments.iter_mut());
-        for (i, seg) in segments.enumerate() {
-            seg.r = v3(&self.centre, i);
-            seg.z = v3(&self.axis, i);
-            seg.v = v3(&self.velocity, i);
-            seg.w = v3(&self.angular_velocity, i);
-            seg.n = v3(&self.normal, i);
+        let mut i = 0;
+        for k in 0..group.len() {
+            for j in 0..group.fibre_len(k) {
+                let seg = Segment {
+                    r: v3(&self.centre, i),
+                    z: v3(&self.axis, i),
+                    v: v3(&self.velocity, i),
+                    w: v3(&self.angular_velocity, i),
+                    n: v3(&self.normal, i),
+                };
+                group.set_segment(k, j, seg);
+                i += 1;
+            }
         }
         Ok(())
     }
@@ -317,7 +328,8 @@ mod tests {
         std::fs::remove_file(&path).ok();
         // sanity of the single-fibre API on the restored group
         let f0 = shear(&b)[..7].to_vec();
-        step(&b.params, &mut b.fibres[0], &f0, dt).unwrap();
+        let mut one = b.fibre(0);
+        step(b.params(), &mut one, &f0, dt).unwrap();
     }
 
     #[test]
@@ -331,9 +343,8 @@ mod tests {
             .contains("checksum"));
         assert!(GroupSnapshot::from_bytes(&b[..n - 9]).is_err());
         assert!(GroupSnapshot::from_bytes(b"FFGRPCK1").is_err());
-        let mut other = group();
-        other.fibres.pop();
-        let other = FibreGroup::new(other.params, other.fibres);
+        let other = group();
+        let other = other.slice(0, other.len() - 1);
         let mut g2 = group();
         let e = GroupSnapshot::capture(&other, 0)
             .restore(&mut g2)

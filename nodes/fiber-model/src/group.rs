@@ -1,21 +1,58 @@
 //! A group of fibres stepped together (one fibre node owns one or more groups); fibres
 //! are independent (no fibre–fibre interaction, one-way coupling), so they step in parallel.
+//!
+//! Layout: the group keeps its state as lanes ([`crate::batch`]). Fibres 4b … 4b+3 form
+//! block b; segment i of the block is one [`LaneSeg`] holding that segment of each of the
+//! four fibres (structure of arrays across fibres, contiguous block after block), so the
+//! SIMD step reads and writes it in place with no gather. The per-segment constants of
+//! the step ([`LaneConsts`]) are computed once, at construction; a group whose segments
+//! are all alike (every paper case) keeps one set for all. Checkpoints and messages see
+//! the fibre-major order of [`Segment`]s, never this layout.
 
-use crate::batch;
+use crate::batch::{self, LaneConsts, LaneSeg};
 use crate::error::FibreError;
-use crate::fibre::Fibre;
+use crate::fibre::{Fibre, Segment, SegmentProps};
 use crate::lanes::LANES;
+use crate::metrics::{metrics_of, FibreMetrics};
 use crate::step::{step, FluidSample, ModelParams};
-use nalgebra::Vector3;
 use rayon::prelude::*;
 
-/// Fibres sharing model parameters, plus a per-fibre tag (initial layer).
+/// Where a block of up to [`LANES`] fibres sits in the lane storage.
+#[derive(Debug, Clone, Copy)]
+struct Block {
+    /// Index of its first [`LaneSeg`].
+    start: usize,
+    /// Segments of its longest fibre (its share of the storage).
+    len: usize,
+    /// Its index (its first fibre is `LANES * index`).
+    index: usize,
+    /// Fibres in it (4 except possibly the last block).
+    used: usize,
+    /// All its fibres have `len` segments and the model allows the lane step.
+    lanes: bool,
+}
+
+/// The step's constants: one set for a group of identical segments, else one per
+/// [`LaneSeg`] (stride 1).
+#[derive(Debug, Clone)]
+enum Consts {
+    Uniform(LaneConsts),
+    PerSegment(Vec<LaneConsts>),
+}
+
+/// Fibres sharing model parameters.
 #[derive(Debug, Clone)]
 pub struct FibreGroup {
-    pub params: ModelParams,
-    pub fibres: Vec<Fibre>,
-    /// Offsets of each fibre's first segment in the flat segment list.
+    params: ModelParams,
+    /// Properties of every segment, fibre-major.
+    props: Vec<SegmentProps>,
+    /// Material density of each fibre.
+    density: Vec<f64>,
+    /// Offsets of each fibre's first segment in the flat segment order (plus the total).
     offsets: Vec<usize>,
+    blocks: Vec<Block>,
+    state: Vec<LaneSeg>,
+    consts: Consts,
 }
 
 impl FibreGroup {
@@ -27,11 +64,81 @@ impl FibreGroup {
             o += f.len();
         }
         offsets.push(o);
+        let model_lanes = batch::model_allows_lanes(&params);
+        let mut blocks = Vec::with_capacity(fibres.len().div_ceil(LANES));
+        let mut state = Vec::new();
+        for chunk in fibres.chunks(LANES) {
+            let len = chunk.iter().map(Fibre::len).max().unwrap_or(0);
+            let lanes = model_lanes && len > 0 && chunk.iter().all(|f| f.len() == len);
+            blocks.push(Block {
+                index: blocks.len(),
+                start: state.len(),
+                len,
+                used: chunk.len(),
+                lanes,
+            });
+            // unused lanes (and the missing tail of shorter fibres) repeat lane 0's segment
+            for i in 0..len {
+                let seg = |l: usize| {
+                    let f = chunk.get(l).filter(|f| i < f.len()).unwrap_or(&chunk[0]);
+                    f.segments[i.min(f.len() - 1)]
+                };
+                state.push(LaneSeg::of([seg(0), seg(1), seg(2), seg(3)]));
+            }
+        }
+        let uniform = fibres.first().and_then(|f0| {
+            let (p0, d0) = (f0.props.first()?, f0.density);
+            let alike = fibres.iter().all(|f| {
+                f.density.to_bits() == d0.to_bits() && f.props.iter().all(|p| same_props(p, p0))
+            });
+            alike.then(|| LaneConsts::new(&params, [p0; LANES], [d0; LANES]))
+        });
+        let consts = match uniform {
+            Some(c) => Consts::Uniform(c),
+            None => {
+                let mut v = Vec::with_capacity(state.len());
+                for chunk in fibres.chunks(LANES) {
+                    let len = chunk.iter().map(Fibre::len).max().unwrap_or(0);
+                    for i in 0..len {
+                        let pick = |l: usize| {
+                            let f = chunk.get(l).filter(|f| i < f.len()).unwrap_or(&chunk[0]);
+                            (&f.props[i.min(f.len() - 1)], f.density)
+                        };
+                        let pd = [pick(0), pick(1), pick(2), pick(3)];
+                        v.push(LaneConsts::new(&params, pd.map(|x| x.0), pd.map(|x| x.1)));
+                    }
+                }
+                Consts::PerSegment(v)
+            }
+        };
+        let props = fibres
+            .iter()
+            .flat_map(|f| f.props.iter().copied())
+            .collect();
+        let density = fibres.iter().map(|f| f.density).collect();
         Self {
             params,
-            fibres,
+            props,
+            density,
             offsets,
+            blocks,
+            state,
+            consts,
         }
+    }
+
+    /// The model parameters shared by the group.
+    pub fn params(&self) -> &ModelParams {
+        &self.params
+    }
+
+    /// Number of fibres.
+    pub fn len(&self) -> usize {
+        self.density.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.density.is_empty()
     }
 
     /// Total number of segments.
@@ -39,21 +146,98 @@ impl FibreGroup {
         self.offsets.last().copied().unwrap_or(0)
     }
 
-    /// Segment centres in flat order (where the flow must be sampled).
-    pub fn segment_centres(&self) -> Vec<Vector3<f64>> {
-        self.fibres
+    /// Segments of fibre `k`.
+    pub fn fibre_len(&self, k: usize) -> usize {
+        self.offsets[k + 1] - self.offsets[k]
+    }
+
+    /// Properties of fibre `k`'s segments.
+    pub fn props(&self, k: usize) -> &[SegmentProps] {
+        &self.props[self.offsets[k]..self.offsets[k + 1]]
+    }
+
+    /// Material density of fibre `k`.
+    pub fn density(&self, k: usize) -> f64 {
+        self.density[k]
+    }
+
+    /// Segment `i` of fibre `k`.
+    pub fn segment(&self, k: usize, i: usize) -> Segment {
+        let b = &self.blocks[k / LANES];
+        self.state[b.start + i].get(k % LANES)
+    }
+
+    /// Fibre `k`'s segments, first to last.
+    pub fn segments(&self, k: usize) -> impl Iterator<Item = Segment> + '_ {
+        let b = &self.blocks[k / LANES];
+        self.state[b.start..b.start + self.fibre_len(k)]
             .iter()
-            .flat_map(|f| f.segments.iter().map(|s| s.r))
+            .map(move |s| s.get(k % LANES))
+    }
+
+    /// Replaces segment `i` of fibre `k` (velocities and all: the caller owns consistency).
+    pub fn set_segment(&mut self, k: usize, i: usize, s: Segment) {
+        let b = self.blocks[k / LANES];
+        let lane = k % LANES;
+        // the unused lanes of the last block follow fibre 0 of the block
+        let lanes = if lane == 0 { b.used..LANES } else { 0..0 };
+        for l in std::iter::once(lane).chain(lanes) {
+            self.state[b.start + i].set(l, s);
+        }
+    }
+
+    /// Fibre `k` as a [`Fibre`] (a copy).
+    pub fn fibre(&self, k: usize) -> Fibre {
+        Fibre {
+            segments: self.segments(k).collect(),
+            props: self.props(k).to_vec(),
+            density: self.density[k],
+        }
+    }
+
+    /// Every fibre as a [`Fibre`] (a copy).
+    pub fn fibres(&self) -> Vec<Fibre> {
+        (0..self.len()).map(|k| self.fibre(k)).collect()
+    }
+
+    /// The group of fibres `first .. first + n` (one shard's share), same parameters.
+    pub fn slice(&self, first: usize, n: usize) -> FibreGroup {
+        let end = (first + n).min(self.len());
+        FibreGroup::new(
+            self.params,
+            (first.min(end)..end).map(|k| self.fibre(k)).collect(),
+        )
+    }
+
+    /// Shape and orientation metrics of every fibre, in order.
+    pub fn metrics(&self) -> Vec<FibreMetrics> {
+        (0..self.len())
+            .into_par_iter()
+            .map_init(Vec::new, |buf, k| {
+                buf.clear();
+                buf.extend(self.segments(k));
+                metrics_of(buf, self.props(k))
+            })
+            .collect()
+    }
+
+    /// Segment centres in flat order (where the flow must be sampled).
+    pub fn segment_centres(&self) -> Vec<nalgebra::Vector3<f64>> {
+        (0..self.len())
+            .flat_map(|k| self.segments(k).map(|s| s.r))
             .collect()
     }
 
     /// Sets every segment's velocity to the fluid's (linear and angular).
     pub fn set_velocity_to_fluid(&mut self, fluid: &[FluidSample]) -> Result<(), FibreError> {
         self.check(fluid)?;
-        for (f, &o) in self.fibres.iter_mut().zip(&self.offsets) {
-            for (i, s) in f.segments.iter_mut().enumerate() {
+        for k in 0..self.len() {
+            let o = self.offsets[k];
+            for i in 0..self.fibre_len(k) {
+                let mut s = self.segment(k, i);
                 s.v = fluid[o + i].vel;
                 s.w = fluid[o + i].rotation();
+                self.set_segment(k, i, s);
             }
         }
         Ok(())
@@ -69,92 +253,174 @@ impl FibreGroup {
         Ok(())
     }
 
-    /// Advances every fibre by `dt`, in parallel, four fibres at a time where they can
-    /// share SIMD lanes ([`batch`]); deterministic: fibres are independent and every
-    /// fibre gets the same bits batched or not.
+    /// Advances every fibre by `dt`, in parallel, four fibres at a time in SIMD lanes
+    /// where the block allows it ([`batch`]); deterministic: fibres are independent and
+    /// every fibre gets the same bits as from [`step`] one fibre at a time.
     pub fn step(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
         self.check(fluid)?;
-        let params = self.params;
-        let offsets = &self.offsets;
-        self.fibres
-            .par_chunks_mut(LANES)
-            .enumerate()
-            .try_for_each_init(batch::Scratch::default, |scratch, (c, chunk)| {
-                step_chunk(&params, chunk, c * LANES, offsets, fluid, dt, scratch)
-            })
+        let (ctx, parts) = self.split(fluid, dt, true);
+        parts
+            .into_par_iter()
+            .try_for_each_init(Work::default, |work, (b, seg)| ctx.step_block(b, seg, work))
     }
 
     /// [`Self::step`] on the current thread only (for single-thread benchmarks).
     pub fn step_serial(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
         self.check(fluid)?;
-        let mut scratch = batch::Scratch::default();
-        for (c, chunk) in self.fibres.chunks_mut(LANES).enumerate() {
-            step_chunk(
-                &self.params,
-                chunk,
-                c * LANES,
-                &self.offsets,
-                fluid,
-                dt,
-                &mut scratch,
-            )?;
+        let (ctx, parts) = self.split(fluid, dt, true);
+        let mut work = Work::default();
+        for (b, seg) in parts {
+            ctx.step_block(b, seg, &mut work)?;
         }
         Ok(())
     }
 
-    /// One fibre at a time with [`step`] on the current thread, never batched (the
-    /// reference the batched step is compared with, in tests and benchmarks).
+    /// One fibre at a time with [`step`] on the current thread, never in lanes (the
+    /// reference the lane step is compared with, in tests and benchmarks).
     pub fn step_serial_unbatched(
         &mut self,
         fluid: &[FluidSample],
         dt: f64,
     ) -> Result<(), FibreError> {
         self.check(fluid)?;
-        for (k, f) in self.fibres.iter_mut().enumerate() {
-            step_one(&self.params, f, k, &self.offsets, fluid, dt)?;
+        let (ctx, parts) = self.split(fluid, dt, false);
+        let mut work = Work::default();
+        for (b, seg) in parts {
+            ctx.step_block(b, seg, &mut work)?;
         }
         Ok(())
     }
+
+    /// What every block's step reads, and each block's storage, split so that blocks
+    /// can be stepped independently.
+    fn split<'a>(
+        &'a mut self,
+        fluid: &'a [FluidSample],
+        dt: f64,
+        use_lanes: bool,
+    ) -> (Ctx<'a>, Vec<(Block, &'a mut [LaneSeg])>) {
+        let (consts, stride): (&[LaneConsts], usize) = match &self.consts {
+            Consts::Uniform(c) => (std::slice::from_ref(c), 0),
+            Consts::PerSegment(v) => (v, 1),
+        };
+        let mut parts = Vec::with_capacity(self.blocks.len());
+        let mut rest: &mut [LaneSeg] = &mut self.state;
+        for blk in &self.blocks {
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(blk.len);
+            parts.push((*blk, head));
+            rest = tail;
+        }
+        let ctx = Ctx {
+            params: &self.params,
+            props: &self.props,
+            density: &self.density,
+            offsets: &self.offsets,
+            consts,
+            stride,
+            fluid,
+            dt,
+            use_lanes,
+        };
+        (ctx, parts)
+    }
 }
 
-/// Steps the fibres `first..first + chunk.len()`: together if [`batch::eligible`], else
-/// one by one.
-fn step_chunk(
-    params: &ModelParams,
-    chunk: &mut [Fibre],
-    first: usize,
-    offsets: &[usize],
-    fluid: &[FluidSample],
+/// Whether two segments have the same properties, bit for bit.
+fn same_props(a: &SegmentProps, b: &SegmentProps) -> bool {
+    let bits = |p: &SegmentProps| {
+        let s = &p.shape;
+        let c = &s.coeffs;
+        [
+            s.length,
+            s.diameter,
+            c.xa,
+            c.ya,
+            c.xc,
+            c.yc,
+            c.yh,
+            p.mass,
+            p.inertia_axial,
+            p.inertia_perp,
+        ]
+        .map(f64::to_bits)
+    };
+    bits(a) == bits(b)
+}
+
+/// Reused working memory of one thread's block steps.
+#[derive(Debug, Default)]
+struct Work {
+    lanes: batch::Scratch,
+    one: Option<Fibre>,
+}
+
+/// What a block's step reads besides its own storage.
+struct Ctx<'a> {
+    params: &'a ModelParams,
+    props: &'a [SegmentProps],
+    density: &'a [f64],
+    offsets: &'a [usize],
+    consts: &'a [LaneConsts],
+    stride: usize,
+    fluid: &'a [FluidSample],
     dt: f64,
-    scratch: &mut batch::Scratch,
-) -> Result<(), FibreError> {
-    if batch::eligible(params, chunk) {
-        let samples: [&[FluidSample]; LANES] = std::array::from_fn(|j| {
-            let k = (first + j).min(first + chunk.len() - 1);
-            &fluid[offsets[k]..offsets[k + 1]]
-        });
-        return batch::step(params, chunk, &samples[..chunk.len()], dt, scratch).map_err(|lane| {
-            FibreError::Singular {
+    use_lanes: bool,
+}
+
+impl Ctx<'_> {
+    /// The samples of fibre `k`.
+    fn fluid_of(&self, k: usize) -> &[FluidSample] {
+        &self.fluid[self.offsets[k]..self.offsets[k + 1]]
+    }
+
+    /// Steps block `b` (storage `seg`): in lanes if it can, else fibre by fibre.
+    fn step_block(&self, b: Block, seg: &mut [LaneSeg], work: &mut Work) -> Result<(), FibreError> {
+        let first = b.index * LANES;
+        if self.use_lanes && b.lanes {
+            // unused lanes repeat fibre `first`
+            let samples: [&[FluidSample]; LANES] =
+                std::array::from_fn(|l| self.fluid_of(first + if l < b.used { l } else { 0 }));
+            let consts = if self.stride == 0 {
+                self.consts
+            } else {
+                &self.consts[b.start..b.start + b.len]
+            };
+            return batch::step(
+                self.params,
+                seg,
+                consts,
+                self.stride,
+                b.used,
+                &samples,
+                self.dt,
+                &mut work.lanes,
+            )
+            .map_err(|lane| FibreError::Singular {
                 fibre: first + lane,
-            }
+            });
+        }
+        let one = work.one.get_or_insert_with(|| Fibre {
+            segments: Vec::new(),
+            props: Vec::new(),
+            density: 1.0,
         });
+        for l in 0..b.used {
+            let k = first + l;
+            let n = self.offsets[k + 1] - self.offsets[k];
+            one.segments.clear();
+            one.segments.extend(seg[..n].iter().map(|s| s.get(l)));
+            one.props.clear();
+            one.props
+                .extend_from_slice(&self.props[self.offsets[k]..self.offsets[k + 1]]);
+            one.density = self.density[k];
+            step(self.params, one, self.fluid_of(k), self.dt).map_err(|e| match e {
+                FibreError::Singular { .. } => FibreError::Singular { fibre: k },
+                other => other,
+            })?;
+            for (s, &new) in seg.iter_mut().zip(&one.segments) {
+                s.set(l, new);
+            }
+        }
+        Ok(())
     }
-    for (j, f) in chunk.iter_mut().enumerate() {
-        step_one(params, f, first + j, offsets, fluid, dt)?;
-    }
-    Ok(())
-}
-
-fn step_one(
-    params: &ModelParams,
-    f: &mut Fibre,
-    k: usize,
-    offsets: &[usize],
-    fluid: &[FluidSample],
-    dt: f64,
-) -> Result<(), FibreError> {
-    step(params, f, &fluid[offsets[k]..offsets[k + 1]], dt).map_err(|e| match e {
-        FibreError::Singular { .. } => FibreError::Singular { fibre: k },
-        other => other,
-    })
 }

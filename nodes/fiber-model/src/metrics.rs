@@ -1,6 +1,6 @@
 //! Per-fibre shape and orientation metrics (paper §4.3).
 
-use crate::fibre::Fibre;
+use crate::fibre::{Fibre, Segment, SegmentProps};
 use nalgebra::Vector3;
 
 /// Metrics of one fibre at one instant.
@@ -18,12 +18,18 @@ pub struct FibreMetrics {
     pub end_to_end: f64,
 }
 
+/// The metrics of fibre `f`.
 pub fn metrics(f: &Fibre) -> FibreMetrics {
-    let n = f.len();
+    metrics_of(&f.segments, &f.props)
+}
+
+/// The metrics of the fibre whose segments are `segments`, with properties `props`.
+pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FibreMetrics {
+    let n = segments.len();
     let mut com = Vector3::zeros();
     let mut mass = 0.0;
     let mut zs = Vector3::zeros();
-    for (s, p) in f.segments.iter().zip(&f.props) {
+    for (s, p) in segments.iter().zip(props) {
         com += p.mass * s.r;
         mass += p.mass;
         zs += s.z;
@@ -36,7 +42,7 @@ pub fn metrics(f: &Fibre) -> FibreMetrics {
         Vector3::zeros()
     };
     let sigma2 = if n > 1 {
-        f.segments
+        segments
             .iter()
             .map(|s| (s.z - zhat).norm_squared())
             .sum::<f64>()
@@ -44,9 +50,18 @@ pub fn metrics(f: &Fibre) -> FibreMetrics {
     } else {
         0.0
     };
-    let joints = f.joints();
-    let end_to_end = match (joints.first(), joints.last()) {
-        (Some(a), Some(b)) => (b - a).norm(),
+    // the free ends, as the first and last of `Fibre::joints`
+    let end_to_end = match (
+        segments.first(),
+        segments.last(),
+        props.first(),
+        props.last(),
+    ) {
+        (Some(a), Some(b), Some(pa), Some(pb)) => {
+            let start = a.r - 0.5 * pa.shape.length * a.z;
+            let end = b.r + 0.5 * pb.shape.length * b.z;
+            (end - start).norm()
+        }
         _ => 0.0,
     };
     FibreMetrics {

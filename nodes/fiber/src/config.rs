@@ -175,10 +175,8 @@ pub struct BuiltGroup {
 impl BuiltGroup {
     /// Keeps fibres `first .. first + n` (one shard's share).
     pub fn slice(self, first: usize, n: usize) -> BuiltGroup {
-        let params = self.group.params;
-        let fibres = self.group.fibres.into_iter().skip(first).take(n).collect();
         BuiltGroup {
-            group: FibreGroup::new(params, fibres),
+            group: self.group.slice(first, n),
             layers: self.layers.into_iter().skip(first).take(n).collect(),
         }
     }
@@ -355,7 +353,7 @@ impl FiberNodeConfig {
     /// The fibre nodes of the group: `shards` contiguous slices of its fibres.
     pub fn pieces(&self, box_plus: [f64; 3]) -> Result<Vec<Piece>, FibreError> {
         let built = self.build(box_plus)?;
-        let total = built.group.fibres.len() as u32;
+        let total = built.group.len() as u32;
         Ok(split(total, self.shards)
             .into_iter()
             .enumerate()
@@ -366,9 +364,8 @@ impl FiberNodeConfig {
                 first_fiber: first,
                 fibers: n,
                 group_fibers: total,
-                segments: built.group.fibres[first as usize..(first + n) as usize]
-                    .iter()
-                    .map(|f| f.len())
+                segments: (first as usize..(first + n) as usize)
+                    .map(|k| built.group.fibre_len(k))
                     .sum(),
             })
             .collect())

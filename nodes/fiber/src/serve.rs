@@ -4,7 +4,6 @@
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
-use fiberflow_fiber_model::metrics::metrics;
 use fiberflow_fiber_model::{FibreError, FluidSample};
 use fiberflow_messages::checkpoints;
 use fiberflow_messages::topics::Topics;
@@ -146,7 +145,7 @@ pub fn serve(
                 t_plus: step as f64 * dt,
                 first_fiber: piece.first_fiber,
                 group_fibers: piece.group_fibers,
-                segments_per_fiber: Vec::with_capacity(group.fibres.len()),
+                segments_per_fiber: Vec::with_capacity(group.len()),
                 segment_length: Vec::new(),
                 diameter: Vec::new(),
                 density_ratio: Vec::new(),
@@ -156,12 +155,14 @@ pub fn serve(
                 velocity: Vec::with_capacity(3 * group.segment_count()),
                 angular_velocity: Vec::with_capacity(3 * group.segment_count()),
             };
-            for f in &group.fibres {
-                st.segments_per_fiber.push(f.len() as u32);
-                st.segment_length.push(f.props[0].shape.length);
-                st.diameter.push(f.props[0].shape.diameter);
-                st.density_ratio.push(f.density);
-                for s in &f.segments {
+            for k in 0..group.len() {
+                st.segments_per_fiber.push(group.fibre_len(k) as u32);
+                let first = group.props(k).first();
+                st.segment_length
+                    .push(first.map_or(0.0, |p| p.shape.length));
+                st.diameter.push(first.map_or(0.0, |p| p.shape.diameter));
+                st.density_ratio.push(group.density(k));
+                for s in group.segments(k) {
                     st.centre.extend_from_slice(s.r.as_slice());
                     st.axis.extend_from_slice(s.z.as_slice());
                     st.velocity.extend_from_slice(s.v.as_slice());
@@ -172,7 +173,7 @@ pub fn serve(
         };
     let publish_metrics =
         |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
-            let ms: Vec<_> = group.fibres.iter().map(metrics).collect();
+            let ms = group.metrics();
             let n = ms.len().max(1) as f64;
             let m = FiberGroupMetrics {
                 schema_version: SCHEMA_VERSION,
