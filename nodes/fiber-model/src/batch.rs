@@ -377,8 +377,9 @@ fn kernel(
         let fl = [&fluid[0][i], &fluid[1][i], &fluid[2][i], &fluid[3][i]];
         let z = s.z;
         let (v, w) = (s.v, s.w);
-        let vel = V3([0, 1, 2].map(|a| F4(fl.map(|f| f.vel[a]))));
-        let gr = M3::from_fn(|a, b| F4(fl.map(|f| f.grad[(a, b)])));
+        let lane = |x: &dyn Fn(&FluidSample) -> f64| F4([x(fl[0]), x(fl[1]), x(fl[2]), x(fl[3])]);
+        let vel = V3([lane(&|f| f.vel.x), lane(&|f| f.vel.y), lane(&|f| f.vel.z)]);
+        let gr = M3::from_fn(|a, b| lane(&|f| f.grad[(a, b)]));
         let (mass, l) = (c.mass, c.length);
         // strain rate and fluid rotation (FluidSample::strain, ::rotation)
         let g = M3::from_fn(|a, b| half * (gr.0[a][b] + gr.0[b][a]));
