@@ -261,10 +261,7 @@ fn rotate_pair(z: V3, n: V3, phi: V3) -> (V3, V3) {
     let angle = phi.norm();
     let still = angle.lt(1e-300);
     let k = phi.unscale(angle);
-    let (mut s, mut c) = (F4::default(), F4::default());
-    for l in 0..LANES {
-        (s.0[l], c.0[l]) = angle.0[l].sin_cos();
-    }
+    let (s, c) = crate::lanes::sin_cos(angle);
     let one_c = F4::splat(1.0) - c;
     (
         V3::select(still, unit(z), turn(z, k, s, c, one_c)),

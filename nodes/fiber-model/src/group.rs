@@ -35,6 +35,7 @@ struct Block {
 /// The step's constants: one set for a group of identical segments, else one per
 /// [`LaneSeg`] (stride 1).
 #[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)] // one per group
 enum Consts {
     Uniform(LaneConsts),
     PerSegment(Vec<LaneConsts>),

@@ -294,7 +294,7 @@ pub fn rotate(z: &Vector3<f64>, phi: &Vector3<f64>) -> Vector3<f64> {
         *z
     } else {
         let k = phi / angle;
-        let (s, c) = angle.sin_cos();
+        let (s, c) = crate::lanes::sin_cos1(angle);
         z * c + k.cross(z) * s + k * (k.dot(z) * (1.0 - c))
     };
     out / out.norm()
@@ -312,7 +312,7 @@ pub fn rotate_pair(
         return (z / z.norm(), n / n.norm());
     }
     let k = phi / angle;
-    let (s, c) = angle.sin_cos();
+    let (s, c) = crate::lanes::sin_cos1(angle);
     let turn = |v: &Vector3<f64>| {
         let out = v * c + k.cross(v) * s + k * (k.dot(v) * (1.0 - c));
         out / out.norm()
