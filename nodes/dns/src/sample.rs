@@ -32,6 +32,45 @@ enum Hx {
     Face,
 }
 
+/// Where a node (i, jnode, k) sits in a field array, and the wall rows' spacings.
+#[derive(Clone, Copy)]
+struct Layout {
+    px: usize,
+    plane: usize,
+    ny: usize,
+    inv_lo: f64,
+    inv_hi: f64,
+}
+
+impl Layout {
+    #[inline(always)]
+    fn at(self, i: usize, j: usize, k: usize) -> usize {
+        i + self.px * j + self.plane * k
+    }
+
+    /// A cell-centre quantity on the centre node list (wall nodes hold the no-slip 0).
+    #[inline(always)]
+    fn centre_val(self, f: &[f64], i: usize, jn: usize, k: usize) -> f64 {
+        if jn == 0 || jn == self.ny + 1 {
+            0.0
+        } else {
+            f[self.at(i, jn, k)]
+        }
+    }
+
+    /// ∂f/∂y of a centre quantity on the mid node list (one-sided to the wall's 0).
+    #[inline(always)]
+    fn y_mid_deriv(self, f: &[f64], inv_dyc: &[f64], i: usize, jn: usize, k: usize) -> f64 {
+        if jn == 0 {
+            f[self.at(i, 1, k)] * self.inv_lo
+        } else if jn == self.ny {
+            -f[self.at(i, self.ny, k)] * self.inv_hi
+        } else {
+            (f[self.at(i, jn + 1, k)] - f[self.at(i, jn, k)]) * inv_dyc[jn]
+        }
+    }
+}
+
 /// A point's brackets: `x[Hx]`, `z[Hx]` = (lower node, upper node, fraction), `y[Vy]` =
 /// (lower node, fraction).
 struct Brackets {
@@ -57,12 +96,74 @@ pub struct Sample {
     pub grad: [f64; 9],
 }
 
+/// A sorted node list with a table that finds a point's bracket in a step or two: for
+/// each of `bins` equal bins of the list's range, the node at or below the bin's start.
+/// Gives exactly [`bracket`]'s answer (test `lookup_brackets_like_the_search`).
+#[derive(Debug, Clone)]
+struct Nodes {
+    y: Vec<f64>,
+    lo: f64,
+    inv_bin: f64,
+    first: Vec<u32>,
+}
+
+impl Nodes {
+    fn new(y: Vec<f64>) -> Self {
+        let n = y.len();
+        let bins = 16 * n;
+        let (lo, hi) = (y[0], y[n - 1]);
+        let inv_bin = bins as f64 / (hi - lo);
+        // the bin of a point is floor((y - lo) * inv_bin): for each bin the largest node
+        // index j whose node lies in a bin at or before it (so nodes[j] <= any y in it)
+        let mut first = vec![0u32; bins + 1];
+        let mut j = 0usize;
+        for (b, slot) in first.iter_mut().enumerate() {
+            while j + 1 < n && (((y[j + 1] - lo) * inv_bin).floor() as usize) <= b {
+                j += 1;
+            }
+            *slot = j as u32;
+        }
+        Self {
+            y,
+            lo,
+            inv_bin,
+            first,
+        }
+    }
+
+    /// [`bracket`] of `y` in this list.
+    #[inline(always)]
+    fn bracket(&self, y: f64) -> (usize, f64) {
+        let nodes = &self.y;
+        let n = nodes.len();
+        if !(y > nodes[0]) {
+            return (0, 0.0);
+        }
+        if y >= nodes[n - 1] {
+            return (n - 2, 1.0);
+        }
+        let bin = (((y - self.lo) * self.inv_bin) as usize).min(self.first.len() - 1);
+        // start at most one node low (the bin's start may round either way), then step up
+        let mut j = (self.first[bin] as usize).saturating_sub(1);
+        while nodes[j + 1] <= y {
+            j += 1;
+        }
+        while j > 0 && nodes[j] > y {
+            j -= 1;
+        }
+        let j = j.min(n - 2);
+        (j, (y - nodes[j]) / (nodes[j + 1] - nodes[j]))
+    }
+}
+
 /// Node positions in y for each location kind, and the scheme.
 #[derive(Debug, Clone)]
 pub struct Sampler {
     centre: Vec<f64>,
     face: Vec<f64>,
     mid: Vec<f64>,
+    /// The same lists with their bracket tables (trilinear).
+    lookup: [Nodes; 3],
     scheme: Interpolation,
     /// 1/Δx, 1/Δz and 1/Δy per row (centre-to-centre `dyc`, face-to-face `dyf`): the
     /// trilinear gradients multiply instead of dividing at every corner.
@@ -93,6 +194,11 @@ impl Sampler {
         }
         mid.push(g.yf[ny]);
         Self {
+            lookup: [
+                Nodes::new(centre.clone()),
+                Nodes::new(face.clone()),
+                Nodes::new(mid.clone()),
+            ],
             centre,
             face,
             mid,
@@ -172,6 +278,7 @@ impl Sampler {
         s
     }
 
+    #[inline]
     fn sample_trilinear(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
         let (u, v, w) = (&vel.u, &vel.v, &vel.w);
         let px = g.px;
@@ -179,61 +286,55 @@ impl Sampler {
         let ny = g.ny;
         let (idx, idz) = (self.inv_dx, self.inv_dz);
         let (idyc, idyf) = (&self.inv_dyc, &self.inv_dyf);
-        // value accessors take (i, jnode, k) with i, k in 1..=nx / 1..=nz (wrapped)
-        let at = |i: usize, j: usize, k: usize| i + px * j + plane * k;
-        let centre_val = |f: &[f64], i: usize, jn: usize, k: usize| -> f64 {
-            if jn == 0 || jn == ny + 1 {
-                0.0
-            } else {
-                f[at(i, jn, k)]
-            }
-        };
-        // wall rows: the half-cell distance from the first centre to the wall
-        let (inv_lo, inv_hi) = (1.0 / (g.yc[1] - g.yf[0]), 1.0 / (g.yf[ny] - g.yc[ny]));
-        let y_mid_deriv = |f: &[f64], i: usize, jn: usize, k: usize| -> f64 {
-            if jn == 0 {
-                f[at(i, 1, k)] * inv_lo
-            } else if jn == ny {
-                -f[at(i, ny, k)] * inv_hi
-            } else {
-                (f[at(i, jn + 1, k)] - f[at(i, jn, k)]) * idyc[jn]
-            }
+        // value accessors take (i, jnode, k) with i, k in 1..=nx / 1..=nz (wrapped); plain
+        // functions, not closures calling closures, so that all of it inlines
+        let lay = Layout {
+            px,
+            plane,
+            ny,
+            // wall rows: the half-cell distance from the first centre to the wall
+            inv_lo: 1.0 / (g.yc[1] - g.yf[0]),
+            inv_hi: 1.0 / (g.yf[ny] - g.yc[ny]),
         };
         let b = self.brackets(g, p);
         let mut s = Sample::default();
         use Hx::{Centre as C, Face as F};
-        s.vel[0] = self.interp(&b, F, Vy::Centre, C, |i, j, k| centre_val(u, i, j, k));
-        s.vel[1] = self.interp(&b, C, Vy::Face, C, |i, j, k| v[at(i, j, k)]);
-        s.vel[2] = self.interp(&b, C, Vy::Centre, F, |i, j, k| centre_val(w, i, j, k));
+        s.vel[0] = self.interp(&b, F, Vy::Centre, C, |i, j, k| lay.centre_val(u, i, j, k));
+        s.vel[1] = self.interp(&b, C, Vy::Face, C, |i, j, k| v[lay.at(i, j, k)]);
+        s.vel[2] = self.interp(&b, C, Vy::Centre, F, |i, j, k| lay.centre_val(w, i, j, k));
         // ∂u/∂x, ∂u/∂y, ∂u/∂z
         s.grad[0] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (centre_val(u, i, j, k) - centre_val(u, i - 1, j, k)) * idx
+            (lay.centre_val(u, i, j, k) - lay.centre_val(u, i - 1, j, k)) * idx
         });
-        s.grad[1] = self.interp(&b, F, Vy::Mid, C, |i, j, k| y_mid_deriv(u, i, j, k));
+        s.grad[1] = self.interp(&b, F, Vy::Mid, C, |i, j, k| {
+            lay.y_mid_deriv(u, idyc, i, j, k)
+        });
         s.grad[2] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (centre_val(u, i, j, k + 1) - centre_val(u, i, j, k)) * idz
+            (lay.centre_val(u, i, j, k + 1) - lay.centre_val(u, i, j, k)) * idz
         });
         // ∂v/∂x, ∂v/∂y, ∂v/∂z
         s.grad[3] = self.interp(&b, F, Vy::Face, C, |i, j, k| {
-            (v[at(i + 1, j, k)] - v[at(i, j, k)]) * idx
+            (v[lay.at(i + 1, j, k)] - v[lay.at(i, j, k)]) * idx
         });
         s.grad[4] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
             if j == 0 || j == ny + 1 {
                 0.0
             } else {
-                (v[at(i, j, k)] - v[at(i, j - 1, k)]) * idyf[j]
+                (v[lay.at(i, j, k)] - v[lay.at(i, j - 1, k)]) * idyf[j]
             }
         });
         s.grad[5] = self.interp(&b, C, Vy::Face, F, |i, j, k| {
-            (v[at(i, j, k + 1)] - v[at(i, j, k)]) * idz
+            (v[lay.at(i, j, k + 1)] - v[lay.at(i, j, k)]) * idz
         });
         // ∂w/∂x, ∂w/∂y, ∂w/∂z
         s.grad[6] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (centre_val(w, i + 1, j, k) - centre_val(w, i, j, k)) * idx
+            (lay.centre_val(w, i + 1, j, k) - lay.centre_val(w, i, j, k)) * idx
         });
-        s.grad[7] = self.interp(&b, C, Vy::Mid, F, |i, j, k| y_mid_deriv(w, i, j, k));
+        s.grad[7] = self.interp(&b, C, Vy::Mid, F, |i, j, k| {
+            lay.y_mid_deriv(w, idyc, i, j, k)
+        });
         s.grad[8] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (centre_val(w, i, j, k) - centre_val(w, i, j, k - 1)) * idz
+            (lay.centre_val(w, i, j, k) - lay.centre_val(w, i, j, k - 1)) * idz
         });
         s
     }
@@ -241,6 +342,7 @@ impl Sampler {
     /// The brackets of a point on every staggered location: x and z on centres and faces,
     /// y on the centre, face and mid node lists (computed once per point, used by all twelve
     /// interpolations of a sample).
+    #[inline(always)]
     fn brackets(&self, g: &Grid, p: [f64; 3]) -> Brackets {
         let per = |x: f64, d: f64, n: usize, h: Hx| {
             let (m0, f) = periodic_bracket(x, d, n, h);
@@ -256,15 +358,16 @@ impl Sampler {
                 per(p[2], g.dz, g.nz, Hx::Face),
             ],
             y: [
-                bracket(&self.centre, p[1]),
-                bracket(&self.face, p[1]),
-                bracket(&self.mid, p[1]),
+                self.lookup[0].bracket(p[1]),
+                self.lookup[1].bracket(p[1]),
+                self.lookup[2].bracket(p[1]),
             ],
         }
     }
 
     /// Trilinear interpolation of a located quantity given by `val(i, jnode, k)`; the
     /// accessor may read one index either side of 1..=n (the halos hold periodic copies).
+    #[inline(always)]
     fn interp(
         &self,
         b: &Brackets,
@@ -289,6 +392,7 @@ impl Sampler {
 }
 
 /// Lower node index in 1..=n and fraction for a periodic direction.
+#[inline(always)]
 fn periodic_bracket(x: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
     let l = d * n as f64;
     let shift = match h {
@@ -387,4 +491,38 @@ fn bracket(nodes: &[f64], y: f64) -> (usize, f64) {
     let j = nodes.partition_point(|&v| v <= y) - 1;
     let j = j.min(n - 2);
     (j, (y - nodes[j]) / (nodes[j + 1] - nodes[j]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table lookup gives the binary search's bracket for every y: random points, the
+    /// nodes themselves, their neighbouring floats, and points beyond both ends.
+    #[test]
+    fn lookup_brackets_like_the_search() {
+        for n in [4usize, 17, 66] {
+            // wall-clustered nodes on [-1, 1], as the channel grid's
+            let y: Vec<f64> = (0..n)
+                .map(|j| (2.5 * (2.0 * j as f64 / (n - 1) as f64 - 1.0)).tanh() / 2.5f64.tanh())
+                .collect();
+            let table = Nodes::new(y.clone());
+            let mut probes: Vec<f64> = y
+                .iter()
+                .flat_map(|&v| [v, v.next_up(), v.next_down()])
+                .collect();
+            probes.extend([-1.5, 1.5, -1.0 - 1e-17, 1.0 + 1e-17]);
+            let mut x = 0x2545_f491_4f6c_dd1du64;
+            for _ in 0..100_000 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                probes.push((x >> 11) as f64 / (1u64 << 53) as f64 * 2.2 - 1.1);
+            }
+            for p in probes {
+                let (a, b) = (table.bracket(p), bracket(&y, p));
+                assert_eq!((a.0, a.1.to_bits()), (b.0, b.1.to_bits()), "n {n}, y {p}");
+            }
+        }
+    }
 }

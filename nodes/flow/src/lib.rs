@@ -5,6 +5,7 @@ pub mod analytic;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
+pub mod sampling;
 pub mod serve;
 pub mod spinup;
 

@@ -5,6 +5,7 @@
 use crate::analytic::AnalyticFlow;
 use crate::config::{FlowNodeConfig, FlowSource};
 use crate::error::FlowError;
+use crate::sampling::{sample_fibres, PointSample};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_dns::sample::Sampler;
 use fiberflow_dns::Solver;
@@ -14,7 +15,6 @@ use fiberflow_messages::{
     encode, lifecycle, FiberGroupState, FlowProfiles, FlowSamples, FlowSlice, FlowStatus,
     Heartbeat, RunAnnouncement, SCHEMA_VERSION,
 };
-use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -405,11 +405,8 @@ pub fn serve(
         timing.waiting_s += wait_from.elapsed().as_secs_f64();
         for ((group, first_fiber), s) in std::mem::take(&mut pending) {
             let t0 = Instant::now();
-            let n = s.centre.len() / 3;
-            let mut vel = vec![0.0; 3 * n];
-            let mut grad = vec![0.0; 9 * n];
             // every point on its own: parallel, and the same bits as one by one
-            let sample = |p: &[f64]| -> ([f64; 3], [f64; 9]) {
+            let sample = |p: &[f64]| -> PointSample {
                 match &field {
                     Field::Analytic(a) => a.sample([p[0], p[1], p[2]]),
                     Field::Dns(solver, smp) => {
@@ -425,16 +422,23 @@ pub fn serve(
                     }
                 }
             };
-            s.centre
-                .par_chunks_exact(3)
-                .zip(vel.par_chunks_exact_mut(3))
-                .zip(grad.par_chunks_exact_mut(9))
-                .with_min_len(256)
-                .for_each(|((p, v), g)| {
-                    let (sv, sg) = sample(p);
-                    v.copy_from_slice(&sv);
-                    g.copy_from_slice(&sg);
-                });
+            // a fibre's sort key: the grid cell (z plane, then y row, then x) of its
+            // first segment
+            let cell = |p: &[f64]| -> u64 {
+                match &field {
+                    Field::Analytic(_) => 0,
+                    Field::Dns(solver, _) => {
+                        let (g, re) = (&solver.grid, solver.cfg.re_tau);
+                        let wrap = |x: f64, d: f64, n: usize| {
+                            ((x / re / d).floor().rem_euclid(n as f64)) as u64
+                        };
+                        let j = ((p[1] / re + 1.0) * 0.5 * g.ny as f64).clamp(0.0, g.ny as f64);
+                        (wrap(p[2], g.dz, g.nz) * (g.ny as u64 + 1) + j as u64) * g.nx as u64
+                            + wrap(p[0], g.dx, g.nx)
+                    }
+                }
+            };
+            let (vel, grad) = sample_fibres(&s.centre, &s.segments_per_fiber, cell, sample);
             timing.sampling_s += t0.elapsed().as_secs_f64();
             let t0 = Instant::now();
             let msg = FlowSamples {
