@@ -133,7 +133,7 @@ fn check_stability(solver: &Solver, dt_plus: f64) -> Result<(), FlowError> {
 
 enum Field {
     Analytic(AnalyticFlow),
-    Dns(Box<Solver>, Sampler),
+    Dns(Box<Solver>, Box<Sampler>),
 }
 
 /// What the loop did.
@@ -299,7 +299,7 @@ pub fn serve(
             }
             check_stability(&s, cfg.dt_plus)?;
             let smp = Sampler::with_scheme(&s.grid, cfg.interpolation);
-            Field::Dns(Box::new(s), smp)
+            Field::Dns(Box::new(s), Box::new(smp))
         }
     };
     if let (Field::Analytic(_), Some(dir)) = (&field, &run.resume_dir) {
