@@ -214,11 +214,6 @@ impl V3 {
             F4::select(mask, a.0[2], b.0[2]),
         ])
     }
-
-    /// Every component of lane `lane` is finite.
-    pub fn finite_in(self, lane: usize) -> bool {
-        self.0.iter().all(|c| c.0[lane].is_finite())
-    }
 }
 
 impl Add for V3 {
