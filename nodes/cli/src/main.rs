@@ -120,9 +120,12 @@ enum Cmd {
         /// Stop after this many messages.
         #[arg(long)]
         count: Option<u64>,
-        /// Stop after this many seconds without a message.
+        /// Stop after this many seconds without a message (once one has come).
         #[arg(long, default_value_t = 10.0)]
         idle_s: f64,
+        /// Stop if no first message comes within this many seconds.
+        #[arg(long, default_value_t = 60.0)]
+        wait_s: f64,
     },
     /// Fibre analysis of a recording (a run folder or one .mcap): MSD, alignment,
     /// coiling (CSV, PNG, summary.md).
@@ -295,7 +298,8 @@ fn main() -> Result<()> {
             listen,
             count,
             idle_s,
-        } => recording::echo_cmd(&pattern, connect, listen, count, idle_s),
+            wait_s,
+        } => recording::echo_cmd(&pattern, connect, listen, count, idle_s, wait_s),
         Cmd::Analyze {
             mcap,
             out,

@@ -212,22 +212,24 @@ pub fn inject_cmd(
     Ok(())
 }
 
-/// Prints `<topic> <bytes>` for every message under `pattern`, then a per-topic count.
+/// Prints `<topic> <bytes>` for every message under `pattern`, then a per-topic count;
+/// waits up to `wait_s` for the first message (a publisher may take a while to start),
+/// then stops after `idle_s` without one.
 pub fn echo_cmd(
     pattern: &str,
     connect: Vec<String>,
     listen: Vec<String>,
     count: Option<u64>,
     idle_s: f64,
+    wait_s: f64,
 ) -> Result<()> {
     let bus = zenoh(connect, listen)?;
     let sub = bus.subscribe(pattern)?;
     let mut n = 0u64;
     let mut by: std::collections::BTreeMap<String, u64> = Default::default();
-    while let Ok((topic, bytes)) = sub
-        .rx
-        .recv_timeout(Duration::from_secs_f64(idle_s.max(0.1)))
-    {
+    while let Ok((topic, bytes)) = sub.rx.recv_timeout(Duration::from_secs_f64(
+        if n == 0 { wait_s } else { idle_s }.max(0.1),
+    )) {
         println!("{topic} {}", bytes.len());
         *by.entry(topic).or_insert(0) += 1;
         n += 1;

@@ -465,7 +465,10 @@ fn kernel(
     for i in 0..n {
         for c in 0..3 {
             let (v, w) = (v_new[i].0[c], w_new[i].0[c]);
-            spread = spread + (v - v) + (w - w);
+            #[allow(clippy::eq_op)] // x − x is the finiteness test
+            {
+                spread = spread + (v - v) + (w - w);
+            }
         }
     }
     for (l, good) in ok.iter_mut().enumerate().take(used) {
