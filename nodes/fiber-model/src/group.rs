@@ -267,13 +267,7 @@ impl FibreGroup {
 
     /// [`Self::step`] on the current thread only (for single-thread benchmarks).
     pub fn step_serial(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
-        self.check(fluid)?;
-        let (ctx, parts) = self.split(fluid, dt, true);
-        let mut work = Work::default();
-        for (b, seg) in parts {
-            ctx.step_block(b, seg, &mut work)?;
-        }
-        Ok(())
+        self.step_here(fluid, dt, true)
     }
 
     /// One fibre at a time with [`step`] on the current thread, never in lanes (the
@@ -283,8 +277,18 @@ impl FibreGroup {
         fluid: &[FluidSample],
         dt: f64,
     ) -> Result<(), FibreError> {
+        self.step_here(fluid, dt, false)
+    }
+
+    /// Every block on the current thread, in lanes where allowed if `use_lanes`.
+    fn step_here(
+        &mut self,
+        fluid: &[FluidSample],
+        dt: f64,
+        use_lanes: bool,
+    ) -> Result<(), FibreError> {
         self.check(fluid)?;
-        let (ctx, parts) = self.split(fluid, dt, false);
+        let (ctx, parts) = self.split(fluid, dt, use_lanes);
         let mut work = Work::default();
         for (b, seg) in parts {
             ctx.step_block(b, seg, &mut work)?;
