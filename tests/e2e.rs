@@ -25,11 +25,8 @@ fn transports_give_bitwise_identical_states() {
         );
         for (g, v) in &sa {
             assert_eq!(v.len(), 201, "group {g}: states for steps 0..=200");
-            assert!(
-                v == &sb[g],
-                "group {g}: states differ between inproc and {transport}"
-            );
         }
+        assert_same_states(&sa, &sb, transport);
     }
     // the recording carries its provenance
     let md = metadata(&a.join("run.mcap"));
@@ -477,13 +474,7 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
     let a = states(&inproc.join("run.mcap"));
     let b = states(&dir.join("head/run.mcap"));
     assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
-    for (g, v) in &a {
-        assert_eq!(v.len(), b[g].len(), "group {g}: state count");
-        assert!(
-            v == &b[g],
-            "group {g}: states differ between inproc and two hosts"
-        );
-    }
+    assert_same_states(&a, &b, "two hosts");
 
     let bad_dir = scratch("two-hosts-acl");
     let file = two_host_launch(&bad_dir, "intruder", "join_timeout_s = 6");

@@ -217,3 +217,52 @@ pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
     let o = echo.wait_with_output().unwrap();
     String::from_utf8_lossy(&o.stdout).to_string()
 }
+
+/// Asserts two recordings' states (from [`states`]) are bitwise identical; on a mismatch
+/// the message names the group, the record index, both steps and the first field that
+/// differs, so a flaky run says what it saw.
+pub fn assert_same_states(
+    a: &BTreeMap<String, Vec<Vec<u8>>>,
+    b: &BTreeMap<String, Vec<Vec<u8>>>,
+    what: &str,
+) {
+    for (g, va) in a {
+        let vb = b
+            .get(g)
+            .unwrap_or_else(|| panic!("group {g}: missing in {what}"));
+        assert_eq!(va.len(), vb.len(), "group {g}: state count ({what})");
+        for (i, (x, y)) in va.iter().zip(vb).enumerate() {
+            if x == y {
+                continue;
+            }
+            let sx: fiberflow_messages::FiberGroupState =
+                fiberflow_messages::decode(x).expect("state decodes");
+            let sy: fiberflow_messages::FiberGroupState =
+                fiberflow_messages::decode(y).expect("state decodes");
+            let field = [
+                ("step", sx.step != sy.step),
+                ("t_plus", sx.t_plus.to_bits() != sy.t_plus.to_bits()),
+                ("first_fiber", sx.first_fiber != sy.first_fiber),
+                ("centre", sx.centre != sy.centre),
+                ("axis", sx.axis != sy.axis),
+                ("velocity", sx.velocity != sy.velocity),
+                (
+                    "angular_velocity",
+                    sx.angular_velocity != sy.angular_velocity,
+                ),
+            ]
+            .into_iter()
+            .find(|(_, d)| *d)
+            .map(|(n, _)| n)
+            .unwrap_or("encoding only");
+            let later = va.iter().zip(vb).skip(i).filter(|(x, y)| x != y).count();
+            panic!(
+                "group {g}: states differ between inproc and {what} at record {i} \
+                 (steps {} / {}; first field: {field}; {later} of the remaining {} records differ)",
+                sx.step,
+                sy.step,
+                va.len() - i
+            );
+        }
+    }
+}

@@ -1,24 +1,16 @@
 //! Sampling throughput (the flow node's per-step work for the fibres): velocity and
-//! gradient at 10^5 points spread over the fine grid, trilinear and tricubic, one thread;
-//! in random order and ordered by grid cell.
+//! gradient at points spread over the fine grid, one thread. 10^5 points, trilinear and
+//! tricubic, in random order and ordered by grid cell; then 4.2 × 10^5 points ordered by
+//! cell (the 7 × 6 × 10^4 segment centres of the 6 × 10^4-fibre benchmark), sampled
+//! directly and from the per-step tables (filled once per step, two threads).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use fiberflow_dns::sample::{Interpolation, Sampler};
-use fiberflow_dns::{DnsConfig, InitialField, Solver};
+use fiberflow_dns::sample::{Interpolation, Sampler, Tables};
+use fiberflow_dns::{DnsConfig, Grid, InitialField, Solver};
 
-fn bench_sample(c: &mut Criterion) {
-    let mut cfg = DnsConfig::with_cells(192, 64, 64);
-    cfg.init = InitialField::Turbulent {
-        amplitude: 0.25,
-        seed: 1,
-    };
-    let s = match Solver::new(cfg) {
-        Ok(s) => s,
-        Err(e) => panic!("solver: {e}"),
-    };
-    let g = &s.grid;
-    // points in outer units, spread like fibre segments (7 close together per fibre)
-    let n = 100_000;
+/// `n` points in outer units, spread like fibre segments (7 close together per fibre);
+/// in random order and sorted by cell (z plane, y row, x).
+fn points(g: &Grid, n: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
     let mut x = 0x1234_5678_9abc_def0u64;
     let mut rnd = || {
         x ^= x << 13;
@@ -45,6 +37,32 @@ fn bench_sample(c: &mut Criterion) {
         };
         key(a).cmp(&key(b))
     });
+    (pts, sorted)
+}
+
+fn sum_direct(smp: &Sampler, s: &Solver, p: &[[f64; 3]]) -> f64 {
+    p.iter()
+        .map(|q| smp.sample(&s.grid, &s.vel, *q).grad[4])
+        .sum()
+}
+
+fn sum_tables(t: &Tables, smp: &Sampler, s: &Solver, p: &[[f64; 3]]) -> f64 {
+    p.iter().map(|q| t.sample(smp, &s.grid, *q).grad[4]).sum()
+}
+
+fn bench_sample(c: &mut Criterion) {
+    let mut cfg = DnsConfig::with_cells(192, 64, 64);
+    cfg.init = InitialField::Turbulent {
+        amplitude: 0.25,
+        seed: 1,
+    };
+    let s = match Solver::new(cfg) {
+        Ok(s) => s,
+        Err(e) => panic!("solver: {e}"),
+    };
+    let g = &s.grid;
+    let n = 100_000;
+    let (pts, sorted) = points(g, n);
     let mut group = c.benchmark_group("sample_1e5_points");
     group.sample_size(10);
     group.throughput(Throughput::Elements(n as u64));
@@ -55,16 +73,22 @@ fn bench_sample(c: &mut Criterion) {
         let smp = Sampler::with_scheme(g, scheme);
         for (order, p) in [("random", &pts), ("by_cell", &sorted)] {
             group.bench_function(format!("{name}/{order}"), |b| {
-                b.iter(|| {
-                    let mut acc = 0.0;
-                    for q in p.iter() {
-                        acc += smp.sample(g, &s.vel, *q).grad[4];
-                    }
-                    acc
-                })
+                b.iter(|| sum_direct(&smp, &s, p))
             });
         }
     }
+    group.finish();
+
+    let n = 420_000;
+    let (_, sorted) = points(g, n);
+    let smp = Sampler::new(g);
+    let mut t = Tables::new();
+    let mut group = c.benchmark_group("sample_4e5_points_by_cell");
+    group.sample_size(10);
+    group.bench_function("tables_fill", |b| b.iter(|| t.fill(&smp, g, &s.vel)));
+    group.throughput(Throughput::Elements(n as u64));
+    group.bench_function("direct", |b| b.iter(|| sum_direct(&smp, &s, &sorted)));
+    group.bench_function("tables", |b| b.iter(|| sum_tables(&t, &smp, &s, &sorted)));
     group.finish();
 }
 

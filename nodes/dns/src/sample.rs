@@ -15,6 +15,9 @@ use crate::field::Velocity;
 use crate::grid::Grid;
 use serde::{Deserialize, Serialize};
 
+mod tables;
+pub use tables::Tables;
+
 /// Interpolation scheme of the fibre-position sampler.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -67,6 +70,72 @@ impl Layout {
             -f[self.at(i, self.ny, k)] * self.inv_hi
         } else {
             (f[self.at(i, jn + 1, k)] - f[self.at(i, jn, k)]) * inv_dyc[jn]
+        }
+    }
+}
+
+use Hx::{Centre as C, Face as F};
+
+/// Where each sampled quantity lives: (x location, y node list, z location) of u, v, w
+/// and then of ∂v_a/∂x_b in the order of [`Sample::grad`]. The gradient sits where the
+/// solver's staggered difference of the component naturally falls.
+const LOCATION: [(Hx, Vy, Hx); 12] = [
+    (F, Vy::Centre, C),
+    (C, Vy::Face, C),
+    (C, Vy::Centre, F),
+    (C, Vy::Centre, C),
+    (F, Vy::Mid, C),
+    (F, Vy::Centre, F),
+    (F, Vy::Face, C),
+    (C, Vy::Centre, C),
+    (C, Vy::Face, F),
+    (F, Vy::Centre, F),
+    (C, Vy::Mid, F),
+    (C, Vy::Centre, C),
+];
+
+/// The trilinear scheme's value of each quantity at one of its nodes (i, jnode, k), with
+/// i, k in 1..=n (the accessor may read one index either side: the halos hold periodic
+/// copies). The direct sampler and the per-step tables both evaluate exactly these.
+struct Corners<'a> {
+    u: &'a [f64],
+    v: &'a [f64],
+    w: &'a [f64],
+    lay: Layout,
+    idx: f64,
+    idz: f64,
+    idyc: &'a [f64],
+    idyf: &'a [f64],
+}
+
+impl Corners<'_> {
+    /// Quantity `Q` (0..3 velocity, 3..12 gradient) at node (i, j, k).
+    #[inline(always)]
+    fn value<const Q: usize>(&self, i: usize, j: usize, k: usize) -> f64 {
+        let (lay, u, v, w) = (self.lay, self.u, self.v, self.w);
+        let (idx, idz) = (self.idx, self.idz);
+        match Q {
+            0 => lay.centre_val(u, i, j, k),
+            1 => v[lay.at(i, j, k)],
+            2 => lay.centre_val(w, i, j, k),
+            // ∂u/∂x, ∂u/∂y, ∂u/∂z
+            3 => (lay.centre_val(u, i, j, k) - lay.centre_val(u, i - 1, j, k)) * idx,
+            4 => lay.y_mid_deriv(u, self.idyc, i, j, k),
+            5 => (lay.centre_val(u, i, j, k + 1) - lay.centre_val(u, i, j, k)) * idz,
+            // ∂v/∂x, ∂v/∂y, ∂v/∂z
+            6 => (v[lay.at(i + 1, j, k)] - v[lay.at(i, j, k)]) * idx,
+            7 => {
+                if j == 0 || j == lay.ny + 1 {
+                    0.0
+                } else {
+                    (v[lay.at(i, j, k)] - v[lay.at(i, j - 1, k)]) * self.idyf[j]
+                }
+            }
+            8 => (v[lay.at(i, j, k + 1)] - v[lay.at(i, j, k)]) * idz,
+            // ∂w/∂x, ∂w/∂y, ∂w/∂z
+            9 => (lay.centre_val(w, i + 1, j, k) - lay.centre_val(w, i, j, k)) * idx,
+            10 => lay.y_mid_deriv(w, self.idyc, i, j, k),
+            _ => (lay.centre_val(w, i, j, k) - lay.centre_val(w, i, j, k - 1)) * idz,
         }
     }
 }
@@ -280,63 +349,53 @@ impl Sampler {
 
     #[inline]
     fn sample_trilinear(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
-        let (u, v, w) = (&vel.u, &vel.v, &vel.w);
-        let px = g.px;
-        let plane = g.plane();
-        let ny = g.ny;
-        let (idx, idz) = (self.inv_dx, self.inv_dz);
-        let (idyc, idyf) = (&self.inv_dyc, &self.inv_dyf);
-        // value accessors take (i, jnode, k) with i, k in 1..=nx / 1..=nz (wrapped); plain
-        // functions, not closures calling closures, so that all of it inlines
-        let lay = Layout {
-            px,
-            plane,
-            ny,
-            // wall rows: the half-cell distance from the first centre to the wall
-            inv_lo: 1.0 / (g.yc[1] - g.yf[0]),
-            inv_hi: 1.0 / (g.yf[ny] - g.yc[ny]),
-        };
+        let c = self.corners(g, vel);
         let b = self.brackets(g, p);
         let mut s = Sample::default();
-        use Hx::{Centre as C, Face as F};
-        s.vel[0] = self.interp(&b, F, Vy::Centre, C, |i, j, k| lay.centre_val(u, i, j, k));
-        s.vel[1] = self.interp(&b, C, Vy::Face, C, |i, j, k| v[lay.at(i, j, k)]);
-        s.vel[2] = self.interp(&b, C, Vy::Centre, F, |i, j, k| lay.centre_val(w, i, j, k));
-        // ∂u/∂x, ∂u/∂y, ∂u/∂z
-        s.grad[0] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (lay.centre_val(u, i, j, k) - lay.centre_val(u, i - 1, j, k)) * idx
-        });
-        s.grad[1] = self.interp(&b, F, Vy::Mid, C, |i, j, k| {
-            lay.y_mid_deriv(u, idyc, i, j, k)
-        });
-        s.grad[2] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (lay.centre_val(u, i, j, k + 1) - lay.centre_val(u, i, j, k)) * idz
-        });
-        // ∂v/∂x, ∂v/∂y, ∂v/∂z
-        s.grad[3] = self.interp(&b, F, Vy::Face, C, |i, j, k| {
-            (v[lay.at(i + 1, j, k)] - v[lay.at(i, j, k)]) * idx
-        });
-        s.grad[4] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            if j == 0 || j == ny + 1 {
-                0.0
-            } else {
-                (v[lay.at(i, j, k)] - v[lay.at(i, j - 1, k)]) * idyf[j]
-            }
-        });
-        s.grad[5] = self.interp(&b, C, Vy::Face, F, |i, j, k| {
-            (v[lay.at(i, j, k + 1)] - v[lay.at(i, j, k)]) * idz
-        });
-        // ∂w/∂x, ∂w/∂y, ∂w/∂z
-        s.grad[6] = self.interp(&b, F, Vy::Centre, F, |i, j, k| {
-            (lay.centre_val(w, i + 1, j, k) - lay.centre_val(w, i, j, k)) * idx
-        });
-        s.grad[7] = self.interp(&b, C, Vy::Mid, F, |i, j, k| {
-            lay.y_mid_deriv(w, idyc, i, j, k)
-        });
-        s.grad[8] = self.interp(&b, C, Vy::Centre, C, |i, j, k| {
-            (lay.centre_val(w, i, j, k) - lay.centre_val(w, i, j, k - 1)) * idz
-        });
+        // each quantity from its own staggered nodes (`LOCATION`), one corner expression
+        // per quantity (`Corners::value`), every call monomorphic so that all of it inlines
+        macro_rules! q {
+            ($q:literal) => {{
+                let (hx, vy, hz) = LOCATION[$q];
+                self.interp(&b, hx, vy, hz, |i, j, k| c.value::<$q>(i, j, k))
+            }};
+        }
+        s.vel = [q!(0), q!(1), q!(2)];
+        s.grad = [
+            q!(3),
+            q!(4),
+            q!(5),
+            q!(6),
+            q!(7),
+            q!(8),
+            q!(9),
+            q!(10),
+            q!(11),
+        ];
         s
+    }
+
+    /// The corner values of the trilinear scheme over this field.
+    #[inline(always)]
+    fn corners<'a>(&'a self, g: &Grid, vel: &'a Velocity) -> Corners<'a> {
+        let ny = g.ny;
+        Corners {
+            u: &vel.u,
+            v: &vel.v,
+            w: &vel.w,
+            lay: Layout {
+                px: g.px,
+                plane: g.plane(),
+                ny,
+                // wall rows: the half-cell distance from the first centre to the wall
+                inv_lo: 1.0 / (g.yc[1] - g.yf[0]),
+                inv_hi: 1.0 / (g.yf[ny] - g.yc[ny]),
+            },
+            idx: self.inv_dx,
+            idz: self.inv_dz,
+            idyc: &self.inv_dyc,
+            idyf: &self.inv_dyf,
+        }
     }
 
     /// The brackets of a point on every staggered location: x and z on centres and faces,
