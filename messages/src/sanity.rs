@@ -169,14 +169,18 @@ impl Sane for FiberGroupState {
         }
         let nseg: u64 = self.segments_per_fiber.iter().map(|&n| n as u64).sum();
         let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
-        for (name, v) in [
-            ("centre", &self.centre),
-            ("axis", &self.axis),
-            ("velocity", &self.velocity),
-            ("angular_velocity", &self.angular_velocity),
-        ] {
-            len(name, v.len(), want)?;
-            finite(name, v)?;
+        len("centre", self.centre.len(), want)?;
+        finite("centre", &self.centre)?;
+        // a lean state has no axes and velocities; a complete one has all of them
+        if !self.is_lean() {
+            for (name, v) in [
+                ("axis", &self.axis),
+                ("velocity", &self.velocity),
+                ("angular_velocity", &self.angular_velocity),
+            ] {
+                len(name, v.len(), want)?;
+                finite(name, v)?;
+            }
         }
         finite("segment_length", &self.segment_length)?;
         finite("diameter", &self.diameter)?;
@@ -269,5 +273,50 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
             go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
         other => Err(format!("unknown message type {other}")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state() -> FiberGroupState {
+        FiberGroupState {
+            schema_version: crate::SCHEMA_VERSION,
+            group: "g".into(),
+            step: 3,
+            t_plus: 0.75,
+            first_fiber: 0,
+            group_fibers: 1,
+            segments_per_fiber: vec![2],
+            segment_length: vec![3.0],
+            diameter: vec![0.2],
+            density_ratio: vec![800.0],
+            layer: vec![0],
+            centre: vec![0.0, 1.0, 2.0, 3.0, 1.0, 2.0],
+            axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            velocity: vec![0.0; 6],
+            angular_velocity: vec![0.0; 6],
+        }
+    }
+
+    /// A lean state (centres only) is sane; one missing only some of the per-segment
+    /// arrays, or lean without its centres, is not.
+    #[test]
+    fn lean_states_carry_all_centres_and_nothing_else() {
+        let full = state();
+        assert!(full.check().is_ok() && !full.is_lean());
+        let mut lean = full.clone();
+        lean.axis.clear();
+        lean.velocity.clear();
+        lean.angular_velocity.clear();
+        assert!(lean.is_lean());
+        assert_eq!(lean.check(), Ok(()));
+        let mut half = full.clone();
+        half.axis.clear();
+        assert!(half.check().unwrap_err().contains("axis"));
+        let mut no_centres = lean.clone();
+        no_centres.centre.pop();
+        assert!(no_centres.check().unwrap_err().contains("centre"));
     }
 }

@@ -93,7 +93,11 @@ pub struct FlowSamples {
     pub velocity_gradient: Vec<f64>,
 }
 
-/// Complete state of a fibre group at `step` (positions unwrapped).
+/// State of a fibre group at `step` (positions unwrapped). At the steps the recording keeps
+/// (`recorder.states_every`, and the last) it is complete; at the others it is *lean*:
+/// `axis`, `velocity` and `angular_velocity` are empty and it carries only what the flow
+/// node samples at (the centres), a quarter of the bytes. A recorder never writes a lean
+/// state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FiberGroupState {
     pub schema_version: u32,
@@ -117,6 +121,13 @@ pub struct FiberGroupState {
     pub axis: Vec<f64>,
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
+}
+
+impl FiberGroupState {
+    /// Centres only (see the type's documentation).
+    pub fn is_lean(&self) -> bool {
+        self.axis.is_empty() && self.velocity.is_empty() && self.angular_velocity.is_empty()
+    }
 }
 
 /// Per-fibre metrics of a group at `step` (paper §4.3).

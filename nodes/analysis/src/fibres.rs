@@ -152,7 +152,8 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 let Ok(s) = decode::<FiberGroupState>(&m.data) else {
                     continue;
                 };
-                if s.check().is_err() {
+                // a lean state (centres only) has no orientation to analyse
+                if s.check().is_err() || s.is_lean() {
                     continue;
                 }
                 let Some(s) = state_tiles.add_slice(s) else {

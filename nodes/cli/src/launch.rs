@@ -632,8 +632,15 @@ mod tests {
 
     /// Runs the 30-step analytic-shear launch on `bus`; returns the recording's bytes.
     fn run_launch_on(bus: BusHandle, out: &Path) -> Vec<u8> {
+        run_launch_with(bus, out, &[])
+    }
+
+    /// The same with more `--set` overrides.
+    fn run_launch_with(bus: BusHandle, out: &Path, sets: &[&str]) -> Vec<u8> {
         let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/analytic-shear.toml");
-        let (lf, text) = LaunchFile::load_with(&file, &["run.steps=30".to_string()]).unwrap();
+        let mut all = vec!["run.steps=30".to_string()];
+        all.extend(sets.iter().map(|s| s.to_string()));
+        let (lf, text) = LaunchFile::load_with(&file, &all).unwrap();
         std::fs::create_dir_all(out.join("config")).unwrap();
         let base = NodeSpec {
             node: String::new(),
@@ -690,6 +697,58 @@ mod tests {
             beats("recorder", lifecycle::FINISHING) >= 1,
             "and confirmed"
         );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// With `recorder.states_every = 4` the fibre nodes send lean states (centres only)
+    /// at the other steps (and complete ones at the recorded steps, counted on the bus):
+    /// the run is the same bit for bit — the recorded states of steps 0, 4, …, 28 and the
+    /// last (30) are those of the run with every state complete.
+    #[test]
+    fn lean_states_between_recorded_steps_change_no_bit() {
+        let dir = std::env::temp_dir().join(format!("ff-lean-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let all = run_on(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            &dir.join("all"),
+        );
+        let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
+        let mut sent = fiberflow_bus::Inbox::new(
+            bus.subscribe("fiberflow/analytic-shear/fibers/**")
+                .unwrap(),
+        );
+        let bytes = run_launch_with(bus, &dir.join("lean"), &["recorder.states_every=4"]);
+        let (mut lean_sent, mut full_sent) = (0, 0);
+        while let Some((topic, b)) = sent.recv_raw(std::time::Duration::ZERO) {
+            if topic.ends_with("/state") {
+                let s: fiberflow_messages::FiberGroupState =
+                    fiberflow_messages::decode(&b).unwrap();
+                let kept = s.step % 4 == 0 || s.step == 30;
+                assert_eq!(s.is_lean(), !kept, "step {}", s.step);
+                if s.is_lean() {
+                    lean_sent += 1;
+                } else {
+                    full_sent += 1;
+                }
+            }
+        }
+        // step 0 goes out twice (again with the fluid's velocity, a fluid-velocity start)
+        assert_eq!((lean_sent, full_sent), (2 * 22, 2 * 10));
+        let lean: BTreeMap<(String, u64), Vec<u8>> = recorded(&bytes, "/state")
+            .into_iter()
+            .map(|(topic, b)| {
+                let s: fiberflow_messages::FiberGroupState =
+                    fiberflow_messages::decode(&b).unwrap();
+                assert!(!s.is_lean(), "a lean state was recorded");
+                ((topic, s.step), b)
+            })
+            .collect();
+        let want: BTreeMap<_, _> = all
+            .into_iter()
+            .filter(|((_, k), _)| k % 4 == 0 || *k == 30)
+            .collect();
+        assert_eq!(want.len(), 2 * 9, "two groups, steps 0, 4, …, 28, 30");
+        assert!(lean == want, "recorded states differ");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -251,6 +251,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 every: lf.run.checkpoint_every_steps(),
                 root: spec.checkpoint_root(),
                 config_digest: digest(&spec.launch_text),
+                full_states_every: lf.recorder.states_every,
             };
             let drops = fiberflow_fiber::serve::serve(
                 cfg,

@@ -31,7 +31,8 @@ pub enum FiberNodeError {
     Protocol(String),
 }
 
-/// Where a group starts, where it saves coupled checkpoints, and which run it belongs to.
+/// Where a group starts, where it saves coupled checkpoints, which run it belongs to, and
+/// at which steps its state goes out complete.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Checkpointing {
     /// First coupling step: 0, or the step of the checkpoint the run resumes from.
@@ -44,6 +45,9 @@ pub struct Checkpointing {
     /// SHA-256 of the launch configuration: announcements with another digest are dropped
     /// (empty = accept any).
     pub config_digest: String,
+    /// Complete states every this many steps and at the last (the recorder's
+    /// `states_every`; 0 and 1 = every step); lean states (centres only) at the others.
+    pub full_states_every: u64,
 }
 
 /// Runs shard `shard` of a group (0 for an unsharded group) to the end of the run;
@@ -138,6 +142,10 @@ pub fn serve(
     let dt = ann.dt_plus;
     let publish_state =
         |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
+            let full = ck.full_states_every <= 1
+                || step.is_multiple_of(ck.full_states_every)
+                || step == ann.steps;
+            let per_segment = if full { 3 * group.segment_count() } else { 0 };
             let mut st = FiberGroupState {
                 schema_version: SCHEMA_VERSION,
                 group: name.clone(),
@@ -151,9 +159,9 @@ pub fn serve(
                 density_ratio: Vec::new(),
                 layer: layers.clone(),
                 centre: Vec::with_capacity(3 * group.segment_count()),
-                axis: Vec::with_capacity(3 * group.segment_count()),
-                velocity: Vec::with_capacity(3 * group.segment_count()),
-                angular_velocity: Vec::with_capacity(3 * group.segment_count()),
+                axis: Vec::with_capacity(per_segment),
+                velocity: Vec::with_capacity(per_segment),
+                angular_velocity: Vec::with_capacity(per_segment),
             };
             for k in 0..group.len() {
                 st.segments_per_fiber.push(group.fibre_len(k) as u32);
@@ -164,9 +172,11 @@ pub fn serve(
                 st.density_ratio.push(group.density(k));
                 for s in group.segments(k) {
                     st.centre.extend_from_slice(s.r.as_slice());
-                    st.axis.extend_from_slice(s.z.as_slice());
-                    st.velocity.extend_from_slice(s.v.as_slice());
-                    st.angular_velocity.extend_from_slice(s.w.as_slice());
+                    if full {
+                        st.axis.extend_from_slice(s.z.as_slice());
+                        st.velocity.extend_from_slice(s.v.as_slice());
+                        st.angular_velocity.extend_from_slice(s.w.as_slice());
+                    }
                 }
             }
             bus.publish(&t.fiber_state(&name), &encode(&st))

@@ -297,6 +297,11 @@ impl Session<'_> {
                 return Ok(());
             }
         };
+        if state.as_ref().is_some_and(|s| s.is_lean()) {
+            self.drops
+                .drop_one(topic, "lean state (centres only) at a step the plan records");
+            return Ok(());
+        }
         if let Err(why) = self.belongs(topic, &stamp) {
             self.drops.drop_one(topic, &why);
             return Ok(());
@@ -893,9 +898,10 @@ mod tests {
         }
     }
 
-    /// `states_every = 4`, `samples = false` over 10 steps: states (and PointCloud2) of
-    /// steps 0, 4, 8 and the last step 10 only, no samples, metrics every step, and the
-    /// plan written into the file's metadata.
+    /// `states_every = 4`, `samples = false` over 10 steps, states lean where the plan
+    /// leaves them out: complete states (and PointCloud2) of steps 0, 4, 8 and the last
+    /// step 10 only, a lean state at a recorded step dropped and counted, no samples,
+    /// metrics every step, and the plan written into the file's metadata.
     #[test]
     fn decimated_recording_keeps_every_kth_state_and_the_last() {
         use fiberflow_messages::{FiberGroupMetrics, FlowSamples};
@@ -915,8 +921,19 @@ mod tests {
         };
         let h = start_recorder(&bus, "dec", &path, plan, &mut hb);
         for k in 0..=10u64 {
-            bus.publish(&t.fiber_state("g"), &encode(&tidy_state("g", k)))
-                .unwrap();
+            // as a fibre node sends them: lean (centres only) where the plan leaves the
+            // state out; at step 8 a stray lean state comes first and is dropped
+            let full = tidy_state("g", k);
+            let mut lean = full.clone();
+            lean.axis.clear();
+            lean.velocity.clear();
+            lean.angular_velocity.clear();
+            if k == 8 || !(k % 4 == 0 || k == 10) {
+                bus.publish(&t.fiber_state("g"), &encode(&lean)).unwrap();
+            }
+            if k % 4 == 0 || k == 10 {
+                bus.publish(&t.fiber_state("g"), &encode(&full)).unwrap();
+            }
             let m = FiberGroupMetrics {
                 schema_version: SCHEMA_VERSION,
                 group: "g".into(),
@@ -972,8 +989,9 @@ mod tests {
             .join()
             .expect("recorder panicked")
             .expect("recorder failed");
-        assert_eq!(s.drops.total(), 0);
-        // 7 states left out; the samples are not even subscribed to
+        assert_eq!(s.drops.total(), 1, "{:?}", s.drops);
+        assert_eq!(s.drops.by_topic.get(&t.fiber_state("g")), Some(&1));
+        // 7 lean states left out; the samples are not even subscribed to
         assert_eq!(s.decimated, 7);
         let bytes = std::fs::read(&path).unwrap();
         let mut state_steps = Vec::new();

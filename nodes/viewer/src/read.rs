@@ -37,7 +37,7 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
             match fiberflow_messages::topics::type_of(topic) {
                 Some("fiberflow_msgs/msg/FiberGroupState") => {
                     if let Ok(s) = decode::<FiberGroupState>(&m.data) {
-                        if s.check().is_ok() {
+                        if s.check().is_ok() && !s.is_lean() {
                             if let Some(whole) = states.add_slice(s) {
                                 f(Item::State(whole));
                             }
