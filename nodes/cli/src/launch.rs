@@ -713,10 +713,8 @@ mod tests {
             &dir.join("all"),
         );
         let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
-        let mut sent = fiberflow_bus::Inbox::new(
-            bus.subscribe("fiberflow/analytic-shear/fibers/**")
-                .unwrap(),
-        );
+        let mut sent =
+            fiberflow_bus::Inbox::new(bus.subscribe("fiberflow/analytic-shear/fibers/**").unwrap());
         let bytes = run_launch_with(bus, &dir.join("lean"), &["recorder.states_every=4"]);
         let (mut lean_sent, mut full_sent) = (0, 0);
         while let Some((topic, b)) = sent.recv_raw(std::time::Duration::ZERO) {

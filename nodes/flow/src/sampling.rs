@@ -77,8 +77,9 @@ impl Field {
                 // a fibre's sort key: the grid cell (z plane, then y row, then x) of its
                 // first segment
                 let cell = |p: &[f64]| -> u64 {
-                    let wrap =
-                        |x: f64, d: f64, n: usize| ((x / re / d).floor().rem_euclid(n as f64)) as u64;
+                    let wrap = |x: f64, d: f64, n: usize| {
+                        ((x / re / d).floor().rem_euclid(n as f64)) as u64
+                    };
                     let j = ((p[1] / re + 1.0) * 0.5 * g.ny as f64).clamp(0.0, g.ny as f64);
                     (wrap(p[2], g.dz, g.nz) * (g.ny as u64 + 1) + j as u64) * g.nx as u64
                         + wrap(p[0], g.dx, g.nx)
@@ -179,7 +180,13 @@ mod tests {
         let (a, b) = centres.split_at(3 * 400);
         let out = sample_fibres(&[(a, &[]), (b, &lens[..3])], cell, fake);
         assert_eq!(out.len(), 2);
-        assert_eq!((&out[0].0[..], &out[0].1[..]), (&want_v[..1200], &want_g[..3600]));
-        assert_eq!((&out[1].0[..], &out[1].1[..]), (&want_v[1200..], &want_g[3600..]));
+        assert_eq!(
+            (&out[0].0[..], &out[0].1[..]),
+            (&want_v[..1200], &want_g[..3600])
+        );
+        assert_eq!(
+            (&out[1].0[..], &out[1].1[..]),
+            (&want_v[1200..], &want_g[3600..])
+        );
     }
 }

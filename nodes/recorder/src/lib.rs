@@ -298,8 +298,10 @@ impl Session<'_> {
             }
         };
         if state.as_ref().is_some_and(|s| s.is_lean()) {
-            self.drops
-                .drop_one(topic, "lean state (centres only) at a step the plan records");
+            self.drops.drop_one(
+                topic,
+                "lean state (centres only) at a step the plan records",
+            );
             return Ok(());
         }
         if let Err(why) = self.belongs(topic, &stamp) {
