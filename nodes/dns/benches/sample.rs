@@ -2,7 +2,8 @@
 //! gradient at points spread over the fine grid, one thread. 10^5 points, trilinear and
 //! tricubic, in random order and ordered by grid cell; then 4.2 × 10^5 points ordered by
 //! cell (the 7 × 6 × 10^4 segment centres of the 6 × 10^4-fibre benchmark), sampled
-//! directly and from the per-step tables (filled once per step, two threads).
+//! directly and from the per-step tables (filled once per step, two threads), and as many
+//! samples at one point (all cache hits: the arithmetic alone).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_dns::sample::{Interpolation, Sampler, Tables};
@@ -89,6 +90,14 @@ fn bench_sample(c: &mut Criterion) {
     group.throughput(Throughput::Elements(n as u64));
     group.bench_function("direct", |b| b.iter(|| sum_direct(&smp, &s, &sorted)));
     group.bench_function("tables", |b| b.iter(|| sum_tables(&t, &smp, &s, &sorted)));
+    // the same number of samples all at one point: every read a cache hit, so what is
+    // left is the arithmetic
+    t.fill(&smp, g, &s.vel);
+    let one: Vec<[f64; 3]> = vec![sorted[1000]; n];
+    group.bench_function("direct_one_point", |b| b.iter(|| sum_direct(&smp, &s, &one)));
+    group.bench_function("tables_one_point", |b| {
+        b.iter(|| sum_tables(&t, &smp, &s, &one))
+    });
     group.finish();
 }
 
