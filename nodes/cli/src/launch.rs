@@ -721,7 +721,7 @@ mod tests {
             if topic.ends_with("/state") {
                 let s: fiberflow_messages::FiberGroupState =
                     fiberflow_messages::decode(&b).unwrap();
-                let kept = s.step % 4 == 0 || s.step == 30;
+                let kept = s.step.is_multiple_of(4) || s.step == 30;
                 assert_eq!(s.is_lean(), !kept, "step {}", s.step);
                 if s.is_lean() {
                     lean_sent += 1;
@@ -747,6 +747,40 @@ mod tests {
             .collect();
         assert_eq!(want.len(), 2 * 9, "two groups, steps 0, 4, …, 28, 30");
         assert!(lean == want, "recorded states differ");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Two losses of the same node's samples with a 12 s step timeout: the first is
+    /// repaired by a resend after 5 s; that long wait must not push the next resend
+    /// deadline past the timeout (it did: three times the longest wait, 15 s), so the
+    /// second loss is repaired too and the run ends with a lossless run's states.
+    #[test]
+    fn a_repaired_loss_does_not_delay_the_next_resend() {
+        let dir = std::env::temp_dir().join(format!("ff-lossy2-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let clean = run_on(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            &dir.join("clean"),
+        );
+        let lossy = Arc::new(LossyBus::new(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            &[("/flow/samples/case1", 5), ("/flow/samples/case1", 12)],
+        ));
+        let bytes = run_launch_with(
+            lossy.clone(),
+            &dir.join("lossy"),
+            &["run.step_timeout_s=12"],
+        );
+        assert_eq!(lossy.lost().len(), 2, "{:?}", lossy.lost());
+        let lost: BTreeMap<(String, u64), Vec<u8>> = recorded(&bytes, "/state")
+            .into_iter()
+            .map(|(topic, b)| {
+                let s: fiberflow_messages::FiberGroupState =
+                    fiberflow_messages::decode(&b).unwrap();
+                ((topic, s.step), b)
+            })
+            .collect();
+        assert!(clean == lost, "states differ after the resends");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -94,7 +94,9 @@ fn bench_sample(c: &mut Criterion) {
     // left is the arithmetic
     t.fill(&smp, g, &s.vel);
     let one: Vec<[f64; 3]> = vec![sorted[1000]; n];
-    group.bench_function("direct_one_point", |b| b.iter(|| sum_direct(&smp, &s, &one)));
+    group.bench_function("direct_one_point", |b| {
+        b.iter(|| sum_direct(&smp, &s, &one))
+    });
     group.bench_function("tables_one_point", |b| {
         b.iter(|| sum_tables(&t, &smp, &s, &one))
     });

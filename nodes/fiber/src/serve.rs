@@ -212,12 +212,15 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(timeout_s);
     // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
     let mut timing = (0.0, 0.0, 0.0);
-    // the longest wait for samples so far: a wait three times as long (at least
-    // RESEND_AFTER_MIN) means a message was probably lost
+    // the longest wait for samples so far that needed no resend: a wait three times as
+    // long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
+    // several resends fit in it) means a message was probably lost
     let mut longest_wait = Duration::ZERO;
+    let resend_cap = (step_timeout / 4).max(RESEND_AFTER_MIN);
     for k in start..ann.steps {
         let wait_from = Instant::now();
-        let mut resend_after = (3 * longest_wait).max(RESEND_AFTER_MIN);
+        let mut resent = false;
+        let mut resend_after = (3 * longest_wait).clamp(RESEND_AFTER_MIN, resend_cap);
         let mut resend_at = wait_from + resend_after;
         let samples = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
@@ -238,7 +241,8 @@ pub fn serve(
                 );
                 publish_state(&group, k)?;
                 hb(lifecycle::WAITING, k, samples_in.drops.total())?;
-                resend_after *= 2;
+                resent = true;
+                resend_after = (2 * resend_after).min(resend_cap);
                 resend_at = now + resend_after;
             }
             let wait = left.min(resend_at.saturating_duration_since(now));
@@ -260,7 +264,11 @@ pub fn serve(
             }
         };
         let (mut waited_s, mut stepped_s, mut published_s) = timing;
-        longest_wait = longest_wait.max(wait_from.elapsed());
+        // a wait that ended only after a resend says how long a loss took to repair, not
+        // how long a healthy step takes: it must not stretch the next resend deadline
+        if !resent {
+            longest_wait = longest_wait.max(wait_from.elapsed());
+        }
         waited_s += wait_from.elapsed().as_secs_f64();
         let t0 = Instant::now();
         let fluid: Vec<FluidSample> = samples
