@@ -610,11 +610,17 @@ mod tests {
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder
     /// included); returns every recorded state by (topic, step).
     fn run_on(bus: BusHandle, out: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
-        recorded(&run_launch_on(bus, out), "/state")
+        recorded_states(&run_launch_on(bus, out))
+    }
+
+    /// Every recorded state by (topic, step); panics on a lean one (never recorded).
+    fn recorded_states(mcap_bytes: &[u8]) -> BTreeMap<(String, u64), Vec<u8>> {
+        recorded(mcap_bytes, "/state")
             .into_iter()
             .map(|(topic, bytes)| {
                 let s: fiberflow_messages::FiberGroupState =
                     fiberflow_messages::decode(&bytes).unwrap();
+                assert!(!s.is_lean(), "a lean state was recorded");
                 ((topic, s.step), bytes)
             })
             .collect()
@@ -732,15 +738,7 @@ mod tests {
         }
         // step 0 goes out twice (again with the fluid's velocity, a fluid-velocity start)
         assert_eq!((lean_sent, full_sent), (2 * 22, 2 * 10));
-        let lean: BTreeMap<(String, u64), Vec<u8>> = recorded(&bytes, "/state")
-            .into_iter()
-            .map(|(topic, b)| {
-                let s: fiberflow_messages::FiberGroupState =
-                    fiberflow_messages::decode(&b).unwrap();
-                assert!(!s.is_lean(), "a lean state was recorded");
-                ((topic, s.step), b)
-            })
-            .collect();
+        let lean = recorded_states(&bytes);
         let want: BTreeMap<_, _> = all
             .into_iter()
             .filter(|((_, k), _)| k % 4 == 0 || *k == 30)
@@ -772,14 +770,7 @@ mod tests {
             &["run.step_timeout_s=12"],
         );
         assert_eq!(lossy.lost().len(), 2, "{:?}", lossy.lost());
-        let lost: BTreeMap<(String, u64), Vec<u8>> = recorded(&bytes, "/state")
-            .into_iter()
-            .map(|(topic, b)| {
-                let s: fiberflow_messages::FiberGroupState =
-                    fiberflow_messages::decode(&b).unwrap();
-                ((topic, s.step), b)
-            })
-            .collect();
+        let lost = recorded_states(&bytes);
         assert!(clean == lost, "states differ after the resends");
         std::fs::remove_dir_all(&dir).ok();
     }
