@@ -104,6 +104,20 @@ fn spawn_launch(file: &std::path::Path, out: &std::path::Path) -> (std::process:
     (child, endpoint)
 }
 
+/// Waits until the recorder has opened `run.mcap` in `out` (the run is underway), so a
+/// test that interrupts the run does not depend on how fast the processes started.
+fn wait_for_recording(out: &std::path::Path, secs: u64) {
+    let path = out.join("run.mcap");
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(secs) {
+        if std::fs::metadata(&path).is_ok_and(|m| m.len() > 0) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    panic!("{} was not created within {secs} s", path.display());
+}
+
 fn wait_for(path: &std::path::Path, secs: u64) -> String {
     let t0 = Instant::now();
     while t0.elapsed() < Duration::from_secs(secs) {
@@ -143,8 +157,9 @@ fn inject_into_a_run(name: &str, structured: bool) {
     launch(&file, &clean, "inproc");
     let dirty = dir.join("dirty");
     let (mut child, endpoint) = spawn_launch(&file, &dirty);
-    // wait until the run is stepping (the recorder has joined)
-    std::thread::sleep(Duration::from_secs(2));
+    // wait until the recorder has joined and the run is stepping
+    wait_for_recording(&dirty, 60);
+    std::thread::sleep(Duration::from_secs(1));
     let topics = [
         "control/announce",
         "control/heartbeat/flow",
@@ -207,7 +222,8 @@ fn killed_recorder_is_recoverable() {
     std::fs::write(&file, text).unwrap();
     let out = dir.join("run");
     let (mut child, _) = spawn_launch(&file, &out);
-    std::thread::sleep(Duration::from_secs(4));
+    wait_for_recording(&out, 60);
+    std::thread::sleep(Duration::from_secs(3));
     let spec = out.join("config/recorder.toml").display().to_string();
     let pids = pids_with(&spec);
     assert_eq!(pids.len(), 1, "recorder process not found");
@@ -259,7 +275,8 @@ fn ctrl_c_stops_everything_cleanly() {
     let file = long_launch(&dir, 40000);
     let out = dir.join("run");
     let (mut child, _) = spawn_launch(&file, &out);
-    std::thread::sleep(Duration::from_secs(3));
+    wait_for_recording(&out, 60);
+    std::thread::sleep(Duration::from_secs(2));
     let t0 = Instant::now();
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     let _ = child.wait();
