@@ -24,6 +24,15 @@ pub trait Message: Serialize + DeserializeOwned {
     fn schema_text() -> &'static str {
         schema::text(Self::TYPE_NAME)
     }
+    /// Its CDR bytes (the serde path unless the type writes its arrays in bulk).
+    fn write_cdr(&self) -> Vec<u8> {
+        serde_encode(self)
+    }
+    /// Reads CDR bytes, lengths checked before any allocation (the serde path after a
+    /// layout walk unless the type reads its arrays in bulk).
+    fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
+        serde_decode(bytes)
+    }
 }
 
 macro_rules! message {
@@ -35,35 +44,69 @@ macro_rules! message {
             }
         }
     };
+    ($t:ident, $write:path, $read:path) => {
+        impl Message for crate::types::$t {
+            const TYPE_NAME: &'static str = concat!("fiberflow_msgs/msg/", stringify!($t));
+            fn schema_version(&self) -> u32 {
+                self.schema_version
+            }
+            fn write_cdr(&self) -> Vec<u8> {
+                $write(self)
+            }
+            fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
+                $read(bytes).map_err(|reason| DecodeError::Malformed {
+                    len: bytes.len(),
+                    reason,
+                })
+            }
+        }
+    };
 }
 message!(RunAnnouncement);
 message!(FlowStatus);
 message!(FlowProfiles);
 message!(FlowSlice);
-message!(FlowSamples);
-message!(FiberGroupState);
+message!(
+    FlowSamples,
+    crate::bulk::write_samples,
+    crate::bulk::read_samples
+);
+message!(
+    FiberGroupState,
+    crate::bulk::write_state,
+    crate::bulk::read_state
+);
 message!(FiberGroupMetrics);
 message!(Heartbeat);
 
 /// Encodes as CDR little-endian with encapsulation header.
 pub fn encode<M: Message>(m: &M) -> Vec<u8> {
+    m.write_cdr()
+}
+
+/// CDR through serde (the generic path; the bulk messages are tested and benched against it).
+pub fn serde_encode<M: Serialize + ?Sized>(m: &M) -> Vec<u8> {
     // serialising plain structs of numbers, strings and sequences cannot fail
     cdr::serialize::<_, _, cdr::CdrLe>(m, cdr::Infinite).unwrap_or_default()
 }
 
-/// Decodes and checks the schema version.
-pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
+/// CDR through serde, after the layout walk that guards it against hostile lengths.
+pub fn serde_decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     schema::check_layout(M::schema_text(), bytes).map_err(|reason| DecodeError::Malformed {
         len: bytes.len(),
         reason,
     })?;
-    let m: M =
-        cdr::deserialize_from(bytes, cdr::size::Bounded(bytes.len() as u64)).map_err(|e| {
-            DecodeError::Malformed {
-                len: bytes.len(),
-                reason: e.to_string(),
-            }
-        })?;
+    cdr::deserialize_from(bytes, cdr::size::Bounded(bytes.len() as u64)).map_err(|e| {
+        DecodeError::Malformed {
+            len: bytes.len(),
+            reason: e.to_string(),
+        }
+    })
+}
+
+/// Decodes and checks the schema version.
+pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
+    let m = M::read_cdr(bytes)?;
     if m.schema_version() != SCHEMA_VERSION {
         return Err(DecodeError::Version {
             got: m.schema_version(),

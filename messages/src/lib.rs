@@ -2,6 +2,7 @@
 //! CDR codec. One encoding on the wire and in MCAP: the recorder stores bytes as received.
 //! No transport dependency.
 
+mod bulk;
 pub mod checkpoints;
 pub mod codec;
 pub mod fuzz;

@@ -99,14 +99,18 @@ pub fn check_layout(schema: &str, bytes: &[u8]) -> Result<(), String> {
             other => return Err(format!("unsupported field type {other}")),
         };
         let count = if seq { read_u32(&mut pos)? } else { 1 };
-        for _ in 0..count {
-            if size == 0 {
-                let n = read_u32(&mut pos)?;
-                take(&mut pos, n)?;
-            } else {
+        if size > 0 {
+            // fixed-size elements: aligned once, then contiguous
+            if count > 0 {
                 align(&mut pos, size);
-                take(&mut pos, size)?;
+                take(&mut pos, count.checked_mul(size).ok_or("length overflow")?)?;
             }
+            continue;
+        }
+        // strings: each its own length
+        for _ in 0..count {
+            let n = read_u32(&mut pos)?;
+            take(&mut pos, n)?;
             if count > data.len() {
                 return Err(format!(
                     "sequence of {count} cannot fit {} bytes",

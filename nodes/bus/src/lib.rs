@@ -6,9 +6,11 @@ pub mod iceoryx2_bus;
 pub mod inbox;
 pub mod inproc;
 pub mod lossy;
+pub mod outbox;
 pub mod zenoh_bus;
 
 pub use inbox::{DropCounter, Inbox};
+pub use outbox::Outbox;
 
 use std::sync::mpsc::Receiver;
 use std::sync::Arc;

@@ -5,7 +5,7 @@
 use crate::config::{FlowNodeConfig, FlowSource};
 use crate::error::FlowError;
 use crate::sampling::Field;
-use fiberflow_bus::{BusHandle, DropCounter, Inbox};
+use fiberflow_bus::{BusHandle, DropCounter, Inbox, Outbox};
 use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
@@ -15,6 +15,7 @@ use fiberflow_messages::{
 };
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Run-level facts the launcher hands to every node.
@@ -47,8 +48,14 @@ struct Timing {
     waiting_s: f64,
     sampling_s: f64,
     encoding_s: f64,
+    /// Handing messages to the outbox (publishing itself overlaps the field step).
     publishing_s: f64,
     field_step_s: f64,
+}
+
+/// Messages the outbox may hold unpublished: a step's samples, slices, profiles and status.
+fn outbox_depth(run: &RunInfo) -> usize {
+    run.pieces.len() + 8
 }
 
 enum Admit {
@@ -141,7 +148,7 @@ pub struct ServeSummary {
 const HEARTBEAT_POLL: Duration = Duration::from_millis(200);
 
 /// The samples last published to each piece: (step, topic, encoded message).
-type Served = BTreeMap<(String, u32), (u64, String, Vec<u8>)>;
+type Served = BTreeMap<(String, u32), (u64, String, Arc<Vec<u8>>)>;
 
 /// Answers fibre nodes that wait (lifecycle WAITING) for samples this node already
 /// published: the message was lost in transit, so it goes out again. A node waiting for a
@@ -210,7 +217,7 @@ fn await_recorder_finishing(
 /// Publishes the viewers' flow slices of the field at step `k` (DESIGN §3: u' at
 /// `streaks_y_plus` and the x = 0 cross-section).
 fn publish_slices(
-    bus: &BusHandle,
+    out: &mut Outbox,
     t: &Topics,
     solver: &Solver,
     cfg: &FlowNodeConfig,
@@ -239,7 +246,7 @@ fn publish_slices(
             v_plus: p.v_plus,
             values: p.values,
         };
-        bus.publish(&t.flow_slice(name), &encode(&msg))?;
+        out.send(t.flow_slice(name), Arc::new(encode(&msg)))?;
     }
     Ok(())
 }
@@ -355,6 +362,8 @@ pub fn serve(
         tracing::info!(step = run.start_step, "resuming from a coupled checkpoint");
     }
     let mut timing = Timing::default();
+    // the loop's messages go out on the outbox's thread while the field steps on
+    let mut out = Outbox::new(bus.clone(), outbox_depth(run))?;
     for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -425,10 +434,10 @@ pub fn serve(
                 .find(|p| p.group == group && p.first_fiber == first_fiber)
                 .map(|p| p.samples_topic(&t))
                 .unwrap_or_else(|| t.flow_samples(&group));
-            let bytes = encode(&msg);
+            let bytes = Arc::new(encode(&msg));
             let t1 = Instant::now();
             timing.encoding_s += (t1 - t0).as_secs_f64();
-            bus.publish(&topic, &bytes)?;
+            out.send(topic.clone(), bytes.clone())?;
             served.insert((group.clone(), first_fiber), (k, topic, bytes));
             timing.publishing_s += t1.elapsed().as_secs_f64();
         }
@@ -436,7 +445,7 @@ pub fn serve(
             let solver = &d.solver;
             if cfg.slices_every > 0 && (k.is_multiple_of(cfg.slices_every) || k == run.steps) {
                 let t0 = Instant::now();
-                publish_slices(&bus, &t, solver, cfg, k)?;
+                publish_slices(&mut out, &t, solver, cfg, k)?;
                 timing.publishing_s += t0.elapsed().as_secs_f64();
             }
         }
@@ -512,7 +521,7 @@ pub fn serve(
                         omega_y_rms: col(|r| r.omega_y_rms),
                         omega_z_rms: col(|r| r.omega_z_rms),
                     };
-                    bus.publish(&t.flow_profiles(), &encode(&msg))?;
+                    out.send(t.flow_profiles(), Arc::new(encode(&msg)))?;
                 }
                 FlowStatus {
                     schema_version: SCHEMA_VERSION,
@@ -535,12 +544,14 @@ pub fn serve(
             }
         };
         if (k + 1) % cfg.status_every == 0 || k + 1 == run.steps {
-            bus.publish(&t.flow_status(), &encode(&status))?;
+            out.send(t.flow_status(), Arc::new(encode(&status)))?;
             on_status(&status);
         }
     }
+    let background_publishing_s = out.finish()?;
     tracing::info!(
         steps = run.steps - run.start_step,
+        background_publishing_s = format!("{background_publishing_s:.3}"),
         waiting_for_states_s = format!("{:.3}", timing.waiting_s),
         sampling_s = format!("{:.3}", timing.sampling_s),
         encoding_and_publishing_s = format!("{:.3}", timing.encoding_s + timing.publishing_s),

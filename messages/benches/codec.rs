@@ -1,0 +1,84 @@
+//! Encoding and decoding the per-step bulk messages of one group of 10^4 fibres of 7
+//! segments (7 × 10^4 points): FlowSamples (12 numbers per point, 6.7 MB) and a complete
+//! FiberGroupState (12 per point, 6.7 MB), through the generic serde path and through the
+//! bulk path `encode` / `decode` use.
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use fiberflow_messages::codec::{serde_decode, serde_encode};
+use fiberflow_messages::{decode, encode, FiberGroupState, FlowSamples, SCHEMA_VERSION};
+
+const FIBRES: usize = 10_000;
+const SEGMENTS: usize = 7;
+
+fn numbers(n: usize, seed: f64) -> Vec<f64> {
+    (0..n).map(|i| (i as f64 * 0.618 + seed).sin()).collect()
+}
+
+fn samples() -> FlowSamples {
+    let points = FIBRES * SEGMENTS;
+    FlowSamples {
+        schema_version: SCHEMA_VERSION,
+        group: "case1".into(),
+        step: 12,
+        t_plus: 2.4,
+        first_fiber: 0,
+        group_fibers: FIBRES as u32,
+        velocity: numbers(3 * points, 0.1),
+        velocity_gradient: numbers(9 * points, 0.2),
+    }
+}
+
+fn state() -> FiberGroupState {
+    let points = FIBRES * SEGMENTS;
+    FiberGroupState {
+        schema_version: SCHEMA_VERSION,
+        group: "case1".into(),
+        step: 12,
+        t_plus: 2.4,
+        first_fiber: 0,
+        group_fibers: FIBRES as u32,
+        segments_per_fiber: vec![SEGMENTS as u32; FIBRES],
+        segment_length: vec![3.0; FIBRES],
+        diameter: vec![0.232; FIBRES],
+        density_ratio: vec![1150.0; FIBRES],
+        layer: vec![1; FIBRES],
+        centre: numbers(3 * points, 0.3),
+        axis: numbers(3 * points, 0.4),
+        velocity: numbers(3 * points, 0.5),
+        angular_velocity: numbers(3 * points, 0.6),
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let s = samples();
+    let bytes = encode(&s);
+    let mut g = c.benchmark_group("flow_samples_1e4_fibres");
+    g.throughput(Throughput::Bytes(bytes.len() as u64));
+    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&s)));
+    g.bench_function("encode_bulk", |b| b.iter(|| encode(&s)));
+    g.bench_function("decode_serde", |b| {
+        b.iter(|| serde_decode::<FlowSamples>(&bytes))
+    });
+    g.bench_function("decode_bulk", |b| b.iter(|| decode::<FlowSamples>(&bytes)));
+    g.finish();
+    let st = state();
+    let bytes = encode(&st);
+    let mut g = c.benchmark_group("fibre_state_1e4_fibres");
+    g.throughput(Throughput::Bytes(bytes.len() as u64));
+    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&st)));
+    g.bench_function("encode_bulk", |b| b.iter(|| encode(&st)));
+    g.bench_function("decode_serde", |b| {
+        b.iter(|| serde_decode::<FiberGroupState>(&bytes))
+    });
+    g.bench_function("decode_bulk", |b| {
+        b.iter(|| decode::<FiberGroupState>(&bytes))
+    });
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(20);
+    targets = bench
+}
+criterion_main!(benches);
