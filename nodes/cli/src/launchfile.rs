@@ -109,6 +109,9 @@ pub struct RecorderSection {
     /// Record the flow samples (needed only to re-drive fibre nodes with `replay`).
     #[serde(default = "default_true")]
     pub samples: bool,
+    /// Chunk compression: "zstd" (default, smallest files), "lz4" (least CPU) or "none".
+    #[serde(default)]
+    pub compression: fiberflow_recorder::ChunkCompression,
 }
 
 fn default_one() -> u64 {
@@ -125,6 +128,7 @@ impl Default for RecorderSection {
             enabled: true,
             states_every: 1,
             samples: true,
+            compression: fiberflow_recorder::ChunkCompression::Zstd,
         }
     }
 }

@@ -228,6 +228,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 nodes: fibre_nodes.clone(),
                 states_every: lf.recorder.states_every,
                 samples: lf.recorder.samples,
+                compression: lf.recorder.compression,
             };
             let s =
                 fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, &plan, stop)?;

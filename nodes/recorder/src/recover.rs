@@ -85,6 +85,11 @@ fn decompress(kind: &str, data: &[u8], size: u64) -> Result<Vec<u8>, std::io::Er
     match kind {
         "" => Ok(data.to_vec()),
         "zstd" => zstd_decode(data, size),
+        "lz4" => {
+            let mut out = Vec::with_capacity(size.min(1 << 30) as usize);
+            std::io::copy(&mut lz4::Decoder::new(data)?, &mut out)?;
+            Ok(out)
+        }
         other => Err(std::io::Error::other(format!(
             "compression {other} not supported"
         ))),
