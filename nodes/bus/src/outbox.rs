@@ -93,7 +93,7 @@ mod tests {
 
     /// Messages go out in the order handed over, all of them by `finish`.
     #[test]
-    fn publishes_in_order_and_flushes() {
+    fn publishes_everything_in_order() {
         let bus: BusHandle = Arc::new(InprocBus::new());
         let sub = bus.subscribe("t/**").unwrap();
         let mut out = Outbox::new(bus.clone(), 4).unwrap();
