@@ -35,7 +35,12 @@ pub fn root() -> PathBuf {
     let manifest = std::env::var_os("CARGO_MANIFEST_DIR")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")));
-    manifest.parent().expect("repo root").to_path_buf()
+    // the first folder up from the test's package that holds the launch files
+    manifest
+        .ancestors()
+        .find(|d| d.join("launch/quick.toml").is_file())
+        .expect("repository root (a folder with launch/quick.toml) above CARGO_MANIFEST_DIR")
+        .to_path_buf()
 }
 
 /// A fresh scratch folder.
