@@ -682,7 +682,7 @@ mod tests {
             for step in 0..25 {
                 let still = step == 0 && gravity == 0.0;
                 let fl = fluid(&batched, &mut seed, still);
-                batched.step(&fl, 0.2).expect("batched step");
+                batched.step_parallel(&fl, 0.2).expect("batched step");
                 serial.step_serial(&fl, 0.2).expect("serial batched step");
                 single.step_serial_unbatched(&fl, 0.2).expect("scalar step");
                 assert_eq!(bits(&batched), bits(&single), "N {segments:?}, step {step}");
@@ -719,5 +719,18 @@ mod tests {
             assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
         }
         assert!(ms.iter().any(|m| m.sigma2 > 0.0), "the fibres bent");
+        // a group large enough to be stepped and measured in parallel (and so a step on
+        // the pool and one on this thread give the same bits)
+        let big = fibres_of(600, &[7], true, &mut seed);
+        let mut g = FibreGroup::new(params(0.0, 0.0), big);
+        assert!(g.segment_count() >= crate::group::PARALLEL_MIN_SEGMENTS);
+        let mut here = g.clone();
+        let fl = fluid(&g, &mut seed, false);
+        g.step(&fl, 0.2).expect("parallel step");
+        here.step_serial(&fl, 0.2).expect("serial step");
+        assert_eq!(bits(&g), bits(&here));
+        for (k, m) in g.metrics().iter().enumerate() {
+            assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
+        }
     }
 }
