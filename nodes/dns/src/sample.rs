@@ -403,21 +403,18 @@ impl Sampler {
     /// interpolations of a sample).
     #[inline(always)]
     fn brackets(&self, g: &Grid, p: [f64; 3]) -> Brackets {
-        let per = |xw: f64, d: f64, n: usize, h: Hx| {
-            let (m0, f) = bracket_wrapped(xw, d, n, h);
+        let per = |x: f64, d: f64, n: usize, h: Hx| {
+            let (m0, f) = periodic_bracket(x, d, n, h);
             (m0, if m0 == n { 1 } else { m0 + 1 }, f)
         };
-        // each coordinate wrapped once for both of its locations
-        let xw = wrap(p[0], g.dx * g.nx as f64);
-        let zw = wrap(p[2], g.dz * g.nz as f64);
         Brackets {
             x: [
-                per(xw, g.dx, g.nx, Hx::Centre),
-                per(xw, g.dx, g.nx, Hx::Face),
+                per(p[0], g.dx, g.nx, Hx::Centre),
+                per(p[0], g.dx, g.nx, Hx::Face),
             ],
             z: [
-                per(zw, g.dz, g.nz, Hx::Centre),
-                per(zw, g.dz, g.nz, Hx::Face),
+                per(p[2], g.dz, g.nz, Hx::Centre),
+                per(p[2], g.dz, g.nz, Hx::Face),
             ],
             y: [
                 self.lookup[0].bracket(p[1]),
@@ -456,42 +453,14 @@ impl Sampler {
 /// Lower node index in 1..=n and fraction for a periodic direction.
 #[inline(always)]
 fn periodic_bracket(x: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
-    bracket_wrapped(wrap(x, d * n as f64), d, n, h)
-}
-
-/// `x.rem_euclid(l)`, without the library call when `x` is already in `[0, l)` (where
-/// the remainder is `x` itself, so the bits are the same).
-#[inline(always)]
-fn wrap(x: f64, l: f64) -> f64 {
-    if (0.0..l).contains(&x) {
-        x
-    } else {
-        x.rem_euclid(l)
-    }
-}
-
-/// `x.floor()` by truncation where that is the same (positive and below 2^52, where
-/// truncation is exact; zeros keep their sign through `floor`): the portable build has
-/// no rounding instruction, so `floor` is a library call.
-#[inline(always)]
-fn floor_fast(x: f64) -> f64 {
-    if x > 0.0 && x < 4_503_599_627_370_496.0 {
-        (x as u64) as f64
-    } else {
-        x.floor()
-    }
-}
-
-/// [`periodic_bracket`] of a coordinate already wrapped into `[0, n d)`.
-#[inline(always)]
-fn bracket_wrapped(xw: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
+    let l = d * n as f64;
     let shift = match h {
         Hx::Centre => 0.5,
         Hx::Face => 0.0,
     };
     // node m (1..=n) sits at (m - shift) d
-    let s = xw / d + shift; // in [shift, n + shift)
-    let mut m = floor_fast(s);
+    let s = (x.rem_euclid(l)) / d + shift; // in [shift, n + shift)
+    let mut m = s.floor();
     let mut f = s - m;
     if m < 1.0 {
         m += n as f64;
@@ -613,46 +582,6 @@ mod tests {
                 let (a, b) = (table.bracket(p), bracket(&y, p));
                 assert_eq!((a.0, a.1.to_bits()), (b.0, b.1.to_bits()), "n {n}, y {p}");
             }
-        }
-    }
-
-    /// The fast wrap and floor are `rem_euclid` and `floor` bit for bit: zeros of both
-    /// signs, the period's ends and their neighbours, far-away, huge and non-finite values.
-    #[test]
-    fn fast_wrap_and_floor_are_the_library_ones() {
-        let l = 4.0 * std::f64::consts::PI;
-        let mut xs = vec![
-            0.0,
-            -0.0,
-            l,
-            -l,
-            1e-300,
-            -1e-300,
-            0.5,
-            1.0,
-            2.0f64.powi(52),
-            2.0f64.powi(52) - 0.5,
-            2.0f64.powi(53) + 2.0,
-            1e300,
-            -1e300,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NAN,
-            f64::MIN_POSITIVE,
-        ];
-        for b in [l, 0.5 * l, 1.0, 100.0 * l] {
-            xs.extend([b.next_up(), b.next_down(), -b.next_up(), -b.next_down()]);
-        }
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        for _ in 0..100_000 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            xs.push(((x >> 11) as f64 / (1u64 << 53) as f64 - 0.3) * 40.0 * l);
-        }
-        for x in xs {
-            assert_eq!(wrap(x, l).to_bits(), x.rem_euclid(l).to_bits(), "wrap {x}");
-            assert_eq!(floor_fast(x).to_bits(), x.floor().to_bits(), "floor {x}");
         }
     }
 }
