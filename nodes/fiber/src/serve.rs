@@ -212,6 +212,7 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(timeout_s);
     // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
     let mut timing = (0.0, 0.0, 0.0);
+    let mut fluid: Vec<FluidSample> = Vec::new();
     // the longest wait for samples so far that needed no resend: a wait three times as
     // long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
     // several resends fit in it) means a message was probably lost
@@ -271,15 +272,20 @@ pub fn serve(
         }
         waited_s += wait_from.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        let fluid: Vec<FluidSample> = samples
-            .velocity
-            .chunks_exact(3)
-            .zip(samples.velocity_gradient.chunks_exact(9))
-            .map(|(v, g)| FluidSample {
-                vel: Vector3::new(v[0], v[1], v[2]),
-                grad: Matrix3::from_row_slice(g),
-            })
-            .collect();
+        // the buffer lives across steps: tens of MB at scale, not allocated (and faulted
+        // in) again every step
+        fluid.clear();
+        fluid.extend(
+            samples
+                .velocity
+                .chunks_exact(3)
+                .zip(samples.velocity_gradient.chunks_exact(9))
+                .map(|(v, g)| FluidSample {
+                    vel: Vector3::new(v[0], v[1], v[2]),
+                    grad: Matrix3::from_row_slice(g),
+                }),
+        );
+        drop(samples);
         if k == 0 && cfg.initial_velocity == InitialVelocity::Fluid {
             group.set_velocity_to_fluid(&fluid)?;
             // the state of step 0 went out before the fluid's velocity was known: send it
