@@ -47,13 +47,18 @@ impl Field {
 
     /// Velocity and gradient (plus units) at the segment centres of every piece (its
     /// centres, 3 per point, and its segments per fibre), in one pass over all pieces'
-    /// fibres in cell order; per piece, in its points' order.
-    pub fn sample_pieces(&mut self, pieces: &[(&[f64], &[u32])]) -> Vec<PieceSamples> {
+    /// fibres in cell order; per piece, in its points' order. `reuse`: the last step's
+    /// buffers, filled again instead of allocated and zeroed (tens of MB at scale).
+    pub fn sample_pieces(
+        &mut self,
+        pieces: &[(&[f64], &[u32])],
+        reuse: Vec<PieceSamples>,
+    ) -> Vec<PieceSamples> {
         let points: usize = pieces.iter().map(|p| p.0.len() / 3).sum();
         match self {
             Field::Analytic(a) => {
                 let a = *a;
-                sample_fibres(pieces, |_| 0, |p| a.sample([p[0], p[1], p[2]]))
+                sample_fibres(pieces, reuse, |_| 0, |p| a.sample([p[0], p[1], p[2]]))
             }
             Field::Dns(d) => {
                 let tables =
@@ -84,7 +89,7 @@ impl Field {
                     (wrap(p[2], g.dz, g.nz) * (g.ny as u64 + 1) + j as u64) * g.nx as u64
                         + wrap(p[0], g.dx, g.nx)
                 };
-                sample_fibres(pieces, cell, sample)
+                sample_fibres(pieces, reuse, cell, sample)
             }
         }
     }
@@ -93,17 +98,23 @@ impl Field {
 /// Velocity and gradient at the points of every piece (`centres`: 3 per point), per piece
 /// in its points' order. A piece's `segments_per_fiber` groups its points into fibres (if
 /// it does not add up to the points, each point counts as its own fibre); the fibres of
-/// all pieces are sampled in the order of `cell` of their first point.
+/// all pieces are sampled in the order of `cell` of their first point. The output reuses
+/// the buffers of `reuse` in order (every value is written, so what they held never shows).
 pub fn sample_fibres(
     pieces: &[(&[f64], &[u32])],
+    reuse: Vec<PieceSamples>,
     cell: impl Fn(&[f64]) -> u64 + Sync,
     sample: impl Fn(&[f64]) -> PointSample + Sync,
 ) -> Vec<PieceSamples> {
+    let mut reuse = reuse.into_iter();
     let mut out: Vec<PieceSamples> = pieces
         .iter()
         .map(|(c, _)| {
             let n = c.len() / 3;
-            (vec![0.0; 3 * n], vec![0.0; 9 * n])
+            let (mut v, mut g) = reuse.next().unwrap_or_default();
+            v.resize(3 * n, 0.0);
+            g.resize(9 * n, 0.0);
+            (v, g)
         })
         .collect();
     let mut fibres = Vec::new();
@@ -173,12 +184,19 @@ mod tests {
         let want_v: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).0).collect();
         let want_g: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).1).collect();
         for counts in [&lens[..], &lens[1..], &[]] {
-            let out = sample_fibres(&[(&centres, counts)], cell, fake);
+            let out = sample_fibres(&[(&centres, counts)], Vec::new(), cell, fake);
             assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
+            // reused buffers, too short, too long or the right size with stale values,
+            // give the same answer
+            for len in [5, 3 * n, 20 * n] {
+                let stale = vec![(vec![f64::NAN; len], vec![-1.0; 3 * len])];
+                let out = sample_fibres(&[(&centres, counts)], stale, cell, fake);
+                assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
+            }
         }
         // several pieces sampled in one pass: each gets its own points' samples
         let (a, b) = centres.split_at(3 * 400);
-        let out = sample_fibres(&[(a, &[]), (b, &lens[..3])], cell, fake);
+        let out = sample_fibres(&[(a, &[]), (b, &lens[..3])], Vec::new(), cell, fake);
         assert_eq!(out.len(), 2);
         assert_eq!(
             (&out[0].0[..], &out[0].1[..]),

@@ -4,7 +4,7 @@
 
 use crate::config::{FlowNodeConfig, FlowSource};
 use crate::error::FlowError;
-use crate::sampling::Field;
+use crate::sampling::{Field, PieceSamples};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox, Outbox};
 use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
@@ -356,6 +356,8 @@ pub fn serve(
     let mut pending: BTreeMap<(String, u32), FiberGroupState> = BTreeMap::new();
     // the samples last published to each piece, to send again when a node waits for them
     let mut served: Served = BTreeMap::new();
+    // the sample arrays of the last step, per piece in order, to sample into again
+    let mut spare: Vec<PieceSamples> = Vec::new();
     // running plane/time statistics of the served field, published as FlowProfiles
     let mut stats: Option<fiberflow_dns::stats::RunningStats> = resumed_stats;
     if run.start_step > 0 {
@@ -413,7 +415,7 @@ pub fn serve(
             .values()
             .map(|s| (&s.centre[..], &s.segments_per_fiber[..]))
             .collect();
-        let samples = field.sample_pieces(&pieces);
+        let samples = field.sample_pieces(&pieces, std::mem::take(&mut spare));
         timing.sampling_s += t0.elapsed().as_secs_f64();
         for (((group, first_fiber), s), (vel, grad)) in states.into_iter().zip(samples) {
             let t0 = Instant::now();
@@ -435,6 +437,8 @@ pub fn serve(
                 .map(|p| p.samples_topic(&t))
                 .unwrap_or_else(|| t.flow_samples(&group));
             let bytes = Arc::new(encode(&msg));
+            // the arrays are sampled into again next step
+            spare.push((msg.velocity, msg.velocity_gradient));
             let t1 = Instant::now();
             timing.encoding_s += (t1 - t0).as_secs_f64();
             out.send(topic.clone(), bytes.clone())?;
