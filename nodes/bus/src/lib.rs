@@ -7,6 +7,7 @@ pub mod inbox;
 pub mod inproc;
 pub mod lossy;
 pub mod outbox;
+pub mod usage;
 pub mod zenoh_bus;
 
 pub use inbox::{DropCounter, Inbox};

@@ -3,7 +3,8 @@
 //! A B C …) so slow drifts of a shared machine hit every configuration alike; reads each
 //! node's own "where … time went" log line and prints, per configuration, the wall time per
 //! coupling step split into its stages (medians over the repeats, with min–max of the
-//! step wall).
+//! step wall), and the CPU time all processes of a run used (on a saturated machine the
+//! wall follows the CPU, not the transport).
 
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -33,6 +34,11 @@ pub struct BenchOptions {
 struct Figures {
     /// Whole process, from start to exit.
     process_s: f64,
+    /// CPU time (user + system) of the launcher and every node it ran.
+    cpu_s: f64,
+    /// CPU time of the flow node, every fibre node and the recorder during the steps
+    /// (each from its own timing line).
+    nodes_cpu_s: f64,
     /// The flow node's loop (all its stages).
     loop_s: f64,
     field_step_s: f64,
@@ -73,6 +79,11 @@ fn read_figures(out: &Path, process_s: f64) -> Result<Figures> {
         for line in text.lines() {
             let v = fields(line);
             let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
+            f.nodes_cpu_s += if line.contains("time went") {
+                g("cpu_s")
+            } else {
+                0.0
+            };
             if line.contains("where the flow node's time went") {
                 f.field_step_s = g("field_step_s");
                 f.sampling_s = g("sampling_s");
@@ -167,6 +178,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                 c.arg("--set").arg(s);
             }
             bar.set_message(format!("{n} fibres, {transport}"));
+            let cpu0 = fiberflow_bus::usage::children_cpu_s();
             let t0 = Instant::now();
             let st = c
                 .stdout(std::process::Stdio::null())
@@ -174,16 +186,17 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                 .status()
                 .context("running fiberflow launch")?;
             let wall = t0.elapsed().as_secs_f64();
+            // the launcher waits for its nodes, so their CPU is in its children's usage
+            let cpu = fiberflow_bus::usage::children_cpu_s() - cpu0;
             if !st.success() {
                 bail!(
                     "{n} fibres over {transport} failed ({st}); logs in {}",
                     out.join("logs").display()
                 );
             }
-            results
-                .entry((*n, transport.clone()))
-                .or_default()
-                .push(read_figures(&out, wall)?);
+            let mut f = read_figures(&out, wall)?;
+            f.cpu_s = cpu;
+            results.entry((*n, transport.clone())).or_default().push(f);
             bar.inc(1);
         }
     }
@@ -213,8 +226,8 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64) {
 fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String {
     use std::fmt::Write as _;
     let mut md = String::from(
-        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let per = |v: &[Figures], f: fn(&Figures) -> f64| {
         median(v.iter().map(f).collect()) * 1e3 / steps as f64
@@ -229,7 +242,7 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
             .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
         let _ = writeln!(
             md,
-            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} |",
+            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} | {:.1} | {:.0} ({:.2}) |",
             per(v, |f| f.field_step_s),
             per(v, |f| f.sampling_s),
             per(v, |f| f.flow_publish_s),
@@ -238,6 +251,9 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
             per(v, |f| f.group_publish_s),
             per(v, |f| f.recording_s),
             median(v.iter().map(|f| f.process_s).collect()),
+            median(v.iter().map(|f| f.cpu_s).collect()),
+            per(v, |f| f.nodes_cpu_s),
+            median(v.iter().map(|f| f.nodes_cpu_s / f.loop_s).collect()),
         );
     }
     md
@@ -272,25 +288,27 @@ mod tests {
         std::fs::create_dir_all(&logs).unwrap();
         std::fs::write(
             logs.join("flow.log"),
-            "2026-01-01T00:00:00Z  INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\"\n",
+            "2026-01-01T00:00:00Z  INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" cpu_s=\"10.000\"\n",
         )
         .unwrap();
         for (g, s) in [("case1", "1.000"), ("case2", "3.000")] {
             std::fs::write(
                 logs.join(format!("{g}.log")),
-                format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\"\n"),
+                format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"2.000\"\n"),
             )
             .unwrap();
         }
         std::fs::write(
             logs.join("recorder.log"),
-            "x INFO fiberflow::nodes: where the recorder's time went writing_s=\"0.125\"\n",
+            "x INFO fiberflow::nodes: where the recorder's time went writing_s=\"0.125\" cpu_s=\"0.500\"\n",
         )
         .unwrap();
         let f = read_figures(&dir, 12.0).unwrap();
         assert_eq!(f.loop_s, 7.5);
         assert_eq!((f.fibre_step_s, f.group_publish_s), (2.0, 0.25));
         assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));
+        // the flow node, both groups and the recorder
+        assert_eq!(f.nodes_cpu_s, 14.5);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

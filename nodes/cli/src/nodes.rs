@@ -230,11 +230,13 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 samples: lf.recorder.samples,
                 compression: lf.recorder.compression,
             };
+            let cpu_from = fiberflow_bus::usage::process_cpu_s();
             let s =
                 fiberflow_recorder::record(bus, &lf.run.id, &path, &meta, &expect, &plan, stop)?;
             tracing::info!(messages = s.messages, decimated = s.decimated, path = %s.path.display(), "recording finished");
             tracing::info!(
                 writing_s = format!("{:.3}", s.busy_s),
+                cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
                 "where the recorder's time went"
             );
             report_drops("recorder", &s.drops);

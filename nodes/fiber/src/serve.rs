@@ -212,6 +212,7 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(timeout_s);
     // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
     let mut timing = (0.0, 0.0, 0.0);
+    let cpu_from = fiberflow_bus::usage::process_cpu_s();
     let mut fluid: Vec<FluidSample> = Vec::new();
     // the longest wait for samples so far that needed no resend: a wait three times as
     // long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
@@ -323,6 +324,7 @@ pub fn serve(
         waiting_for_samples_s = format!("{:.3}", timing.0),
         fibre_step_s = format!("{:.3}", timing.1),
         encoding_and_publishing_s = format!("{:.3}", timing.2),
+        cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
         "where the group's time went"
     );
     hb(lifecycle::DONE, ann.steps, samples_in.drops.total())?;

@@ -364,6 +364,7 @@ pub fn serve(
         tracing::info!(step = run.start_step, "resuming from a coupled checkpoint");
     }
     let mut timing = Timing::default();
+    let cpu_from = fiberflow_bus::usage::process_cpu_s();
     // the loop's messages go out on the outbox's thread while the field steps on
     let mut out = Outbox::new(bus.clone(), outbox_depth(run))?;
     for k in run.start_step..=run.steps {
@@ -561,6 +562,7 @@ pub fn serve(
         encoding_and_publishing_s = format!("{:.3}", timing.encoding_s + timing.publishing_s),
         encoding_s = format!("{:.3}", timing.encoding_s),
         field_step_s = format!("{:.3}", timing.field_step_s),
+        cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
         "where the flow node's time went"
     );
     heartbeat(&bus, &t, lifecycle::DONE, run.steps, st_in.drops.total())?;
