@@ -28,7 +28,7 @@ fn cpu_s(who: libc::c_int) -> f64 {
 mod tests {
     use super::*;
 
-    /// Work on two threads shows in the process's CPU time.
+    /// Busy work (here on two threads) shows in the process's CPU time.
     #[test]
     fn busy_threads_count() {
         let before = process_cpu_s();

@@ -273,8 +273,8 @@ pub fn serve(
         }
         waited_s += wait_from.elapsed().as_secs_f64();
         let t0 = Instant::now();
-        // the buffer lives across steps: tens of MB at scale, not allocated (and faulted
-        // in) again every step
+        // the buffer lives across steps (6.7 MB per 10^4 fibres of 7 segments) instead of
+        // being allocated again every step
         fluid.clear();
         fluid.extend(
             samples
@@ -286,7 +286,6 @@ pub fn serve(
                     grad: Matrix3::from_row_slice(g),
                 }),
         );
-        drop(samples);
         if k == 0 && cfg.initial_velocity == InitialVelocity::Fluid {
             group.set_velocity_to_fluid(&fluid)?;
             // the state of step 0 went out before the fluid's velocity was known: send it
