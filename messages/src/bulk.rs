@@ -14,57 +14,171 @@ use crate::types::{FiberGroupState, FlowSamples};
 /// The CDR little-endian encapsulation header.
 const HEADER: [u8; 4] = [0, 1, 0, 0];
 
-/// Writes CDR into a buffer sized up front.
-pub(crate) struct Writer {
-    buf: Vec<u8>,
+/// Where a [`Writer`] puts its bytes: a growing buffer, a slice sized up front (e.g. a
+/// transport's loaned shared memory), or nowhere (counting the length).
+pub(crate) trait Sink {
+    /// Bytes written so far, the encapsulation header included.
+    fn pos(&self) -> usize;
+    fn bytes(&mut self, b: &[u8]);
+    fn zeros(&mut self, n: usize);
+    /// Each value as 4 little-endian bytes.
+    fn u32s(&mut self, v: &[u32]);
+    /// Each value as 8 little-endian bytes.
+    fn f64s(&mut self, v: &[f64]);
 }
 
-impl Writer {
-    pub(crate) fn with_capacity(bytes: usize) -> Self {
-        let mut buf = Vec::with_capacity(bytes + HEADER.len());
-        buf.extend_from_slice(&HEADER);
+impl Sink for Vec<u8> {
+    fn pos(&self) -> usize {
+        self.len()
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        self.extend_from_slice(b);
+    }
+    fn zeros(&mut self, n: usize) {
+        self.resize(self.len() + n, 0);
+    }
+    fn u32s(&mut self, v: &[u32]) {
+        let from = self.len();
+        self.resize(from + 4 * v.len(), 0);
+        put_u32s(&mut self[from..], v);
+    }
+    fn f64s(&mut self, v: &[f64]) {
+        let from = self.len();
+        self.resize(from + 8 * v.len(), 0);
+        put_f64s(&mut self[from..], v);
+    }
+}
+
+fn put_u32s(out: &mut [u8], v: &[u32]) {
+    for (o, x) in out.chunks_exact_mut(4).zip(v) {
+        o.copy_from_slice(&x.to_le_bytes());
+    }
+}
+
+fn put_f64s(out: &mut [u8], v: &[f64]) {
+    for (o, x) in out.chunks_exact_mut(8).zip(v) {
+        o.copy_from_slice(&x.to_le_bytes());
+    }
+}
+
+/// Counts the bytes a message takes.
+#[derive(Default)]
+pub(crate) struct Count(usize);
+
+impl Sink for Count {
+    fn pos(&self) -> usize {
+        self.0
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        self.0 += b.len();
+    }
+    fn zeros(&mut self, n: usize) {
+        self.0 += n;
+    }
+    fn u32s(&mut self, v: &[u32]) {
+        self.0 += 4 * v.len();
+    }
+    fn f64s(&mut self, v: &[f64]) {
+        self.0 += 8 * v.len();
+    }
+}
+
+/// Writes into a slice; what does not fit is counted, not written ([`Fill::exact`] says
+/// whether the message filled the slice exactly).
+pub(crate) struct Fill<'a> {
+    out: &'a mut [u8],
+    pos: usize,
+}
+
+impl<'a> Fill<'a> {
+    pub(crate) fn new(out: &'a mut [u8]) -> Self {
+        Self { out, pos: 0 }
+    }
+
+    /// The next `n` bytes of the slice (None once past its end); advances either way.
+    fn next(&mut self, n: usize) -> Option<&mut [u8]> {
+        let from = self.pos;
+        self.pos += n;
+        self.out.get_mut(from..from + n)
+    }
+
+    pub(crate) fn exact(&self) -> bool {
+        self.pos == self.out.len()
+    }
+}
+
+impl Sink for Fill<'_> {
+    fn pos(&self) -> usize {
+        self.pos
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        if let Some(o) = self.next(b.len()) {
+            o.copy_from_slice(b);
+        }
+    }
+    fn zeros(&mut self, n: usize) {
+        if let Some(o) = self.next(n) {
+            o.fill(0);
+        }
+    }
+    fn u32s(&mut self, v: &[u32]) {
+        if let Some(o) = self.next(4 * v.len()) {
+            put_u32s(o, v);
+        }
+    }
+    fn f64s(&mut self, v: &[f64]) {
+        if let Some(o) = self.next(8 * v.len()) {
+            put_f64s(o, v);
+        }
+    }
+}
+
+/// Writes CDR into a [`Sink`].
+pub(crate) struct Writer<S: Sink> {
+    buf: S,
+}
+
+impl<S: Sink> Writer<S> {
+    pub(crate) fn new(mut buf: S) -> Self {
+        buf.bytes(&HEADER);
         Self { buf }
     }
 
     fn align(&mut self, to: usize) {
-        let pos = self.buf.len() - HEADER.len();
+        let pos = self.buf.pos() - HEADER.len();
         let pad = (to - pos % to) % to;
-        self.buf.resize(self.buf.len() + pad, 0);
+        self.buf.zeros(pad);
     }
 
     pub(crate) fn u32(&mut self, v: u32) {
         self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.buf.bytes(&v.to_le_bytes());
     }
 
     pub(crate) fn u64(&mut self, v: u64) {
         self.align(8);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.buf.bytes(&v.to_le_bytes());
     }
 
     pub(crate) fn f64(&mut self, v: f64) {
         self.align(8);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.buf.bytes(&v.to_le_bytes());
     }
 
     pub(crate) fn string(&mut self, s: &str) {
         self.u32(s.len() as u32 + 1);
-        self.buf.extend_from_slice(s.as_bytes());
-        self.buf.push(0);
+        self.buf.bytes(s.as_bytes());
+        self.buf.bytes(&[0]);
     }
 
     pub(crate) fn seq_u8(&mut self, v: &[u8]) {
         self.u32(v.len() as u32);
-        self.buf.extend_from_slice(v);
+        self.buf.bytes(v);
     }
 
     pub(crate) fn seq_u32(&mut self, v: &[u32]) {
         self.u32(v.len() as u32);
-        let from = self.buf.len();
-        self.buf.resize(from + 4 * v.len(), 0);
-        for (out, x) in self.buf[from..].chunks_exact_mut(4).zip(v) {
-            out.copy_from_slice(&x.to_le_bytes());
-        }
+        self.buf.u32s(v);
     }
 
     pub(crate) fn seq_f64(&mut self, v: &[f64]) {
@@ -73,11 +187,7 @@ impl Writer {
             return; // no element, no alignment (as serde writes it)
         }
         self.align(8);
-        let from = self.buf.len();
-        self.buf.resize(from + 8 * v.len(), 0);
-        for (out, x) in self.buf[from..].chunks_exact_mut(8).zip(v) {
-            out.copy_from_slice(&x.to_le_bytes());
-        }
+        self.buf.f64s(v);
     }
 
     /// The fields every group message starts with, in wire order.
@@ -98,7 +208,7 @@ impl Writer {
         self.u32(group_fibers);
     }
 
-    pub(crate) fn finish(self) -> Vec<u8> {
+    pub(crate) fn finish(self) -> S {
         self.buf
     }
 }
@@ -222,9 +332,9 @@ fn header_size(group: &str) -> usize {
     4 + 4 + group.len() + 1 + 8 + 8 + 8 + 8
 }
 
-pub(crate) fn write_samples(m: &FlowSamples) -> Vec<u8> {
-    let floats = m.velocity.len() + m.velocity_gradient.len();
-    let mut w = Writer::with_capacity(header_size(&m.group) + 16 + 8 * floats);
+/// Writes the samples into `sink`.
+pub(crate) fn samples_into<S: Sink>(m: &FlowSamples, sink: S) -> S {
+    let mut w = Writer::new(sink);
     w.group_header(
         m.schema_version,
         &m.group,
@@ -236,6 +346,14 @@ pub(crate) fn write_samples(m: &FlowSamples) -> Vec<u8> {
     w.seq_f64(&m.velocity);
     w.seq_f64(&m.velocity_gradient);
     w.finish()
+}
+
+pub(crate) fn write_samples(m: &FlowSamples) -> Vec<u8> {
+    let floats = m.velocity.len() + m.velocity_gradient.len();
+    samples_into(
+        m,
+        Vec::with_capacity(HEADER.len() + header_size(&m.group) + 16 + 8 * floats),
+    )
 }
 
 pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
@@ -253,20 +371,9 @@ pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
     })
 }
 
-pub(crate) fn write_state(m: &FiberGroupState) -> Vec<u8> {
-    let floats = m.segment_length.len()
-        + m.diameter.len()
-        + m.density_ratio.len()
-        + m.centre.len()
-        + m.axis.len()
-        + m.velocity.len()
-        + m.angular_velocity.len();
-    let bytes = header_size(&m.group)
-        + 4 * 10
-        + 4 * m.segments_per_fiber.len()
-        + m.layer.len()
-        + 8 * floats;
-    let mut w = Writer::with_capacity(bytes);
+/// Writes the state into `sink`.
+pub(crate) fn state_into<S: Sink>(m: &FiberGroupState, sink: S) -> S {
+    let mut w = Writer::new(sink);
     w.group_header(
         m.schema_version,
         &m.group,
@@ -285,6 +392,22 @@ pub(crate) fn write_state(m: &FiberGroupState) -> Vec<u8> {
     w.seq_f64(&m.velocity);
     w.seq_f64(&m.angular_velocity);
     w.finish()
+}
+
+pub(crate) fn write_state(m: &FiberGroupState) -> Vec<u8> {
+    let floats = m.segment_length.len()
+        + m.diameter.len()
+        + m.density_ratio.len()
+        + m.centre.len()
+        + m.axis.len()
+        + m.velocity.len()
+        + m.angular_velocity.len();
+    let bytes = header_size(&m.group)
+        + 4 * 10
+        + 4 * m.segments_per_fiber.len()
+        + m.layer.len()
+        + 8 * floats;
+    state_into(m, Vec::with_capacity(HEADER.len() + bytes))
 }
 
 pub(crate) fn read_state(bytes: &[u8]) -> Result<FiberGroupState, String> {
@@ -320,9 +443,22 @@ mod tests {
         "fiberflow_msgs/msg/FiberGroupState",
     ];
 
+    /// What `encode_into` writes into a slice of `encoded_len` bytes, and whether a slice
+    /// one byte short or long is refused.
+    fn into_slice<M: crate::Message>(m: &M) -> (Vec<u8>, bool, bool) {
+        let n = crate::encoded_len(m);
+        let mut exact = vec![0xAAu8; n];
+        let fits = crate::encode_into(m, &mut exact);
+        assert!(fits, "a slice of encoded_len bytes must fit");
+        let short = n > 0 && !crate::encode_into(m, &mut vec![0u8; n - 1]);
+        let long = !crate::encode_into(m, &mut vec![0u8; n + 1]);
+        (exact, short, long)
+    }
+
     /// Random messages (random lengths, empty arrays, odd group-name lengths so every
-    /// padding case occurs) are written to the very bytes the serde path writes, and read
-    /// back to the same message.
+    /// padding case occurs) are written to the very bytes the serde path writes — into a
+    /// growing buffer and into a slice sized by `encoded_len` (which refuses a slice of
+    /// any other length) — and read back to the same message.
     #[test]
     fn bulk_bytes_equal_the_serde_bytes() {
         let mut r = Rng::new(11);
@@ -334,10 +470,12 @@ mod tests {
             if ty == BULK[0] {
                 let m: FlowSamples = serde_decode(&b).unwrap();
                 assert_eq!(write_samples(&m), b);
+                assert_eq!(into_slice(&m), (b.clone(), true, true));
                 assert_eq!(serde_encode(&read_samples(&b).unwrap()), b);
             } else {
                 let m: FiberGroupState = serde_decode(&b).unwrap();
                 assert_eq!(write_state(&m), b);
+                assert_eq!(into_slice(&m), (b.clone(), true, true));
                 assert_eq!(serde_encode(&read_state(&b).unwrap()), b);
             }
         }

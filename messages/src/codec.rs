@@ -28,6 +28,20 @@ pub trait Message: Serialize + DeserializeOwned {
     fn write_cdr(&self) -> Vec<u8> {
         serde_encode(self)
     }
+    /// The length of its CDR bytes.
+    fn encoded_len(&self) -> usize {
+        self.write_cdr().len()
+    }
+    /// Writes its CDR bytes into `out` (e.g. a transport's loaned shared memory); false,
+    /// with `out` unspecified, if `out` is not exactly [`Message::encoded_len`] long.
+    fn write_cdr_into(&self, out: &mut [u8]) -> bool {
+        let b = self.write_cdr();
+        let fits = b.len() == out.len();
+        if fits {
+            out.copy_from_slice(&b);
+        }
+        fits
+    }
     /// Reads CDR bytes, lengths checked before any allocation (the serde path after a
     /// layout walk unless the type reads its arrays in bulk).
     fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
@@ -44,7 +58,7 @@ macro_rules! message {
             }
         }
     };
-    ($t:ident, $write:path, $read:path) => {
+    ($t:ident, $write:path, $into:path, $read:path) => {
         impl Message for crate::types::$t {
             const TYPE_NAME: &'static str = concat!("fiberflow_msgs/msg/", stringify!($t));
             fn schema_version(&self) -> u32 {
@@ -52,6 +66,13 @@ macro_rules! message {
             }
             fn write_cdr(&self) -> Vec<u8> {
                 $write(self)
+            }
+            fn encoded_len(&self) -> usize {
+                use crate::bulk::Sink;
+                $into(self, crate::bulk::Count::default()).pos()
+            }
+            fn write_cdr_into(&self, out: &mut [u8]) -> bool {
+                $into(self, crate::bulk::Fill::new(out)).exact()
             }
             fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
                 $read(bytes).map_err(|reason| DecodeError::Malformed {
@@ -69,11 +90,13 @@ message!(FlowSlice);
 message!(
     FlowSamples,
     crate::bulk::write_samples,
+    crate::bulk::samples_into,
     crate::bulk::read_samples
 );
 message!(
     FiberGroupState,
     crate::bulk::write_state,
+    crate::bulk::state_into,
     crate::bulk::read_state
 );
 message!(FiberGroupMetrics);
@@ -82,6 +105,18 @@ message!(Heartbeat);
 /// Encodes as CDR little-endian with encapsulation header.
 pub fn encode<M: Message>(m: &M) -> Vec<u8> {
     m.write_cdr()
+}
+
+/// The length of `m`'s CDR bytes (what [`encode_into`] needs).
+pub fn encoded_len<M: Message>(m: &M) -> usize {
+    m.encoded_len()
+}
+
+/// Encodes into `out`, which must be exactly [`encoded_len`] long (false, with `out`
+/// unspecified, if it is not): the bulk messages write straight into it, e.g. into a
+/// transport's loaned shared memory, with no buffer in between.
+pub fn encode_into<M: Message>(m: &M, out: &mut [u8]) -> bool {
+    m.write_cdr_into(out)
 }
 
 /// CDR through serde (the generic path; the bulk messages are tested and benched against it).

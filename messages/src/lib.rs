@@ -14,7 +14,9 @@ pub mod segments;
 pub mod topics;
 pub mod types;
 
-pub use codec::{decode, encode, peek_group_header, DecodeError, GroupHeader, Message};
+pub use codec::{
+    decode, encode, encode_into, encoded_len, peek_group_header, DecodeError, GroupHeader, Message,
+};
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.

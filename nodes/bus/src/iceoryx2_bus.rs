@@ -10,15 +10,21 @@
 //! message at paper size: eight receive threads scheduled onto two busy cores.) iceoryx2 has no wildcard subscriptions, so the bus is given the run's
 //! topic list and a pattern subscribes to every matching topic. Publishers use
 //! back-pressure (retry until delivered), so lockstep messages are never lost.
+//!
+//! No copies on the way: [`Bus::publish_message`] encodes straight into the loaned shared
+//! memory, and a received message reaches the caller still in it ([`Payload::shared`]),
+//! up to [`HELD_MAX`] per subscriber at a time; beyond that (a caller queueing messages)
+//! the receive thread copies, so it never stalls on memory the caller holds.
 
-use crate::{matches, Bus, BusError, Envelope, Subscription};
+use crate::{matches, Bus, BusError, Envelope, Outgoing, Payload, Subscription};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, Ordering};
+use iceoryx2::sample::Sample;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -26,8 +32,39 @@ use std::time::Duration;
 type Svc = ipc_threadsafe::Service;
 type PubSub = iceoryx2::service::port_factory::publish_subscribe::PortFactory<Svc, [u8], ()>;
 type BytePublisher = Publisher<Svc, [u8], ()>;
-/// A subscriber with its topic and the caller's channel.
-type Route = (String, Subscriber<Svc, [u8], ()>, Sender<Envelope>);
+/// A subscriber with its topic, the caller's channel and how many of its samples the
+/// caller holds.
+type Route = (
+    String,
+    Subscriber<Svc, [u8], ()>,
+    Sender<Envelope>,
+    Arc<AtomicUsize>,
+);
+
+/// Samples a subscriber may lend out at once (the service's limit).
+const BORROWED_MAX: usize = 8;
+/// Received samples handed to the caller in shared memory per subscriber at most; the
+/// rest are copied, so a receive never exceeds [`BORROWED_MAX`].
+pub const HELD_MAX: usize = BORROWED_MAX - 2;
+
+/// A received sample handed over in place: its bytes stay in the publisher's shared
+/// memory until the caller drops it.
+struct Lent {
+    sample: Sample<Svc, [u8], ()>,
+    held: Arc<AtomicUsize>,
+}
+
+impl AsRef<[u8]> for Lent {
+    fn as_ref(&self) -> &[u8] {
+        self.sample.payload()
+    }
+}
+
+impl Drop for Lent {
+    fn drop(&mut self) {
+        self.held.fetch_sub(1, Ordering::SeqCst);
+    }
+}
 
 /// The longest the receive thread sleeps without a notification (a safety net only).
 const IDLE_WAIT: Duration = Duration::from_millis(50);
@@ -109,6 +146,7 @@ impl Shared {
                 .service_builder(&name)
                 .publish_subscribe::<[u8]>()
                 .subscriber_max_buffer_size(256)
+                .subscriber_max_borrowed_samples(BORROWED_MAX)
                 .history_size(0)
                 .enable_safe_overflow(false)
                 .max_publishers(4)
@@ -180,11 +218,18 @@ fn receive_loop(sh: &Shared, listener: &Listener<Svc>) {
     let mut failing = std::collections::HashSet::new();
     while !sh.stop.load(Ordering::SeqCst) {
         if let Ok(subs) = sh.subscribers.lock() {
-            for (topic, s, tx) in subs.iter() {
+            for (topic, s, tx, held) in subs.iter() {
                 loop {
                     match s.receive() {
                         Ok(Some(sample)) => {
-                            let _ = tx.send((topic.clone(), sample.payload().to_vec()));
+                            let payload = if held.fetch_add(1, Ordering::SeqCst) < HELD_MAX {
+                                let held = held.clone();
+                                Payload::shared(Box::new(Lent { sample, held }))
+                            } else {
+                                held.fetch_sub(1, Ordering::SeqCst);
+                                Payload::from(sample.payload().to_vec())
+                            };
+                            let _ = tx.send((topic.clone(), payload));
                         }
                         Ok(None) => break,
                         Err(e) => {
@@ -198,6 +243,51 @@ fn receive_loop(sh: &Shared, listener: &Listener<Svc>) {
             }
         }
         let _ = listener.timed_wait(|_| {}, IDLE_WAIT);
+    }
+}
+
+impl Iceoryx2Bus {
+    /// Runs `f` with this process's publisher on `topic` (created once).
+    fn with_publisher<R>(
+        &self,
+        topic: &str,
+        f: impl FnOnce(&BytePublisher) -> Result<R, BusError>,
+    ) -> Result<R, BusError> {
+        let mut pubs = self.shared.publishers.lock().map_err(lock_err)?;
+        if !pubs.contains_key(topic) {
+            let p = self.shared.with_service(topic, |s| {
+                s.publisher_builder()
+                    .initial_max_slice_len(4096)
+                    .allocation_strategy(AllocationStrategy::PowerOfTwo)
+                    .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                    .create()
+                    .map_err(terr)
+            })?;
+            pubs.insert(topic.to_string(), p);
+        }
+        let p = pubs
+            .get(topic)
+            .ok_or_else(|| BusError::Transport("publisher vanished".into()))?;
+        f(p)
+    }
+
+    /// Wakes the processes subscribed to `topic`, each once.
+    fn wake_subscribers(&self, topic: &str) -> Result<(), BusError> {
+        let mut nodes: Vec<u128> = Vec::new();
+        self.shared.with_service(topic, |s| {
+            s.dynamic_config().list_subscribers(|d| {
+                let id = d.node_id.value();
+                if !nodes.contains(&id) {
+                    nodes.push(id);
+                }
+                CallbackProgression::Continue
+            });
+            Ok(())
+        })?;
+        for node in nodes {
+            self.shared.wake(node)?;
+        }
+        Ok(())
     }
 }
 
@@ -215,42 +305,24 @@ impl Drop for Iceoryx2Bus {
 
 impl Bus for Iceoryx2Bus {
     fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError> {
-        {
-            let mut pubs = self.shared.publishers.lock().map_err(lock_err)?;
-            if !pubs.contains_key(topic) {
-                let p = self.shared.with_service(topic, |s| {
-                    s.publisher_builder()
-                        .initial_max_slice_len(4096)
-                        .allocation_strategy(AllocationStrategy::PowerOfTwo)
-                        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-                        .create()
-                        .map_err(terr)
-                })?;
-                pubs.insert(topic.to_string(), p);
-            }
-            let p = pubs
-                .get(topic)
-                .ok_or_else(|| BusError::Transport("publisher vanished".into()))?;
+        self.with_publisher(topic, |p| {
             let sample = p.loan_slice_uninit(payload.len()).map_err(terr)?;
-            let sample = sample.write_from_slice(payload);
-            sample.send().map_err(terr)?;
-        }
-        // wake the processes subscribed to this topic, each once
-        let mut nodes: Vec<u128> = Vec::new();
-        self.shared.with_service(topic, |s| {
-            s.dynamic_config().list_subscribers(|d| {
-                let id = d.node_id.value();
-                if !nodes.contains(&id) {
-                    nodes.push(id);
-                }
-                CallbackProgression::Continue
-            });
-            Ok(())
+            sample.write_from_slice(payload).send().map_err(terr)
         })?;
-        for node in nodes {
-            self.shared.wake(node)?;
-        }
-        Ok(())
+        self.wake_subscribers(topic)
+    }
+
+    /// Encoded straight into the loaned shared memory (zeroed first: writing bytes that
+    /// were never initialised through a `&mut [u8]` is not allowed).
+    fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
+        self.with_publisher(topic, |p| {
+            let mut sample = p.loan_slice(msg.len()).map_err(terr)?;
+            if !msg.write(sample.payload_mut()) {
+                return Err(crate::unwritable(topic));
+            }
+            sample.send().map_err(terr)
+        })?;
+        self.wake_subscribers(topic)
     }
 
     fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError> {
@@ -260,7 +332,7 @@ impl Bus for Iceoryx2Bus {
             let s = self
                 .shared
                 .with_service(t, |s| s.subscriber_builder().create().map_err(terr))?;
-            new.push((t.clone(), s, tx.clone()));
+            new.push((t.clone(), s, tx.clone(), Arc::new(AtomicUsize::new(0))));
         }
         self.shared
             .subscribers
@@ -272,5 +344,99 @@ impl Bus for Iceoryx2Bus {
 
     fn name(&self) -> &'static str {
         "iceoryx2"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::zenoh_bus::{ZenohBus, ZenohSettings};
+    use crate::BusHandle;
+
+    fn run_id(name: &str) -> String {
+        format!("test-{name}-{}", std::process::id())
+    }
+
+    /// Writes `n` bytes counting up from `first`, or refuses to write when `n` is 0.
+    struct Counting {
+        first: u8,
+        n: usize,
+    }
+
+    impl Outgoing for Counting {
+        fn len(&self) -> usize {
+            self.n.max(1)
+        }
+        fn write(&self, out: &mut [u8]) -> bool {
+            for (i, b) in out.iter_mut().enumerate() {
+                *b = self.first.wrapping_add(i as u8);
+            }
+            self.n > 0
+        }
+    }
+
+    /// Messages written straight into the loaned memory arrive with their bytes, still in
+    /// the publisher's memory, while the caller holds fewer than `HELD_MAX` of them;
+    /// beyond that they arrive copied (nothing stalls), and once the caller lets go they
+    /// arrive in place again.
+    #[test]
+    fn messages_arrive_in_place_up_to_the_held_limit() {
+        let topics = vec!["t/big".to_string()];
+        let id = run_id("held");
+        let rx = Iceoryx2Bus::open(&id, topics.clone()).unwrap();
+        let tx = Iceoryx2Bus::open(&id, topics).unwrap();
+        let sub = rx.subscribe("t/big").unwrap();
+        let recv = || {
+            let (t, p) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
+            assert_eq!(t, "t/big");
+            p
+        };
+        let count = HELD_MAX + 3;
+        for i in 0..count {
+            let m = Counting {
+                first: i as u8,
+                n: 100_000 + i,
+            };
+            tx.publish_message("t/big", &m).unwrap();
+        }
+        let held: Vec<Payload> = (0..count).map(|_| recv()).collect();
+        for (i, p) in held.iter().enumerate() {
+            assert_eq!(p.len(), 100_000 + i);
+            assert!(p.iter().enumerate().all(|(j, &b)| b == (i + j) as u8));
+            assert_eq!(p.is_shared(), i < HELD_MAX, "message {i}");
+        }
+        drop(held);
+        tx.publish("t/big", &[7, 8, 9]).unwrap();
+        let p = recv();
+        assert_eq!(&p[..], &[7, 8, 9]);
+        assert!(p.is_shared());
+    }
+
+    /// Over every transport a message that writes its own bytes arrives as the same bytes
+    /// published as a slice; one that cannot write them is an error, and nothing goes out.
+    #[test]
+    fn written_messages_equal_published_bytes_on_every_transport() {
+        let topics = vec!["w/a".to_string()];
+        let buses: Vec<BusHandle> = vec![
+            Arc::new(crate::inproc::InprocBus::new()),
+            Arc::new(ZenohBus::open(&ZenohSettings::default()).unwrap()),
+            Arc::new(Iceoryx2Bus::open(&run_id("written"), topics).unwrap()),
+        ];
+        for bus in buses {
+            let sub = bus.subscribe("w/a").unwrap();
+            std::thread::sleep(Duration::from_millis(300));
+            let m = Counting { first: 3, n: 5000 };
+            bus.publish_message("w/a", &m).unwrap();
+            let refused = bus.publish_message("w/a", &Counting { first: 0, n: 0 });
+            assert!(refused.is_err(), "{}", bus.name());
+            let want: Vec<u8> = (0..5000).map(|j| (3 + j) as u8).collect();
+            bus.publish("w/a", &want).unwrap();
+            let a = sub.rx.recv_timeout(Duration::from_secs(5)).unwrap().1;
+            let b = sub.rx.recv_timeout(Duration::from_secs(5)).unwrap().1;
+            assert_eq!(&a[..], &want[..], "{}", bus.name());
+            assert_eq!(&b[..], &want[..], "{}", bus.name());
+            let extra = sub.rx.recv_timeout(Duration::from_millis(300));
+            assert!(extra.is_err(), "{}: the refused message went out", bus.name());
+        }
     }
 }

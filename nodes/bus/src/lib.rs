@@ -26,7 +26,87 @@ pub enum BusError {
 }
 
 /// One received message: topic and raw payload.
-pub type Envelope = (String, Vec<u8>);
+pub type Envelope = (String, Payload);
+
+/// A received message's bytes: owned, or still in the publisher's shared memory (iceoryx2)
+/// until dropped, so that a large message is read where it was written, not copied first.
+pub struct Payload(Held);
+
+enum Held {
+    Owned(Vec<u8>),
+    Shared(Box<dyn AsRef<[u8]> + Send>),
+}
+
+impl Payload {
+    /// Bytes that live in another owner's memory (released when the payload is dropped).
+    pub fn shared(bytes: Box<dyn AsRef<[u8]> + Send>) -> Self {
+        Self(Held::Shared(bytes))
+    }
+
+    /// True if the bytes were never copied out of the publisher's memory.
+    pub fn is_shared(&self) -> bool {
+        matches!(self.0, Held::Shared(_))
+    }
+}
+
+impl From<Vec<u8>> for Payload {
+    fn from(v: Vec<u8>) -> Self {
+        Self(Held::Owned(v))
+    }
+}
+
+impl std::ops::Deref for Payload {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match &self.0 {
+            Held::Owned(v) => v,
+            Held::Shared(b) => (**b).as_ref(),
+        }
+    }
+}
+
+impl std::fmt::Debug for Payload {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Payload({} bytes, shared: {})", self.len(), self.is_shared())
+    }
+}
+
+/// A message to publish that writes its own bytes (a message encoded on the publishing
+/// thread straight into the transport's buffer, or bytes encoded already).
+pub trait Outgoing: Send + Sync {
+    /// How many bytes [`Outgoing::write`] writes.
+    fn len(&self) -> usize;
+    /// Writes exactly [`Outgoing::len`] bytes into `out` (that long); false if it cannot.
+    fn write(&self, out: &mut [u8]) -> bool;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl Outgoing for Vec<u8> {
+    fn len(&self) -> usize {
+        Vec::len(self)
+    }
+    fn write(&self, out: &mut [u8]) -> bool {
+        let fits = out.len() == Vec::len(self);
+        if fits {
+            out.copy_from_slice(self);
+        }
+        fits
+    }
+}
+
+/// A bus message encoded when it is published ([`fiberflow_messages::encode_into`]).
+pub struct Encode<M>(pub M);
+
+impl<M: fiberflow_messages::Message + Send + Sync> Outgoing for Encode<M> {
+    fn len(&self) -> usize {
+        fiberflow_messages::encoded_len(&self.0)
+    }
+    fn write(&self, out: &mut [u8]) -> bool {
+        fiberflow_messages::encode_into(&self.0, out)
+    }
+}
 
 /// A subscription delivers envelopes in arrival order per publisher.
 pub struct Subscription {
@@ -45,9 +125,26 @@ impl Subscription {
 /// `/**`.
 pub trait Bus: Send + Sync {
     fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError>;
+    /// Publishes a message that writes its own bytes: over iceoryx2 straight into the
+    /// loaned shared memory; elsewhere into one buffer that the transport then takes.
+    fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
+        let mut buf = vec![0u8; msg.len()];
+        if !msg.write(&mut buf) {
+            return Err(unwritable(topic));
+        }
+        self.publish(topic, &buf)
+    }
     fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError>;
     /// Transport name for logs.
     fn name(&self) -> &'static str;
+}
+
+/// The error of a message that did not write the bytes it announced (a bug, reported
+/// rather than published half written).
+pub(crate) fn unwritable(topic: &str) -> BusError {
+    BusError::Transport(format!(
+        "the message for {topic} did not write the length it announced"
+    ))
 }
 
 /// One subscription over several patterns (one thread per pattern forwards into a shared

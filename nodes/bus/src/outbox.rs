@@ -4,7 +4,7 @@
 //! scheduler wakes them (on two busy cores, waking six fibre processes one by one held the
 //! flow node ≈ 2 ms per step at paper size).
 
-use crate::{BusError, BusHandle};
+use crate::{BusError, BusHandle, Outgoing};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -12,7 +12,7 @@ use std::time::Instant;
 
 /// Publishes in order on a background thread.
 pub struct Outbox {
-    tx: Option<SyncSender<(String, Arc<Vec<u8>>)>>,
+    tx: Option<SyncSender<(String, Arc<dyn Outgoing>)>>,
     thread: Option<JoinHandle<Result<f64, BusError>>>,
 }
 
@@ -31,9 +31,11 @@ impl Outbox {
         })
     }
 
-    /// Hands `payload` over for publishing on `topic`. Fails with the transport's error if
-    /// an earlier publish failed (the outbox then publishes nothing more).
-    pub fn send(&mut self, topic: String, payload: Arc<Vec<u8>>) -> Result<(), BusError> {
+    /// Hands `payload` over for publishing on `topic` (a message not encoded yet is encoded
+    /// on the outbox's thread, straight into the transport's buffer). Fails with the
+    /// transport's error if an earlier publish failed (the outbox then publishes nothing
+    /// more).
+    pub fn send(&mut self, topic: String, payload: Arc<dyn Outgoing>) -> Result<(), BusError> {
         let sent = match &self.tx {
             Some(tx) => tx.send((topic, payload)).is_ok(),
             None => false,
@@ -74,11 +76,14 @@ impl Drop for Outbox {
     }
 }
 
-fn publish_loop(bus: &BusHandle, rx: &Receiver<(String, Arc<Vec<u8>>)>) -> Result<f64, BusError> {
+fn publish_loop(
+    bus: &BusHandle,
+    rx: &Receiver<(String, Arc<dyn Outgoing>)>,
+) -> Result<f64, BusError> {
     let mut busy_s = 0.0;
     while let Ok((topic, payload)) = rx.recv() {
         let t0 = Instant::now();
-        bus.publish(&topic, &payload)?;
+        bus.publish_message(&topic, payload.as_ref())?;
         busy_s += t0.elapsed().as_secs_f64();
     }
     Ok(busy_s)

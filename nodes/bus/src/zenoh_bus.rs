@@ -4,7 +4,7 @@
 //! CA) and zenoh access control (only peers whose certificate common name is listed may
 //! publish or subscribe under the run's key prefix; everything else is denied).
 
-use crate::{Bus, BusError, Subscription};
+use crate::{Bus, BusError, Outgoing, Subscription};
 use std::sync::mpsc::channel;
 use zenoh::Wait;
 
@@ -200,14 +200,30 @@ impl ZenohBus {
     }
 }
 
-impl Bus for ZenohBus {
-    fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError> {
+impl ZenohBus {
+    /// Puts `payload` on `topic`; lockstep coupling must never lose a message, so a full
+    /// queue blocks instead of dropping.
+    fn put(&self, topic: &str, payload: Vec<u8>) -> Result<(), BusError> {
         self.session
-            .put(topic, payload.to_vec())
-            // lockstep coupling must never lose a message: block instead of dropping
+            .put(topic, payload)
             .congestion_control(zenoh::qos::CongestionControl::Block)
             .wait()
             .map_err(terr)
+    }
+}
+
+impl Bus for ZenohBus {
+    fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError> {
+        self.put(topic, payload.to_vec())
+    }
+
+    /// Encoded into one buffer that zenoh then owns (no second copy).
+    fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
+        let mut buf = vec![0u8; msg.len()];
+        if !msg.write(&mut buf) {
+            return Err(crate::unwritable(topic));
+        }
+        self.put(topic, buf)
     }
 
     fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError> {
@@ -218,7 +234,7 @@ impl Bus for ZenohBus {
             .callback(move |sample| {
                 let topic = sample.key_expr().as_str().to_string();
                 let bytes = sample.payload().to_bytes().into_owned();
-                let _ = tx.send((topic, bytes));
+                let _ = tx.send((topic, bytes.into()));
             })
             .wait()
             .map_err(terr)?;

@@ -2,7 +2,7 @@
 //! wait for the flow samples of step k, and integrate to t_{k+1}.
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
-use fiberflow_bus::{BusError, BusHandle, DropCounter, Inbox};
+use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
 use fiberflow_fiber_model::{FibreError, FluidSample};
 use fiberflow_messages::checkpoints;
@@ -179,7 +179,8 @@ pub fn serve(
                     }
                 }
             }
-            bus.publish(&t.fiber_state(&name), &encode(&st))
+            // encoded straight into the transport's buffer
+            bus.publish_message(&t.fiber_state(&name), &Encode(st))
         };
     let publish_metrics =
         |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
@@ -202,7 +203,7 @@ pub fn serve(
                 mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
                 mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
             };
-            bus.publish(&t.fiber_metrics(&name), &encode(&m))
+            bus.publish_message(&t.fiber_metrics(&name), &Encode(m))
         };
     let start = ck.start_step;
     publish_state(&group, start)?;

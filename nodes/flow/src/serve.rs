@@ -5,7 +5,7 @@
 use crate::config::{FlowNodeConfig, FlowSource};
 use crate::error::FlowError;
 use crate::sampling::{Field, PieceSamples};
-use fiberflow_bus::{BusHandle, DropCounter, Inbox, Outbox};
+use fiberflow_bus::{BusHandle, DropCounter, Encode, Inbox, Outbox};
 use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
@@ -47,6 +47,8 @@ pub struct RunInfo {
 struct Timing {
     waiting_s: f64,
     sampling_s: f64,
+    /// Building the messages (the samples are encoded on the outbox's thread, straight
+    /// into the transport's buffer: that counts as background publishing).
     encoding_s: f64,
     /// Handing messages to the outbox (publishing itself overlaps the field step).
     publishing_s: f64,
@@ -147,8 +149,10 @@ pub struct ServeSummary {
 /// How often the flow node looks at heartbeats while it waits for states.
 const HEARTBEAT_POLL: Duration = Duration::from_millis(200);
 
-/// The samples last published to each piece: (step, topic, encoded message).
-type Served = BTreeMap<(String, u32), (u64, String, Arc<Vec<u8>>)>;
+/// The samples last published to each piece: (step, topic, message). The message is
+/// encoded on the outbox's thread, straight into the transport's buffer; its arrays are
+/// sampled into again next step.
+type Served = BTreeMap<(String, u32), (u64, String, Arc<Encode<FlowSamples>>)>;
 
 /// Answers fibre nodes that wait (lifecycle WAITING) for samples this node already
 /// published: the message was lost in transit, so it goes out again. A node waiting for a
@@ -166,10 +170,10 @@ fn answer_waiting(
         let Some(p) = run.pieces.iter().find(|p| p.node() == hb.node) else {
             continue;
         };
-        if let Some((step, topic, bytes)) = served.get(&(p.group.clone(), p.first_fiber)) {
+        if let Some((step, topic, msg)) = served.get(&(p.group.clone(), p.first_fiber)) {
             if *step == hb.step {
                 tracing::info!(node = %hb.node, step, "node waits for samples already sent: sending them again");
-                bus.publish(topic, bytes)?;
+                bus.publish_message(topic, msg.as_ref())?;
             }
         }
     }
@@ -356,8 +360,6 @@ pub fn serve(
     let mut pending: BTreeMap<(String, u32), FiberGroupState> = BTreeMap::new();
     // the samples last published to each piece, to send again when a node waits for them
     let mut served: Served = BTreeMap::new();
-    // the sample arrays of the last step, per piece in order, to sample into again
-    let mut spare: Vec<PieceSamples> = Vec::new();
     // running plane/time statistics of the served field, published as FlowProfiles
     let mut stats: Option<fiberflow_dns::stats::RunningStats> = resumed_stats;
     if run.start_step > 0 {
@@ -416,7 +418,14 @@ pub fn serve(
             .values()
             .map(|s| (&s.centre[..], &s.segments_per_fiber[..]))
             .collect();
-        let samples = field.sample_pieces(&pieces, std::mem::take(&mut spare));
+        // every node has answered the last step's samples: their arrays are sampled into
+        // again (unless the outbox still holds one, which then stays with it)
+        let spare: Vec<PieceSamples> = std::mem::take(&mut served)
+            .into_values()
+            .filter_map(|(_, _, msg)| Arc::try_unwrap(msg).ok())
+            .map(|Encode(m)| (m.velocity, m.velocity_gradient))
+            .collect();
+        let samples = field.sample_pieces(&pieces, spare);
         timing.sampling_s += t0.elapsed().as_secs_f64();
         for (((group, first_fiber), s), (vel, grad)) in states.into_iter().zip(samples) {
             let t0 = Instant::now();
@@ -437,13 +446,11 @@ pub fn serve(
                 .find(|p| p.group == group && p.first_fiber == first_fiber)
                 .map(|p| p.samples_topic(&t))
                 .unwrap_or_else(|| t.flow_samples(&group));
-            let bytes = Arc::new(encode(&msg));
-            // the arrays are sampled into again next step
-            spare.push((msg.velocity, msg.velocity_gradient));
+            let msg = Arc::new(Encode(msg));
             let t1 = Instant::now();
             timing.encoding_s += (t1 - t0).as_secs_f64();
-            out.send(topic.clone(), bytes.clone())?;
-            served.insert((group.clone(), first_fiber), (k, topic, bytes));
+            out.send(topic.clone(), msg.clone())?;
+            served.insert((group.clone(), first_fiber), (k, topic, msg));
             timing.publishing_s += t1.elapsed().as_secs_f64();
         }
         if let Field::Dns(d) = &field {
