@@ -121,8 +121,8 @@ impl Subscription {
     }
 }
 
-/// Publish/subscribe over slash topics. `pattern` is an exact topic or a prefix ending in
-/// `/**`.
+/// Publish/subscribe over slash topics. `pattern` is a topic, with `*` for any one
+/// segment and an optional trailing `/**` ([`matches`]).
 pub trait Bus: Send + Sync {
     fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), BusError>;
     /// Publishes a message that writes its own bytes: over iceoryx2 straight into the
@@ -191,12 +191,22 @@ pub fn subscribe_any(bus: &dyn Bus, patterns: &[String]) -> Result<Subscription,
     Ok(Subscription::new(rx, Some(Box::new(StopOnDrop(stop)))))
 }
 
-/// True if `topic` matches `pattern` (exact, or prefix with `/**`).
+/// True if `topic` matches `pattern`: a `*` segment stands for any one segment, and a
+/// trailing `/**` for any number of further segments, none included (zenoh's meaning of
+/// both).
 pub fn matches(pattern: &str, topic: &str) -> bool {
-    match pattern.strip_suffix("/**") {
-        Some(prefix) => topic == prefix || topic.starts_with(&format!("{prefix}/")),
-        None => pattern == topic,
+    let (head, rest) = match pattern.strip_suffix("/**") {
+        Some(head) => (head, true),
+        None => (pattern, false),
+    };
+    let mut t = topic.split('/');
+    for p in head.split('/') {
+        match t.next() {
+            Some(seg) if p == seg || (p == "*" && !seg.is_empty()) => {}
+            _ => return false,
+        }
     }
+    rest || t.next().is_none()
 }
 
 /// Which transport carries the bus.
@@ -238,6 +248,33 @@ pub type BusHandle = Arc<dyn Bus>;
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    /// Exact topics, `*` for one segment, a trailing `/**` for any further segments.
+    #[test]
+    fn patterns_match_like_zenoh_key_expressions() {
+        let yes = [
+            ("r/a", "r/a"),
+            ("r/a/**", "r/a"),
+            ("r/a/**", "r/a/b/c"),
+            ("r/*/state", "r/case1/state"),
+            ("r/*/**", "r/x/y"),
+        ];
+        let no = [
+            ("r/a", "r/ab"),
+            ("r/a", "r/a/b"),
+            ("r/a/**", "r/ab"),
+            ("r/*/state", "r/case1/metrics"),
+            ("r/*/state", "r/state"),
+            ("r/*/state", "r/a/b/state"),
+            ("r/*/state", "r//state"),
+        ];
+        for (p, t) in yes {
+            assert!(matches(p, t), "{p} should match {t}");
+        }
+        for (p, t) in no {
+            assert!(!matches(p, t), "{p} should not match {t}");
+        }
+    }
 
     /// Messages of every pattern reach the merged subscription, in order per pattern, on a
     /// transport whose subscriptions hold a guard (zenoh) and on the in-process bus; others

@@ -310,7 +310,9 @@ pub fn serve(
         crate::checkpoint::read_analytic(dir, run.start_step)?;
     }
     let mut hb_in = Inbox::new(bus.subscribe(&format!("{}/control/heartbeat/**", t.prefix()))?);
-    let mut st_in = Inbox::new(bus.subscribe(&format!("{}/fibers/**", t.prefix()))?);
+    // the states alone: metrics (hundreds of kB per group and step at scale) never reach
+    // this node
+    let mut st_in = Inbox::new(bus.subscribe(&t.fiber_state("*"))?);
     // join barrier
     let mut joined = BTreeSet::new();
     let expected: BTreeSet<String> = run.expected_nodes.iter().cloned().collect();
