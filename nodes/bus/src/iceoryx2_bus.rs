@@ -350,29 +350,12 @@ impl Bus for Iceoryx2Bus {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testing::Counting;
     use crate::zenoh_bus::{ZenohBus, ZenohSettings};
     use crate::BusHandle;
 
     fn run_id(name: &str) -> String {
         format!("test-{name}-{}", std::process::id())
-    }
-
-    /// Writes `n` bytes counting up from `first`, or refuses to write when `n` is 0.
-    struct Counting {
-        first: u8,
-        n: usize,
-    }
-
-    impl Outgoing for Counting {
-        fn len(&self) -> usize {
-            self.n.max(1)
-        }
-        fn write(&self, out: &mut [u8]) -> bool {
-            for (i, b) in out.iter_mut().enumerate() {
-                *b = self.first.wrapping_add(i as u8);
-            }
-            self.n > 0
-        }
     }
 
     /// Messages written straight into the loaned memory arrive with their bytes, still in

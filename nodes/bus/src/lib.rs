@@ -7,6 +7,8 @@ pub mod inbox;
 pub mod inproc;
 pub mod lossy;
 pub mod outbox;
+#[cfg(test)]
+mod testing;
 pub mod usage;
 pub mod zenoh_bus;
 

@@ -3,10 +3,47 @@
 //! Multi-host runs add TLS (mutual: every peer presents a certificate signed by the run's
 //! CA) and zenoh access control (only peers whose certificate common name is listed may
 //! publish or subscribe under the run's key prefix; everything else is denied).
+//!
+//! Large messages go through zenoh shared memory: [`Bus::publish_message`] encodes a
+//! message of [`SHM_MIN_BYTES`] or more straight into a buffer of this process's pool
+//! (created at the first such message, [`shm_pool_bytes`] large), and a subscriber on the
+//! same host receives it in place ([`Payload::shared`]). Between hosts zenoh sends the same
+//! buffer over the network. Without usable shared memory (no /dev/shm, pool full) a message
+//! is encoded into an ordinary buffer instead, so nothing depends on it.
 
-use crate::{Bus, BusError, Outgoing, Subscription};
+use crate::{Bus, BusError, Outgoing, Payload, Subscription};
 use std::sync::mpsc::channel;
+use std::sync::Mutex;
+use zenoh::bytes::ZBytes;
+use zenoh::shm::{GarbageCollect, PosixShmProviderBackend, ShmProvider, ShmProviderBuilder};
 use zenoh::Wait;
+
+/// Messages from this size on are written into shared memory (smaller ones are cheaper
+/// to copy than to hand over as a shared buffer).
+pub const SHM_MIN_BYTES: usize = 64 * 1024;
+
+/// The shared-memory pool of a process whose first large message is `first_bytes` long:
+/// room for 16 such messages in flight, at least 64 MiB. Only the pages that are written
+/// take memory.
+pub fn shm_pool_bytes(first_bytes: usize) -> usize {
+    (16 * first_bytes).max(64 << 20)
+}
+
+/// This process's shared-memory pool: not made yet, made, or not available here.
+enum Shm {
+    Untried,
+    Ready(ShmProvider<PosixShmProviderBackend>),
+    Unavailable,
+}
+
+/// A received message still in the publisher's shared memory (one contiguous buffer).
+struct InPlace(ZBytes);
+
+impl AsRef<[u8]> for InPlace {
+    fn as_ref(&self) -> &[u8] {
+        self.0.slices().next().unwrap_or(&[])
+    }
+}
 
 /// Connection settings of one node.
 #[derive(Debug, Clone, PartialEq)]
@@ -89,6 +126,7 @@ impl AccessControl {
 /// A zenoh session used as a bus.
 pub struct ZenohBus {
     session: zenoh::Session,
+    shm: Mutex<Shm>,
 }
 
 fn terr<E: std::fmt::Display>(e: E) -> BusError {
@@ -162,8 +200,13 @@ impl ZenohBus {
             c.insert_json5("access_control", &a.to_json().to_string())
                 .map_err(terr)?;
         }
+        c.insert_json5("transport/shared_memory/enabled", "true")
+            .map_err(terr)?;
         let session = zenoh::open(c).wait().map_err(terr)?;
-        Ok(Self { session })
+        Ok(Self {
+            session,
+            shm: Mutex::new(Shm::Untried),
+        })
     }
 
     /// Waits until every topic has at least one subscriber this session knows of (zenoh
@@ -201,6 +244,35 @@ impl ZenohBus {
 }
 
 impl ZenohBus {
+    /// A shared-memory buffer of exactly `len` bytes, or None when shared memory is not
+    /// available (the pool cannot be made, or is full even after reclaiming the buffers
+    /// that every receiver has let go of).
+    fn shm_buffer(&self, len: usize) -> Result<Option<zenoh::shm::ZShmMut>, BusError> {
+        let mut shm = self
+            .shm
+            .lock()
+            .map_err(|_| BusError::Transport("zenoh shared-memory lock poisoned".into()))?;
+        if let Shm::Untried = *shm {
+            *shm = match ShmProviderBuilder::default_backend(shm_pool_bytes(len)).wait() {
+                Ok(p) => Shm::Ready(p),
+                Err(e) => {
+                    tracing::info!(error = %e, "no zenoh shared memory: large messages are copied");
+                    Shm::Unavailable
+                }
+            };
+        }
+        let Shm::Ready(provider) = &*shm else {
+            return Ok(None);
+        };
+        match provider.alloc(len).with_policy::<GarbageCollect>().wait() {
+            Ok(buf) => Ok(Some(buf)),
+            Err(e) => {
+                tracing::debug!(error = ?e, len, "zenoh shared-memory pool full: copying");
+                Ok(None)
+            }
+        }
+    }
+
     /// Puts `payload` on `topic`; lockstep coupling must never lose a message, so a full
     /// queue blocks instead of dropping.
     fn put(&self, topic: &str, payload: Vec<u8>) -> Result<(), BusError> {
@@ -217,9 +289,24 @@ impl Bus for ZenohBus {
         self.put(topic, payload.to_vec())
     }
 
-    /// Encoded into one buffer that zenoh then owns (no second copy).
+    /// Encoded into a shared-memory buffer when large (see the module's doc), else into
+    /// one buffer that zenoh then owns; no second copy either way.
     fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
-        let mut buf = vec![0u8; msg.len()];
+        let len = msg.len();
+        if len >= SHM_MIN_BYTES {
+            if let Some(mut buf) = self.shm_buffer(len)? {
+                if !msg.write(&mut buf[..len]) {
+                    return Err(crate::unwritable(topic));
+                }
+                return self
+                    .session
+                    .put(topic, buf)
+                    .congestion_control(zenoh::qos::CongestionControl::Block)
+                    .wait()
+                    .map_err(terr);
+            }
+        }
+        let mut buf = vec![0u8; len];
         if !msg.write(&mut buf) {
             return Err(crate::unwritable(topic));
         }
@@ -233,8 +320,14 @@ impl Bus for ZenohBus {
             .declare_subscriber(pattern)
             .callback(move |sample| {
                 let topic = sample.key_expr().as_str().to_string();
-                let bytes = sample.payload().to_bytes().into_owned();
-                let _ = tx.send((topic, bytes.into()));
+                let payload = sample.payload();
+                // a shared-memory buffer is handed over in place, anything else copied
+                let bytes = if payload.as_shm().is_some() && payload.slices().count() == 1 {
+                    Payload::shared(Box::new(InPlace(payload.clone())))
+                } else {
+                    payload.to_bytes().into_owned().into()
+                };
+                let _ = tx.send((topic, bytes));
             })
             .wait()
             .map_err(terr)?;
@@ -243,5 +336,63 @@ impl Bus for ZenohBus {
 
     fn name(&self) -> &'static str {
         "zenoh"
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testing::Counting;
+    use std::time::Duration;
+
+    /// Two sessions on this host, as two processes of a run would be: a large message
+    /// crosses in the publisher's shared memory with every byte intact, a small one is
+    /// copied, and a message too large for the pool left is copied as well.
+    #[test]
+    fn large_messages_cross_in_shared_memory() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let a = ZenohBus::open(&ZenohSettings {
+            listen: vec![endpoint.clone()],
+            ..ZenohSettings::default()
+        })
+        .unwrap();
+        let b = ZenohBus::open(&ZenohSettings {
+            connect: vec![endpoint],
+            ..ZenohSettings::default()
+        })
+        .unwrap();
+        let sub = a.subscribe("z/m").unwrap();
+        let missing = b
+            .await_subscribers(&["z/m".to_string()], Duration::from_secs(20))
+            .unwrap();
+        assert!(missing.is_empty());
+        let big = Counting {
+            first: 5,
+            n: 3 * SHM_MIN_BYTES + 7,
+        };
+        let small = Counting { first: 9, n: 1000 };
+        // larger than the pool made for `big`: no buffer, so an ordinary copy
+        let huge = Counting {
+            first: 1,
+            n: shm_pool_bytes(big.n) + 1,
+        };
+        for m in [&big, &small, &huge, &big] {
+            b.publish_message("z/m", m).unwrap();
+        }
+        let got: Vec<Payload> = (0..4)
+            .map(|_| sub.rx.recv_timeout(Duration::from_secs(20)).unwrap().1)
+            .collect();
+        for (p, (m, shared)) in got
+            .iter()
+            .zip([(&big, true), (&small, false), (&huge, false), (&big, true)])
+        {
+            assert_eq!(p.len(), m.n);
+            assert!(p[..] == m.bytes()[..], "bytes of a {}-byte message", m.n);
+            assert_eq!(p.is_shared(), shared, "{}-byte message", m.n);
+        }
     }
 }
