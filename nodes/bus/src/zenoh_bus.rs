@@ -5,11 +5,14 @@
 //! publish or subscribe under the run's key prefix; everything else is denied).
 //!
 //! Large messages go through zenoh shared memory: [`Bus::publish_message`] encodes a
-//! message of [`SHM_MIN_BYTES`] or more straight into a buffer of this process's pool
-//! (created at the first such message, [`shm_pool_bytes`] large), and a subscriber on the
-//! same host receives it in place ([`Payload::shared`]). Between hosts zenoh sends the same
-//! buffer over the network. Without usable shared memory (no /dev/shm, pool full) a message
-//! is encoded into an ordinary buffer instead, so nothing depends on it.
+//! message of [`SHM_MIN_BYTES`] or more straight into a buffer of this process's pools,
+//! and a subscriber on the same host receives it in place ([`Payload::shared`]). Between
+//! hosts zenoh sends the same buffer over the network. The pools grow with what is in
+//! flight: when none has room (after reclaiming the buffers every receiver has let go
+//! of), another of [`shm_pool_bytes`] is added, up to [`SHM_MAX_BYTES`] per process
+//! (a pool's pages all take memory). Without usable shared memory (no /dev/shm, the
+//! limit reached) a message is encoded into an ordinary buffer instead, so nothing
+//! depends on it.
 
 use crate::{Bus, BusError, Outgoing, Payload, Subscription};
 use std::sync::mpsc::channel;
@@ -22,18 +25,69 @@ use zenoh::Wait;
 /// to copy than to hand over as a shared buffer).
 pub const SHM_MIN_BYTES: usize = 64 * 1024;
 
-/// The shared-memory pool of a process whose first large message is `first_bytes` long:
-/// room for 16 such messages in flight, at least 64 MiB. Only the pages that are written
-/// take memory.
-pub fn shm_pool_bytes(first_bytes: usize) -> usize {
-    (16 * first_bytes).max(64 << 20)
+/// Shared memory one process may take for its messages in flight.
+pub const SHM_MAX_BYTES: usize = 2 << 30;
+
+/// The smallest shared-memory pool.
+pub const SHM_MIN_POOL_BYTES: usize = 32 << 20;
+
+/// The size of a pool added for a message of `bytes` that found no room: four such
+/// messages, at least `min_bytes`.
+pub fn shm_pool_bytes(bytes: usize, min_bytes: usize) -> usize {
+    (4 * bytes).max(min_bytes)
 }
 
-/// This process's shared-memory pool: not made yet, made, or not available here.
-enum Shm {
-    Untried,
-    Ready(ShmProvider<PosixShmProviderBackend>),
-    Unavailable,
+/// This process's shared-memory pools (none until the first large message), or shared
+/// memory not available here.
+struct Shm {
+    pools: Vec<ShmProvider<PosixShmProviderBackend>>,
+    bytes: usize,
+    min_pool_bytes: usize,
+    max_bytes: usize,
+    unavailable: bool,
+}
+
+impl Shm {
+    fn new(min_pool_bytes: usize, max_bytes: usize) -> Self {
+        Self {
+            pools: Vec::new(),
+            bytes: 0,
+            min_pool_bytes,
+            max_bytes,
+            unavailable: false,
+        }
+    }
+
+    /// A buffer of `len` bytes from a pool with room, or from a new pool while the limit
+    /// allows; None otherwise.
+    fn buffer(&mut self, len: usize) -> Option<zenoh::shm::ZShmMut> {
+        if self.unavailable {
+            return None;
+        }
+        for pool in &self.pools {
+            if let Ok(buf) = pool.alloc(len).with_policy::<GarbageCollect>().wait() {
+                return Some(buf);
+            }
+        }
+        let size = shm_pool_bytes(len, self.min_pool_bytes);
+        if self.bytes + size > self.max_bytes {
+            tracing::debug!(len, "zenoh shared memory at its limit: copying");
+            return None;
+        }
+        match ShmProviderBuilder::default_backend(size).wait() {
+            Ok(pool) => {
+                let buf = pool.alloc(len).wait().ok();
+                self.pools.push(pool);
+                self.bytes += size;
+                buf
+            }
+            Err(e) => {
+                tracing::info!(error = %e, "no zenoh shared memory: large messages are copied");
+                self.unavailable = true;
+                None
+            }
+        }
+    }
 }
 
 /// A received message still in the publisher's shared memory (one contiguous buffer).
@@ -205,7 +259,7 @@ impl ZenohBus {
         let session = zenoh::open(c).wait().map_err(terr)?;
         Ok(Self {
             session,
-            shm: Mutex::new(Shm::Untried),
+            shm: Mutex::new(Shm::new(SHM_MIN_POOL_BYTES, SHM_MAX_BYTES)),
         })
     }
 
@@ -245,32 +299,13 @@ impl ZenohBus {
 
 impl ZenohBus {
     /// A shared-memory buffer of exactly `len` bytes, or None when shared memory is not
-    /// available (the pool cannot be made, or is full even after reclaiming the buffers
-    /// that every receiver has let go of).
+    /// available or at its limit.
     fn shm_buffer(&self, len: usize) -> Result<Option<zenoh::shm::ZShmMut>, BusError> {
         let mut shm = self
             .shm
             .lock()
             .map_err(|_| BusError::Transport("zenoh shared-memory lock poisoned".into()))?;
-        if let Shm::Untried = *shm {
-            *shm = match ShmProviderBuilder::default_backend(shm_pool_bytes(len)).wait() {
-                Ok(p) => Shm::Ready(p),
-                Err(e) => {
-                    tracing::info!(error = %e, "no zenoh shared memory: large messages are copied");
-                    Shm::Unavailable
-                }
-            };
-        }
-        let Shm::Ready(provider) = &*shm else {
-            return Ok(None);
-        };
-        match provider.alloc(len).with_policy::<GarbageCollect>().wait() {
-            Ok(buf) => Ok(Some(buf)),
-            Err(e) => {
-                tracing::debug!(error = ?e, len, "zenoh shared-memory pool full: copying");
-                Ok(None)
-            }
-        }
+        Ok(shm.buffer(len))
     }
 
     /// Puts `payload` on `topic`; lockstep coupling must never lose a message, so a full
@@ -347,7 +382,7 @@ mod tests {
 
     /// Two sessions on this host, as two processes of a run would be: a large message
     /// crosses in the publisher's shared memory with every byte intact, a small one is
-    /// copied, and a message too large for the pool left is copied as well.
+    /// copied, one that fits no pool gets a new pool, and one beyond the limit is copied.
     #[test]
     fn large_messages_cross_in_shared_memory() {
         let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -365,6 +400,9 @@ mod tests {
             ..ZenohSettings::default()
         })
         .unwrap();
+        // pools of at least 1 MiB, and room for 1 MiB and a 4 MiB + 4 one
+        let mib = 1 << 20;
+        *b.shm.lock().unwrap() = Shm::new(mib, mib + shm_pool_bytes(mib + 1, mib));
         let sub = a.subscribe("z/m").unwrap();
         let missing = b
             .await_subscribers(&["z/m".to_string()], Duration::from_secs(20))
@@ -375,21 +413,30 @@ mod tests {
             n: 3 * SHM_MIN_BYTES + 7,
         };
         let small = Counting { first: 9, n: 1000 };
-        // larger than the pool made for `big`: no buffer, so an ordinary copy
-        let huge = Counting {
+        // larger than the first pool: a second one, for four such
+        let large = Counting {
             first: 1,
-            n: shm_pool_bytes(big.n) + 1,
+            n: mib + 1,
         };
-        for m in [&big, &small, &huge, &big] {
+        // fits neither pool while `large` is held, and a third would pass the limit
+        let huge = Counting {
+            first: 2,
+            n: 7 * mib / 2,
+        };
+        let sent = [
+            (&big, true),
+            (&small, false),
+            (&large, true),
+            (&huge, false),
+            (&big, true),
+        ];
+        for (m, _) in sent {
             b.publish_message("z/m", m).unwrap();
         }
-        let got: Vec<Payload> = (0..4)
+        let got: Vec<Payload> = (0..sent.len())
             .map(|_| sub.rx.recv_timeout(Duration::from_secs(20)).unwrap().1)
             .collect();
-        for (p, (m, shared)) in got
-            .iter()
-            .zip([(&big, true), (&small, false), (&huge, false), (&big, true)])
-        {
+        for (p, (m, shared)) in got.iter().zip(sent) {
             assert_eq!(p.len(), m.n);
             assert!(p[..] == m.bytes()[..], "bytes of a {}-byte message", m.n);
             assert_eq!(p.is_shared(), shared, "{}-byte message", m.n);
