@@ -22,8 +22,8 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use std::collections::HashMap;
 use iceoryx2::sample::Sample;
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::{channel, Sender};
 use std::sync::{Arc, Mutex};
@@ -419,7 +419,11 @@ mod tests {
             assert_eq!(&a[..], &want[..], "{}", bus.name());
             assert_eq!(&b[..], &want[..], "{}", bus.name());
             let extra = sub.rx.recv_timeout(Duration::from_millis(300));
-            assert!(extra.is_err(), "{}: the refused message went out", bus.name());
+            assert!(
+                extra.is_err(),
+                "{}: the refused message went out",
+                bus.name()
+            );
         }
     }
 }

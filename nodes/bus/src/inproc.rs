@@ -25,7 +25,8 @@ impl Bus for InprocBus {
         // drop subscribers whose receiver is gone
         subs.retain(|(pattern, tx)| {
             if matches(pattern, topic) {
-                tx.send((topic.to_string(), payload.to_vec().into())).is_ok()
+                tx.send((topic.to_string(), payload.to_vec().into()))
+                    .is_ok()
             } else {
                 true
             }

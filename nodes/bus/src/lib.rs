@@ -69,7 +69,12 @@ impl std::ops::Deref for Payload {
 
 impl std::fmt::Debug for Payload {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Payload({} bytes, shared: {})", self.len(), self.is_shared())
+        write!(
+            f,
+            "Payload({} bytes, shared: {})",
+            self.len(),
+            self.is_shared()
+        )
     }
 }
 

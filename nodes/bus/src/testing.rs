@@ -11,7 +11,9 @@ pub(crate) struct Counting {
 impl Counting {
     /// The bytes it writes.
     pub fn bytes(&self) -> Vec<u8> {
-        (0..self.n).map(|i| self.first.wrapping_add(i as u8)).collect()
+        (0..self.n)
+            .map(|i| self.first.wrapping_add(i as u8))
+            .collect()
     }
 }
 
