@@ -371,6 +371,92 @@ pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
     })
 }
 
+/// FlowSamples read where they lie (e.g. in a transport's shared memory): the header
+/// decoded, the two arrays left as their wire bytes, so that a receiver converts them
+/// straight into its own layout with no arrays in between. [`SamplesView::read`] and
+/// [`SamplesView::check`] accept exactly what `decode::<FlowSamples>` and its
+/// [`crate::sanity::Sane`] check accept (test `samples_view_accepts_what_decode_accepts`).
+pub struct SamplesView<'a> {
+    pub header: GroupHeader,
+    velocity: &'a [u8],
+    velocity_gradient: &'a [u8],
+}
+
+impl<'a> SamplesView<'a> {
+    /// Reads the header and finds the arrays, lengths checked; the schema version too.
+    pub fn read(bytes: &'a [u8]) -> Result<Self, crate::DecodeError> {
+        let malformed = |reason: String| crate::DecodeError::Malformed {
+            len: bytes.len(),
+            reason,
+        };
+        let mut r = Reader::new(bytes).map_err(malformed)?;
+        let header = r.group_header().map_err(malformed)?;
+        let velocity = r.seq_bytes(8).map_err(malformed)?;
+        let velocity_gradient = r.seq_bytes(8).map_err(malformed)?;
+        if header.schema_version != crate::SCHEMA_VERSION {
+            return Err(crate::DecodeError::Version {
+                got: header.schema_version,
+                expected: crate::SCHEMA_VERSION,
+            });
+        }
+        Ok(Self {
+            header,
+            velocity,
+            velocity_gradient,
+        })
+    }
+
+    /// Points sampled (velocity triples).
+    pub fn len(&self) -> usize {
+        self.velocity.len() / 24
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.velocity.is_empty()
+    }
+
+    /// The checks of `FlowSamples` (lengths, piece, time, every value finite).
+    pub fn check(&self) -> Result<(), String> {
+        let h = &self.header;
+        crate::sanity::check_samples(
+            (h.t_plus, &h.group, h.first_fiber, h.group_fibers),
+            self.velocity.len() / 8,
+            self.velocity_gradient.len() / 8,
+            || floats(self.velocity),
+            || floats(self.velocity_gradient),
+        )
+    }
+
+    /// Each point's velocity and gradient (`grad[3a + b] = ∂v_a/∂x_b`), in order.
+    pub fn points(&self) -> impl Iterator<Item = ([f64; 3], [f64; 9])> + '_ {
+        self.velocity
+            .chunks_exact(24)
+            .zip(self.velocity_gradient.chunks_exact(72))
+            .map(|(v, g)| {
+                let mut vel = [0.0; 3];
+                let mut grad = [0.0; 9];
+                for (x, b) in vel.iter_mut().zip(v.chunks_exact(8)) {
+                    *x = f64_le(b);
+                }
+                for (x, b) in grad.iter_mut().zip(g.chunks_exact(8)) {
+                    *x = f64_le(b);
+                }
+                (vel, grad)
+            })
+    }
+}
+
+fn f64_le(b: &[u8]) -> f64 {
+    let mut a = [0u8; 8];
+    a.copy_from_slice(b);
+    f64::from_le_bytes(a)
+}
+
+/// The little-endian f64 values of `bytes`.
+fn floats(bytes: &[u8]) -> impl Iterator<Item = f64> + '_ {
+    bytes.chunks_exact(8).map(f64_le)
+}
+
 /// Writes the state into `sink`.
 pub(crate) fn state_into<S: Sink>(m: &FiberGroupState, sink: S) -> S {
     let mut w = Writer::new(sink);
@@ -479,6 +565,57 @@ mod tests {
                 assert_eq!(serde_encode(&read_state(&b).unwrap()), b);
             }
         }
+    }
+
+    /// Random and corrupted FlowSamples: the in-place view with its check accepts exactly
+    /// what decoding with the message's check accepts, with the same header and values.
+    #[test]
+    fn samples_view_accepts_what_decode_accepts() {
+        use crate::sanity::Sane;
+        let mut r = Rng::new(13);
+        let groups = ["case1".to_string(), "g".into()];
+        let (mut ok, mut refused) = (0, 0);
+        for i in 0..20_000 {
+            let mut b = random_payload(BULK[0], &mut r, &groups);
+            match i % 4 {
+                0 => {}
+                1 => b.truncate(r.below(b.len() as u64 + 1) as usize),
+                2 => {
+                    let at = r.below(b.len() as u64) as usize;
+                    b[at] = r.next_u64() as u8;
+                }
+                _ => {
+                    // a value made non-finite
+                    let at = b.len().saturating_sub(8 * (1 + r.below(4) as usize));
+                    if at >= 8 {
+                        b[at..at + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+                    }
+                }
+            }
+            let decoded = crate::decode::<FlowSamples>(&b)
+                .map_err(|e| e.to_string())
+                .and_then(|m| m.check().map(|()| m));
+            let viewed = SamplesView::read(&b)
+                .map_err(|e| e.to_string())
+                .and_then(|v| v.check().map(|()| v));
+            match (decoded, viewed) {
+                (Ok(m), Ok(v)) => {
+                    ok += 1;
+                    assert_eq!(
+                        (&v.header.group, v.header.step, v.header.first_fiber),
+                        (&m.group, m.step, m.first_fiber)
+                    );
+                    assert_eq!(v.len(), m.velocity.len() / 3);
+                    let bits = |x: &[f64]| x.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    let (vel, grad): (Vec<_>, Vec<_>) = v.points().unzip();
+                    assert_eq!(bits(vel.as_flattened()), bits(&m.velocity));
+                    assert_eq!(bits(grad.as_flattened()), bits(&m.velocity_gradient));
+                }
+                (Err(_), Err(_)) => refused += 1,
+                (d, v) => panic!("decode {:?} but view {:?}", d.err(), v.err()),
+            }
+        }
+        assert!(ok > 1000 && refused > 1000, "{ok} {refused}");
     }
 
     /// Corrupted payloads (truncated, bytes flipped, lengths inflated): the bulk reader

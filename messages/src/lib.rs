@@ -3,6 +3,7 @@
 //! No transport dependency.
 
 mod bulk;
+pub use bulk::SamplesView;
 pub mod checkpoints;
 pub mod codec;
 pub mod fuzz;

@@ -137,18 +137,50 @@ impl Sane for FlowSlice {
 
 impl Sane for FlowSamples {
     fn check(&self) -> Result<(), String> {
-        time(self.t_plus)?;
-        if self.group.is_empty() || !self.velocity.len().is_multiple_of(3) {
-            return Err("empty group or velocity not in triples".into());
-        }
-        piece(self.first_fiber, 0, self.group_fibers)?;
-        len(
-            "velocity_gradient",
+        check_samples(
+            (
+                self.t_plus,
+                &self.group,
+                self.first_fiber,
+                self.group_fibers,
+            ),
+            self.velocity.len(),
             self.velocity_gradient.len(),
-            3 * self.velocity.len(),
-        )?;
-        finite("velocity", &self.velocity)?;
-        finite("velocity_gradient", &self.velocity_gradient)
+            || self.velocity.iter().copied(),
+            || self.velocity_gradient.iter().copied(),
+        )
+    }
+}
+
+/// The checks of FlowSamples, on its header, its array lengths and its values (shared by
+/// the decoded message and [`crate::bulk::SamplesView`]).
+/// `piece` is (t_plus, group, first_fiber, group_fibers).
+pub(crate) fn check_samples<V, G>(
+    piece_of: (f64, &str, u32, u32),
+    velocity_len: usize,
+    gradient_len: usize,
+    velocity: impl FnOnce() -> V,
+    gradient: impl FnOnce() -> G,
+) -> Result<(), String>
+where
+    V: Iterator<Item = f64>,
+    G: Iterator<Item = f64>,
+{
+    let (t_plus, group, first_fiber, group_fibers) = piece_of;
+    time(t_plus)?;
+    if group.is_empty() || !velocity_len.is_multiple_of(3) {
+        return Err("empty group or velocity not in triples".into());
+    }
+    piece(first_fiber, 0, group_fibers)?;
+    len("velocity_gradient", gradient_len, 3 * velocity_len)?;
+    finite_all("velocity", velocity())?;
+    finite_all("velocity_gradient", gradient())
+}
+
+fn finite_all(name: &str, mut xs: impl Iterator<Item = f64>) -> Result<(), String> {
+    match xs.position(|x| !x.is_finite()) {
+        Some(i) => Err(format!("{name}[{i}] is not finite")),
+        None => Ok(()),
     }
 }
 

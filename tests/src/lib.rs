@@ -81,7 +81,8 @@ pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
     stdout
 }
 
-/// Lines with a WARN or ERROR in a run's node logs (`<out>/logs/*.log`).
+/// Lines with a WARN or ERROR in a run's node logs (`<out>/logs/*.log`), but for zenoh's
+/// notice of a slow peer start.
 pub fn warnings_in_logs(out: &Path) -> Vec<String> {
     let mut v = Vec::new();
     for e in std::fs::read_dir(out.join("logs"))
@@ -90,9 +91,14 @@ pub fn warnings_in_logs(out: &Path) -> Vec<String> {
     {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
         for l in text.lines() {
+            // zenoh's notice that a peer's start took its whole scouting delay (15 s) is
+            // about this machine's load while the tests run side by side, not about the run
+            // (it happened once in about ten suites, with the states still bitwise equal)
+            let slow_start = l.contains("Scouting delay elapsed before start conditions");
             if [" WARN", "ERROR", "[W]", "[E]"]
                 .iter()
                 .any(|w| l.contains(w))
+                && !slow_start
             {
                 v.push(format!("{}: {l}", e.file_name().to_string_lossy()));
             }
