@@ -225,9 +225,8 @@ pub fn serve(
         let mut resent = false;
         let mut resend_after = (3 * longest_wait).clamp(RESEND_AFTER_MIN, resend_cap);
         let mut resend_at = wait_from + resend_after;
-        // converting the samples counts as the fibre step, not as waiting
-        let mut converting = Duration::ZERO;
-        loop {
+        // the wait ends with the samples converted; converting counts as the fibre step
+        let converting = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
                 hb(lifecycle::FAILED, k, samples_in.drops.total())?;
