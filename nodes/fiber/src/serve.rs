@@ -290,7 +290,7 @@ pub fn serve(
                 converting = t0.elapsed();
                 break;
             }
-        }
+        };
         let (mut waited_s, mut stepped_s, mut published_s) = timing;
         // a wait that ended only after a resend says how long a loss took to repair, not
         // how long a healthy step takes: it must not stretch the next resend deadline
