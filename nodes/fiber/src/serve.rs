@@ -287,8 +287,7 @@ pub fn serve(
                     vel: Vector3::from(v),
                     grad: Matrix3::from_row_slice(&g),
                 }));
-                converting = t0.elapsed();
-                break;
+                break t0.elapsed();
             }
         };
         let (mut waited_s, mut stepped_s, mut published_s) = timing;
