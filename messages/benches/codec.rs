@@ -1,11 +1,14 @@
 //! Encoding and decoding the per-step bulk messages of one group of 10^4 fibres of 7
-//! segments (7 × 10^4 points): FlowSamples (12 numbers per point, 6.7 MB) and a complete
-//! FiberGroupState (12 per point, 6.7 MB), through the generic serde path and through the
-//! bulk path `encode` / `decode` use.
+//! segments (7 × 10^4 points): FlowSamples (12 numbers per point, 6.7 MB), a complete
+//! FiberGroupState (12 per point, 6.7 MB) and FiberGroupMetrics (6 numbers per fibre,
+//! 0.48 MB), through the generic serde path and through the bulk path `encode` / `decode`
+//! use.
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_messages::codec::{serde_decode, serde_encode};
-use fiberflow_messages::{decode, encode, FiberGroupState, FlowSamples, SCHEMA_VERSION};
+use fiberflow_messages::{
+    decode, encode, FiberGroupMetrics, FiberGroupState, FlowSamples, SCHEMA_VERSION,
+};
 
 const FIBRES: usize = 10_000;
 const SEGMENTS: usize = 7;
@@ -49,6 +52,23 @@ fn state() -> FiberGroupState {
     }
 }
 
+fn metrics() -> FiberGroupMetrics {
+    FiberGroupMetrics {
+        schema_version: SCHEMA_VERSION,
+        group: "case1".into(),
+        step: 12,
+        t_plus: 2.4,
+        first_fiber: 0,
+        group_fibers: FIBRES as u32,
+        centre_of_mass: numbers(3 * FIBRES, 0.7),
+        z1: numbers(FIBRES, 0.8),
+        sigma2: numbers(FIBRES, 0.9),
+        end_to_end: numbers(FIBRES, 1.0),
+        mean_abs_z1: 0.5,
+        mean_sigma2: 0.1,
+    }
+}
+
 fn bench(c: &mut Criterion) {
     let s = samples();
     let bytes = encode(&s);
@@ -72,6 +92,19 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("decode_bulk", |b| {
         b.iter(|| decode::<FiberGroupState>(&bytes))
+    });
+    g.finish();
+    let m = metrics();
+    let bytes = encode(&m);
+    let mut g = c.benchmark_group("fibre_metrics_1e4_fibres");
+    g.throughput(Throughput::Bytes(bytes.len() as u64));
+    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&m)));
+    g.bench_function("encode_bulk", |b| b.iter(|| encode(&m)));
+    g.bench_function("decode_serde", |b| {
+        b.iter(|| serde_decode::<FiberGroupMetrics>(&bytes))
+    });
+    g.bench_function("decode_bulk", |b| {
+        b.iter(|| decode::<FiberGroupMetrics>(&bytes))
     });
     g.finish();
 }

@@ -1,4 +1,4 @@
-//! CDR of the two bulk messages (FlowSamples, FiberGroupState) written and read field by
+//! CDR of the bulk messages (FlowSamples, FiberGroupState, FiberGroupMetrics) written and read field by
 //! field, each number array copied as a whole: the same bytes as the serde path (tests
 //! below), without its per-element calls, its size pre-pass and the separate layout walk.
 //! At 6 × 10⁴ fibres the serde path and the walk were ≈ 16% of the machine's CPU.
@@ -9,7 +9,7 @@
 //! trailing NUL, then the bytes and the NUL.
 
 use crate::codec::GroupHeader;
-use crate::types::{FiberGroupState, FlowSamples};
+use crate::types::{FiberGroupMetrics, FiberGroupState, FlowSamples};
 
 /// The CDR little-endian encapsulation header.
 const HEADER: [u8; 4] = [0, 1, 0, 0];
@@ -371,6 +371,53 @@ pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
     })
 }
 
+/// Writes the metrics into `sink`.
+pub(crate) fn metrics_into<S: Sink>(m: &FiberGroupMetrics, sink: S) -> S {
+    let mut w = Writer::new(sink);
+    w.group_header(
+        m.schema_version,
+        &m.group,
+        m.step,
+        m.t_plus,
+        m.first_fiber,
+        m.group_fibers,
+    );
+    w.seq_f64(&m.centre_of_mass);
+    w.seq_f64(&m.z1);
+    w.seq_f64(&m.sigma2);
+    w.seq_f64(&m.end_to_end);
+    w.f64(m.mean_abs_z1);
+    w.f64(m.mean_sigma2);
+    w.finish()
+}
+
+pub(crate) fn write_metrics(m: &FiberGroupMetrics) -> Vec<u8> {
+    let floats = m.centre_of_mass.len() + m.z1.len() + m.sigma2.len() + m.end_to_end.len();
+    metrics_into(
+        m,
+        Vec::with_capacity(HEADER.len() + header_size(&m.group) + 4 * 8 + 8 * (floats + 2)),
+    )
+}
+
+pub(crate) fn read_metrics(bytes: &[u8]) -> Result<FiberGroupMetrics, String> {
+    let mut r = Reader::new(bytes)?;
+    let h = r.group_header()?;
+    Ok(FiberGroupMetrics {
+        schema_version: h.schema_version,
+        group: h.group,
+        step: h.step,
+        t_plus: h.t_plus,
+        first_fiber: h.first_fiber,
+        group_fibers: h.group_fibers,
+        centre_of_mass: r.seq_f64()?,
+        z1: r.seq_f64()?,
+        sigma2: r.seq_f64()?,
+        end_to_end: r.seq_f64()?,
+        mean_abs_z1: r.f64()?,
+        mean_sigma2: r.f64()?,
+    })
+}
+
 /// FlowSamples read where they lie (e.g. in a transport's shared memory): the header
 /// decoded, the two arrays left as their wire bytes, so that a receiver converts them
 /// straight into its own layout with no arrays in between. [`SamplesView::read`] and
@@ -524,9 +571,10 @@ mod tests {
     use crate::codec::{serde_decode, serde_encode};
     use crate::fuzz::{random_payload, Rng};
 
-    const BULK: [&str; 2] = [
+    const BULK: [&str; 3] = [
         "fiberflow_msgs/msg/FlowSamples",
         "fiberflow_msgs/msg/FiberGroupState",
+        "fiberflow_msgs/msg/FiberGroupMetrics",
     ];
 
     /// What `encode_into` writes into a slice of `encoded_len` bytes, and whether a slice
@@ -550,10 +598,15 @@ mod tests {
         let mut r = Rng::new(11);
         let groups = ["case1".to_string(), "g".into(), "stiff12".into()];
         for i in 0..20_000 {
-            let ty = BULK[i % 2];
+            let ty = BULK[i % 3];
             let b = random_payload(ty, &mut r, &groups);
             // compared as bytes: NaN is among the values
-            if ty == BULK[0] {
+            if ty == BULK[2] {
+                let m: FiberGroupMetrics = serde_decode(&b).unwrap();
+                assert_eq!(write_metrics(&m), b);
+                assert_eq!(into_slice(&m), (b.clone(), true, true));
+                assert_eq!(serde_encode(&read_metrics(&b).unwrap()), b);
+            } else if ty == BULK[0] {
                 let m: FlowSamples = serde_decode(&b).unwrap();
                 assert_eq!(write_samples(&m), b);
                 assert_eq!(into_slice(&m), (b.clone(), true, true));
@@ -639,7 +692,7 @@ mod tests {
         let groups = ["case1".to_string()];
         let (mut same_ok, mut same_err) = (0, 0);
         for i in 0..40_000 {
-            let ty = BULK[i % 2];
+            let ty = BULK[i % 3];
             let mut b = random_payload(ty, &mut r, &groups);
             match r.below(3) {
                 0 => b.truncate(r.below(b.len() as u64 + 1) as usize),
@@ -656,7 +709,9 @@ mod tests {
                     }
                 }
             }
-            let verdict = if ty == BULK[0] {
+            let verdict = if ty == BULK[2] {
+                agree(&b, read_metrics)
+            } else if ty == BULK[0] {
                 agree(&b, read_samples)
             } else {
                 agree(&b, read_state)

@@ -99,7 +99,12 @@ message!(
     crate::bulk::state_into,
     crate::bulk::read_state
 );
-message!(FiberGroupMetrics);
+message!(
+    FiberGroupMetrics,
+    crate::bulk::write_metrics,
+    crate::bulk::metrics_into,
+    crate::bulk::read_metrics
+);
 message!(Heartbeat);
 
 /// Encodes as CDR little-endian with encapsulation header.
