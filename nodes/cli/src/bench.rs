@@ -27,6 +27,24 @@ pub struct BenchOptions {
     /// Record (states every 10 steps, metrics every step, no samples).
     pub record: bool,
     pub out: PathBuf,
+    /// Fibre counts also run over two launchers on this machine ([`TWO_LAUNCHERS`]).
+    pub two_launchers: Vec<u64>,
+    /// The `[network]` launch file for those runs (hosts `head` and `worker`; its
+    /// certificates are made with `launch/make-certs.sh` if missing).
+    pub two_launchers_file: PathBuf,
+}
+
+/// The configuration label of a run over two launchers on loopback: zenoh with mutual
+/// TLS through the flow node's router, as if on two hosts; its flow-only pair is zenoh's.
+pub const TWO_LAUNCHERS: &str = "zenoh, two launchers";
+
+/// The transport whose flow-only runs a configuration is compared with.
+fn baseline_of(transport: &str) -> &str {
+    if transport == TWO_LAUNCHERS {
+        "zenoh"
+    } else {
+        transport
+    }
 }
 
 /// One run's figures, seconds.
@@ -64,17 +82,22 @@ fn fields(line: &str) -> BTreeMap<String, f64> {
         .collect()
 }
 
-/// Reads the per-stage lines every node logged into `<out>/logs/`.
-fn read_figures(out: &Path, process_s: f64) -> Result<Figures> {
+/// Reads the per-stage lines every node logged into `<out>/logs/` of each of `outs` (one
+/// per launcher of the run).
+fn read_figures(outs: &[PathBuf], process_s: f64) -> Result<Figures> {
     let mut f = Figures {
         process_s,
         ..Default::default()
     };
     let mut groups = 0.0;
-    for e in std::fs::read_dir(out.join("logs"))
-        .with_context(|| format!("reading {}", out.join("logs").display()))?
-        .flatten()
-    {
+    let mut entries = Vec::new();
+    for out in outs {
+        let logs = out.join("logs");
+        let dir =
+            std::fs::read_dir(&logs).with_context(|| format!("reading {}", logs.display()))?;
+        entries.extend(dir.flatten());
+    }
+    for e in entries {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
         for line in text.lines() {
             let v = fields(line);
@@ -100,7 +123,8 @@ fn read_figures(out: &Path, process_s: f64) -> Result<Figures> {
         }
     }
     if f.loop_s == 0.0 {
-        bail!("{}: the flow node logged no timing line", out.display());
+        let dirs: Vec<String> = outs.iter().map(|o| o.display().to_string()).collect();
+        bail!("{}: the flow node logged no timing line", dirs.join(", "));
     }
     if groups > 0.0 {
         f.fibre_step_s /= groups;
@@ -131,70 +155,109 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     }
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
-    let configs: Vec<(u64, String)> = o
+    if o.two_launchers.iter().any(|n| *n == 0 || n % 60 != 0) {
+        bail!("--two-launchers: every count must be a positive multiple of 60 (six groups of five layers, two shards)");
+    }
+    let mut configs: Vec<(u64, String)> = o
         .fibres
         .iter()
         .flat_map(|&n| o.transports.iter().map(move |t| (n, t.clone())))
         .collect();
+    configs.extend(
+        o.two_launchers
+            .iter()
+            .map(|&n| (n, TWO_LAUNCHERS.to_string())),
+    );
+    if !o.two_launchers.is_empty() {
+        ensure_certificates(&o.two_launchers_file)?;
+    }
     let total = configs.len() * o.repeats;
     let bar = crate::progress::bar(total as u64, "runs");
     let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
     for r in 0..o.repeats {
         for (n, transport) in &configs {
-            let out = o.out.join(format!("{n}-{transport}-{r}"));
-            let file = if *n == 0 {
+            let two = transport == TWO_LAUNCHERS;
+            let out = o.out.join(if two {
+                format!("{n}-two-launchers-{r}")
+            } else {
+                format!("{n}-{transport}-{r}")
+            });
+            let file = if two {
+                &o.two_launchers_file
+            } else if *n == 0 {
                 &o.flow_only_file
             } else {
                 &o.fibres_file
             };
-            let mut c = Command::new(&exe);
-            c.arg("launch")
-                .arg(file)
-                .arg("--out")
-                .arg(&out)
-                .arg("--transport")
-                .arg(transport)
-                .arg("--set")
-                .arg(format!("run.steps={}", o.steps))
-                .arg("--set")
-                .arg("run.analyze=false")
-                .arg("--set")
-                .arg("run.checkpoint_every_plus=0");
+            let mut sets = vec![
+                format!("run.steps={}", o.steps),
+                "run.analyze=false".into(),
+                "run.checkpoint_every_plus=0".into(),
+            ];
             if *n > 0 {
                 for g in 1..=6 {
-                    c.arg("--set")
-                        .arg(format!("fibers.case{g}.placement.per_layer={}", n / 30));
+                    sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
                 }
             }
-            for s in if o.record {
-                vec![
-                    "recorder.enabled=true",
-                    "recorder.states_every=10",
-                    "recorder.samples=false",
-                ]
+            if o.record {
+                sets.extend(
+                    [
+                        "recorder.enabled=true",
+                        "recorder.states_every=10",
+                        "recorder.samples=false",
+                    ]
+                    .map(String::from),
+                );
             } else {
-                vec!["recorder.enabled=false"]
-            } {
-                c.arg("--set").arg(s);
+                sets.push("recorder.enabled=false".into());
             }
+            // (launcher arguments, its output folder): one launcher, or head and worker
+            let launchers: Vec<(Vec<String>, PathBuf)> = if two {
+                ["head", "worker"]
+                    .iter()
+                    .map(|h| {
+                        let dir = out.join(h);
+                        (vec!["--host".into(), h.to_string()], dir)
+                    })
+                    .collect()
+            } else {
+                vec![(vec!["--transport".into(), transport.clone()], out.clone())]
+            };
             bar.set_message(format!("{n} fibres, {transport}"));
             let cpu0 = fiberflow_bus::usage::children_cpu_s();
             let t0 = Instant::now();
-            let st = c
-                .stdout(std::process::Stdio::null())
-                .stderr(std::process::Stdio::null())
-                .status()
-                .context("running fiberflow launch")?;
+            let mut children = Vec::new();
+            for (args, dir) in &launchers {
+                let mut c = Command::new(&exe);
+                c.arg("launch").arg(file).arg("--out").arg(dir).args(args);
+                for s in &sets {
+                    c.arg("--set").arg(s);
+                }
+                let child = c
+                    .stdout(std::process::Stdio::null())
+                    .stderr(std::process::Stdio::null())
+                    .spawn()
+                    .context("running fiberflow launch")?;
+                children.push(child);
+            }
+            let mut failed = None;
+            for mut child in children {
+                let st = child.wait().context("waiting for fiberflow launch")?;
+                if !st.success() {
+                    failed = Some(st);
+                }
+            }
             let wall = t0.elapsed().as_secs_f64();
-            // the launcher waits for its nodes, so their CPU is in its children's usage
+            // each launcher waits for its nodes, so their CPU is in its children's usage
             let cpu = fiberflow_bus::usage::children_cpu_s() - cpu0;
-            if !st.success() {
+            if let Some(st) = failed {
                 bail!(
                     "{n} fibres over {transport} failed ({st}); logs in {}",
-                    out.join("logs").display()
+                    out.display()
                 );
             }
-            let mut f = read_figures(&out, wall)?;
+            let dirs: Vec<PathBuf> = launchers.into_iter().map(|(_, d)| d).collect();
+            let mut f = read_figures(&dirs, wall)?;
             f.cpu_s = cpu;
             results.entry((*n, transport.clone())).or_default().push(f);
             bar.inc(1);
@@ -206,6 +269,27 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     let path = o.out.join("bench-scale.md");
     std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
     println!("written to {}", path.display());
+    Ok(())
+}
+
+/// Makes the certificates a two-launcher file names (`certs/` beside it) with
+/// `launch/make-certs.sh` if its CA is missing.
+fn ensure_certificates(file: &Path) -> Result<()> {
+    let dir = file.parent().unwrap_or(Path::new("."));
+    let certs = dir.join("certs");
+    if certs.join("ca.pem").exists() {
+        return Ok(());
+    }
+    let script = dir.join("make-certs.sh");
+    let st = Command::new(&script)
+        .arg(&certs)
+        .args(["head=localhost", "worker=localhost"])
+        .stdout(std::process::Stdio::null())
+        .status()
+        .with_context(|| format!("running {} (needs openssl)", script.display()))?;
+    if !st.success() {
+        bail!("{} failed ({st})", script.display());
+    }
     Ok(())
 }
 
@@ -237,7 +321,7 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
         let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
         let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
         let (r_med, r_lo, r_hi) = results
-            .get(&(0, t.clone()))
+            .get(&(0, baseline_of(t).to_string()))
             .map(|b| paired_ratios(v, b))
             .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
         let _ = writeln!(
@@ -280,7 +364,27 @@ mod tests {
         assert!((lo - 0.9).abs() < 1e-12 && (hi - 1.1).abs() < 1e-12);
     }
 
-    /// The log lines the nodes write are what the benchmark reads.
+    /// A two-launcher run is compared with zenoh's flow-only run of the same round.
+    #[test]
+    fn two_launchers_pair_with_zenohs_flow_only_runs() {
+        let run = |loop_s| Figures {
+            loop_s,
+            ..Default::default()
+        };
+        let mut results = BTreeMap::new();
+        results.insert((0, "iceoryx2".to_string()), vec![run(1.0)]);
+        results.insert((0, "zenoh".to_string()), vec![run(2.0)]);
+        results.insert((300, TWO_LAUNCHERS.to_string()), vec![run(3.0)]);
+        let md = table(&results, 20);
+        let row = md
+            .lines()
+            .find(|l| l.contains(TWO_LAUNCHERS))
+            .expect("a row for the two-launcher run");
+        assert!(row.contains("| 1.500 (1.500–1.500) |"), "{row}");
+    }
+
+    /// The log lines the nodes write, under one launcher's folder or several, are what the
+    /// benchmark reads.
     #[test]
     fn reads_the_nodes_timing_lines() {
         let dir = std::env::temp_dir().join(format!("ff-bench-{}", std::process::id()));
@@ -291,7 +395,13 @@ mod tests {
             "2026-01-01T00:00:00Z  INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" cpu_s=\"10.000\"\n",
         )
         .unwrap();
-        for (g, s) in [("case1", "1.000"), ("case2", "3.000")] {
+        // the second group's node ran under another launcher (a two-launcher run)
+        let worker = dir.join("worker");
+        std::fs::create_dir_all(worker.join("logs")).unwrap();
+        for (g, s, logs) in [
+            ("case1", "1.000", logs.clone()),
+            ("case2", "3.000", worker.join("logs")),
+        ] {
             std::fs::write(
                 logs.join(format!("{g}.log")),
                 format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"2.000\"\n"),
@@ -303,7 +413,7 @@ mod tests {
             "x INFO fiberflow::nodes: where the recorder's time went writing_s=\"0.125\" cpu_s=\"0.500\"\n",
         )
         .unwrap();
-        let f = read_figures(&dir, 12.0).unwrap();
+        let f = read_figures(&[dir.clone(), worker], 12.0).unwrap();
         assert_eq!(f.loop_s, 7.5);
         assert_eq!((f.fibre_step_s, f.group_publish_s), (2.0, 0.25));
         assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));

@@ -72,6 +72,13 @@ enum Cmd {
         /// Launch file of the flow alone.
         #[arg(long, default_value = "launch/scale-flow-only.toml")]
         flow_only_file: PathBuf,
+        /// Fibre counts (multiples of 60) also run over two launchers on this machine, as
+        /// if on two hosts (zenoh with mutual TLS; compared with zenoh's flow-only runs).
+        #[arg(long, value_delimiter = ',')]
+        two_launchers: Vec<u64>,
+        /// The `[network]` launch file of those runs (hosts head and worker).
+        #[arg(long, default_value = "launch/scale-3e5-two-launchers.toml")]
+        two_launchers_file: PathBuf,
         /// Where the runs and bench-scale.md go.
         #[arg(long, default_value = "recordings/bench-scale")]
         out: PathBuf,
@@ -273,10 +280,14 @@ fn main() -> Result<()> {
             no_record,
             fibres_file,
             flow_only_file,
+            two_launchers,
+            two_launchers_file,
             out,
         } => bench::run(&bench::BenchOptions {
             fibres_file,
             flow_only_file,
+            two_launchers,
+            two_launchers_file,
             fibres,
             transports,
             steps,
