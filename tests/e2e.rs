@@ -4,6 +4,33 @@ use fiberflow_e2e::*;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
+/// Large messages (1500 fibres: ≈ 1 MB of samples and 0.3 MB of states per step) take the
+/// transports' shared-memory paths — zenoh's pools (the flow node logs adding one) and
+/// iceoryx2's in-place delivery — and still give the in-process bus's states bit for bit.
+#[test]
+fn large_messages_in_shared_memory_give_identical_states() {
+    let _one = one_run_at_a_time();
+    let file = root().join("launch/analytic-shear.toml");
+    let sets = ["run.steps=40", "fibers.case1.placement.per_layer=300"];
+    let a = scratch("large-inproc");
+    launch_with(&file, &a, "inproc", &sets);
+    let sa = states(&a.join("run.mcap"));
+    for transport in ["zenoh", "iceoryx2"] {
+        let b = scratch(&format!("large-{transport}"));
+        launch_with(&file, &b, transport, &sets);
+        let sb = states(&b.join("run.mcap"));
+        assert_eq!(sa["case1"].len(), 41, "case1: states for steps 0..=40");
+        assert_same_states(&sa, &sb, transport);
+        if transport == "zenoh" {
+            let log = std::fs::read_to_string(b.join("logs/flow.log")).unwrap();
+            assert!(
+                log.contains("zenoh shared-memory pool added"),
+                "the flow node's samples did not go through zenoh shared memory"
+            );
+        }
+    }
+}
+
 /// The same launch over the in-process bus, over zenoh and over iceoryx2 (separate
 /// processes for both) records bitwise-identical fibre states.
 #[test]

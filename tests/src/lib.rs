@@ -53,15 +53,22 @@ pub fn scratch(name: &str) -> PathBuf {
 
 /// Runs `fiberflow launch` and asserts success; returns stdout.
 pub fn launch(file: &Path, out: &Path, transport: &str) -> String {
-    let o = Command::new(fiberflow())
-        .arg("launch")
+    launch_with(file, out, transport, &[])
+}
+
+/// [`launch`] with `--set` overrides (`key=value` each).
+pub fn launch_with(file: &Path, out: &Path, transport: &str, sets: &[&str]) -> String {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
         .arg(file)
         .arg("--out")
         .arg(out)
         .arg("--transport")
-        .arg(transport)
-        .output()
-        .expect("running fiberflow launch");
+        .arg(transport);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    let o = c.output().expect("running fiberflow launch");
     let stdout = String::from_utf8_lossy(&o.stdout).to_string();
     let stderr = String::from_utf8_lossy(&o.stderr).to_string();
     // a healthy run prints no warning a newcomer would read as failure

@@ -76,6 +76,11 @@ impl Shm {
         }
         match ShmProviderBuilder::default_backend(size).wait() {
             Ok(pool) => {
+                tracing::info!(
+                    mib = size >> 20,
+                    in_use_mib = (self.bytes + size) >> 20,
+                    "zenoh shared-memory pool added"
+                );
                 let buf = pool.alloc(len).wait().ok();
                 self.pools.push(pool);
                 self.bytes += size;
