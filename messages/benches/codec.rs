@@ -7,7 +7,7 @@
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_messages::codec::{serde_decode, serde_encode};
 use fiberflow_messages::{
-    decode, encode, FiberGroupMetrics, FiberGroupState, FlowSamples, SCHEMA_VERSION,
+    decode, encode, FiberGroupMetrics, FiberGroupState, FlowSamples, Message, SCHEMA_VERSION,
 };
 
 const FIBRES: usize = 10_000;
@@ -69,44 +69,22 @@ fn metrics() -> FiberGroupMetrics {
     }
 }
 
+/// Serde and bulk encoding and decoding of `m` in a group named `name`.
+fn codec<M: Message>(c: &mut Criterion, name: &str, m: &M) {
+    let bytes = encode(m);
+    let mut g = c.benchmark_group(name);
+    g.throughput(Throughput::Bytes(bytes.len() as u64));
+    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(m)));
+    g.bench_function("encode_bulk", |b| b.iter(|| encode(m)));
+    g.bench_function("decode_serde", |b| b.iter(|| serde_decode::<M>(&bytes)));
+    g.bench_function("decode_bulk", |b| b.iter(|| decode::<M>(&bytes)));
+    g.finish();
+}
+
 fn bench(c: &mut Criterion) {
-    let s = samples();
-    let bytes = encode(&s);
-    let mut g = c.benchmark_group("flow_samples_1e4_fibres");
-    g.throughput(Throughput::Bytes(bytes.len() as u64));
-    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&s)));
-    g.bench_function("encode_bulk", |b| b.iter(|| encode(&s)));
-    g.bench_function("decode_serde", |b| {
-        b.iter(|| serde_decode::<FlowSamples>(&bytes))
-    });
-    g.bench_function("decode_bulk", |b| b.iter(|| decode::<FlowSamples>(&bytes)));
-    g.finish();
-    let st = state();
-    let bytes = encode(&st);
-    let mut g = c.benchmark_group("fibre_state_1e4_fibres");
-    g.throughput(Throughput::Bytes(bytes.len() as u64));
-    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&st)));
-    g.bench_function("encode_bulk", |b| b.iter(|| encode(&st)));
-    g.bench_function("decode_serde", |b| {
-        b.iter(|| serde_decode::<FiberGroupState>(&bytes))
-    });
-    g.bench_function("decode_bulk", |b| {
-        b.iter(|| decode::<FiberGroupState>(&bytes))
-    });
-    g.finish();
-    let m = metrics();
-    let bytes = encode(&m);
-    let mut g = c.benchmark_group("fibre_metrics_1e4_fibres");
-    g.throughput(Throughput::Bytes(bytes.len() as u64));
-    g.bench_function("encode_serde", |b| b.iter(|| serde_encode(&m)));
-    g.bench_function("encode_bulk", |b| b.iter(|| encode(&m)));
-    g.bench_function("decode_serde", |b| {
-        b.iter(|| serde_decode::<FiberGroupMetrics>(&bytes))
-    });
-    g.bench_function("decode_bulk", |b| {
-        b.iter(|| decode::<FiberGroupMetrics>(&bytes))
-    });
-    g.finish();
+    codec(c, "flow_samples_1e4_fibres", &samples());
+    codec(c, "fibre_state_1e4_fibres", &state());
+    codec(c, "fibre_metrics_1e4_fibres", &metrics());
 }
 
 criterion_group! {

@@ -327,33 +327,42 @@ impl<'a> Reader<'a> {
     }
 }
 
-/// Header fields every group message starts with, in wire order.
-fn header_size(group: &str) -> usize {
-    4 + 4 + group.len() + 1 + 8 + 8 + 8 + 8
+/// A message written field by field into any [`Sink`].
+pub(crate) trait Bulk {
+    fn write_to<S: Sink>(&self, sink: S) -> S;
+
+    /// The length of its bytes (a pass over its headers and array lengths only).
+    fn bulk_len(&self) -> usize {
+        self.write_to(Count::default()).pos()
+    }
+
+    /// Its bytes, in a buffer of exactly that length.
+    fn to_vec(&self) -> Vec<u8> {
+        self.write_to(Vec::with_capacity(self.bulk_len()))
+    }
+
+    /// Writes its bytes into `out`; false if `out` is not exactly [`Bulk::bulk_len`] long.
+    fn write_exact(&self, out: &mut [u8]) -> bool {
+        self.write_to(Fill::new(out)).exact()
+    }
 }
 
-/// Writes the samples into `sink`.
-pub(crate) fn samples_into<S: Sink>(m: &FlowSamples, sink: S) -> S {
-    let mut w = Writer::new(sink);
-    w.group_header(
-        m.schema_version,
-        &m.group,
-        m.step,
-        m.t_plus,
-        m.first_fiber,
-        m.group_fibers,
-    );
-    w.seq_f64(&m.velocity);
-    w.seq_f64(&m.velocity_gradient);
-    w.finish()
-}
-
-pub(crate) fn write_samples(m: &FlowSamples) -> Vec<u8> {
-    let floats = m.velocity.len() + m.velocity_gradient.len();
-    samples_into(
-        m,
-        Vec::with_capacity(HEADER.len() + header_size(&m.group) + 16 + 8 * floats),
-    )
+impl Bulk for FlowSamples {
+    fn write_to<S: Sink>(&self, sink: S) -> S {
+        let m = self;
+        let mut w = Writer::new(sink);
+        w.group_header(
+            m.schema_version,
+            &m.group,
+            m.step,
+            m.t_plus,
+            m.first_fiber,
+            m.group_fibers,
+        );
+        w.seq_f64(&m.velocity);
+        w.seq_f64(&m.velocity_gradient);
+        w.finish()
+    }
 }
 
 pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
@@ -371,32 +380,26 @@ pub(crate) fn read_samples(bytes: &[u8]) -> Result<FlowSamples, String> {
     })
 }
 
-/// Writes the metrics into `sink`.
-pub(crate) fn metrics_into<S: Sink>(m: &FiberGroupMetrics, sink: S) -> S {
-    let mut w = Writer::new(sink);
-    w.group_header(
-        m.schema_version,
-        &m.group,
-        m.step,
-        m.t_plus,
-        m.first_fiber,
-        m.group_fibers,
-    );
-    w.seq_f64(&m.centre_of_mass);
-    w.seq_f64(&m.z1);
-    w.seq_f64(&m.sigma2);
-    w.seq_f64(&m.end_to_end);
-    w.f64(m.mean_abs_z1);
-    w.f64(m.mean_sigma2);
-    w.finish()
-}
-
-pub(crate) fn write_metrics(m: &FiberGroupMetrics) -> Vec<u8> {
-    let floats = m.centre_of_mass.len() + m.z1.len() + m.sigma2.len() + m.end_to_end.len();
-    metrics_into(
-        m,
-        Vec::with_capacity(HEADER.len() + header_size(&m.group) + 4 * 8 + 8 * (floats + 2)),
-    )
+impl Bulk for FiberGroupMetrics {
+    fn write_to<S: Sink>(&self, sink: S) -> S {
+        let m = self;
+        let mut w = Writer::new(sink);
+        w.group_header(
+            m.schema_version,
+            &m.group,
+            m.step,
+            m.t_plus,
+            m.first_fiber,
+            m.group_fibers,
+        );
+        w.seq_f64(&m.centre_of_mass);
+        w.seq_f64(&m.z1);
+        w.seq_f64(&m.sigma2);
+        w.seq_f64(&m.end_to_end);
+        w.f64(m.mean_abs_z1);
+        w.f64(m.mean_sigma2);
+        w.finish()
+    }
 }
 
 pub(crate) fn read_metrics(bytes: &[u8]) -> Result<FiberGroupMetrics, String> {
@@ -504,43 +507,29 @@ fn floats(bytes: &[u8]) -> impl Iterator<Item = f64> + '_ {
     bytes.chunks_exact(8).map(f64_le)
 }
 
-/// Writes the state into `sink`.
-pub(crate) fn state_into<S: Sink>(m: &FiberGroupState, sink: S) -> S {
-    let mut w = Writer::new(sink);
-    w.group_header(
-        m.schema_version,
-        &m.group,
-        m.step,
-        m.t_plus,
-        m.first_fiber,
-        m.group_fibers,
-    );
-    w.seq_u32(&m.segments_per_fiber);
-    w.seq_f64(&m.segment_length);
-    w.seq_f64(&m.diameter);
-    w.seq_f64(&m.density_ratio);
-    w.seq_u8(&m.layer);
-    w.seq_f64(&m.centre);
-    w.seq_f64(&m.axis);
-    w.seq_f64(&m.velocity);
-    w.seq_f64(&m.angular_velocity);
-    w.finish()
-}
-
-pub(crate) fn write_state(m: &FiberGroupState) -> Vec<u8> {
-    let floats = m.segment_length.len()
-        + m.diameter.len()
-        + m.density_ratio.len()
-        + m.centre.len()
-        + m.axis.len()
-        + m.velocity.len()
-        + m.angular_velocity.len();
-    let bytes = header_size(&m.group)
-        + 4 * 10
-        + 4 * m.segments_per_fiber.len()
-        + m.layer.len()
-        + 8 * floats;
-    state_into(m, Vec::with_capacity(HEADER.len() + bytes))
+impl Bulk for FiberGroupState {
+    fn write_to<S: Sink>(&self, sink: S) -> S {
+        let m = self;
+        let mut w = Writer::new(sink);
+        w.group_header(
+            m.schema_version,
+            &m.group,
+            m.step,
+            m.t_plus,
+            m.first_fiber,
+            m.group_fibers,
+        );
+        w.seq_u32(&m.segments_per_fiber);
+        w.seq_f64(&m.segment_length);
+        w.seq_f64(&m.diameter);
+        w.seq_f64(&m.density_ratio);
+        w.seq_u8(&m.layer);
+        w.seq_f64(&m.centre);
+        w.seq_f64(&m.axis);
+        w.seq_f64(&m.velocity);
+        w.seq_f64(&m.angular_velocity);
+        w.finish()
+    }
 }
 
 pub(crate) fn read_state(bytes: &[u8]) -> Result<FiberGroupState, String> {
@@ -603,17 +592,17 @@ mod tests {
             // compared as bytes: NaN is among the values
             if ty == BULK[2] {
                 let m: FiberGroupMetrics = serde_decode(&b).unwrap();
-                assert_eq!(write_metrics(&m), b);
+                assert_eq!(m.to_vec(), b);
                 assert_eq!(into_slice(&m), (b.clone(), true, true));
                 assert_eq!(serde_encode(&read_metrics(&b).unwrap()), b);
             } else if ty == BULK[0] {
                 let m: FlowSamples = serde_decode(&b).unwrap();
-                assert_eq!(write_samples(&m), b);
+                assert_eq!(m.to_vec(), b);
                 assert_eq!(into_slice(&m), (b.clone(), true, true));
                 assert_eq!(serde_encode(&read_samples(&b).unwrap()), b);
             } else {
                 let m: FiberGroupState = serde_decode(&b).unwrap();
-                assert_eq!(write_state(&m), b);
+                assert_eq!(m.to_vec(), b);
                 assert_eq!(into_slice(&m), (b.clone(), true, true));
                 assert_eq!(serde_encode(&read_state(&b).unwrap()), b);
             }

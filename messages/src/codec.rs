@@ -58,21 +58,20 @@ macro_rules! message {
             }
         }
     };
-    ($t:ident, $write:path, $into:path, $read:path) => {
+    ($t:ident, bulk, $read:path) => {
         impl Message for crate::types::$t {
             const TYPE_NAME: &'static str = concat!("fiberflow_msgs/msg/", stringify!($t));
             fn schema_version(&self) -> u32 {
                 self.schema_version
             }
             fn write_cdr(&self) -> Vec<u8> {
-                $write(self)
+                crate::bulk::Bulk::to_vec(self)
             }
             fn encoded_len(&self) -> usize {
-                use crate::bulk::Sink;
-                $into(self, crate::bulk::Count::default()).pos()
+                crate::bulk::Bulk::bulk_len(self)
             }
             fn write_cdr_into(&self, out: &mut [u8]) -> bool {
-                $into(self, crate::bulk::Fill::new(out)).exact()
+                crate::bulk::Bulk::write_exact(self, out)
             }
             fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
                 $read(bytes).map_err(|reason| DecodeError::Malformed {
@@ -87,24 +86,9 @@ message!(RunAnnouncement);
 message!(FlowStatus);
 message!(FlowProfiles);
 message!(FlowSlice);
-message!(
-    FlowSamples,
-    crate::bulk::write_samples,
-    crate::bulk::samples_into,
-    crate::bulk::read_samples
-);
-message!(
-    FiberGroupState,
-    crate::bulk::write_state,
-    crate::bulk::state_into,
-    crate::bulk::read_state
-);
-message!(
-    FiberGroupMetrics,
-    crate::bulk::write_metrics,
-    crate::bulk::metrics_into,
-    crate::bulk::read_metrics
-);
+message!(FlowSamples, bulk, crate::bulk::read_samples);
+message!(FiberGroupState, bulk, crate::bulk::read_state);
+message!(FiberGroupMetrics, bulk, crate::bulk::read_metrics);
 message!(Heartbeat);
 
 /// Encodes as CDR little-endian with encapsulation header.

@@ -12,10 +12,7 @@ pub trait Sane {
 }
 
 fn finite(name: &str, xs: &[f64]) -> Result<(), String> {
-    match xs.iter().position(|x| !x.is_finite()) {
-        Some(i) => Err(format!("{name}[{i}] is not finite")),
-        None => Ok(()),
-    }
+    finite_all(name, xs.iter().copied())
 }
 
 fn len(name: &str, got: usize, want: usize) -> Result<(), String> {
