@@ -49,12 +49,19 @@ struct Shm {
 
 impl Shm {
     fn new(min_pool_bytes: usize, max_bytes: usize) -> Self {
+        let lockable = may_lock_memory();
+        if !lockable {
+            tracing::info!(
+                "no zenoh shared memory: large messages are copied (pools are locked in memory: \
+                 needs CAP_IPC_LOCK or an unlimited `ulimit -l`)"
+            );
+        }
         Self {
             pools: Vec::new(),
             bytes: 0,
             min_pool_bytes,
             max_bytes,
-            unavailable: false,
+            unavailable: !lockable,
         }
     }
 
@@ -93,6 +100,31 @@ impl Shm {
             }
         }
     }
+}
+
+/// True if this process may lock as much memory as its pools and the pools it maps from
+/// other processes take. zenoh locks every segment it makes or maps (`mlock`); a receiver
+/// that cannot lock a sender's segment loses that message, so with a limited `ulimit -l`
+/// no process of the run writes into shared memory at all (they share their limits).
+fn may_lock_memory() -> bool {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit only writes the struct it is given
+    let unlimited = unsafe { libc::getrlimit(libc::RLIMIT_MEMLOCK, &mut limit) } == 0
+        && limit.rlim_cur == libc::RLIM_INFINITY;
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    unlimited || has_ipc_lock(&status)
+}
+
+/// True if the `CapEff:` line of a `/proc/<pid>/status` text has CAP_IPC_LOCK (bit 14).
+fn has_ipc_lock(status: &str) -> bool {
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("CapEff:"))
+        .and_then(|hex| u64::from_str_radix(hex.trim(), 16).ok())
+        .is_some_and(|caps| caps & (1 << 14) != 0)
 }
 
 /// A received message still in the publisher's shared memory (one contiguous buffer).
@@ -385,9 +417,21 @@ mod tests {
     use crate::testing::Counting;
     use std::time::Duration;
 
+    /// CAP_IPC_LOCK is read from the effective capability set.
+    #[test]
+    fn ipc_lock_is_read_from_the_status() {
+        let status = |caps: &str| format!("Name:\tx\nCapInh:\t0000000000000000\nCapEff:\t{caps}\n");
+        assert!(has_ipc_lock(&status("000001ffffffffff")));
+        assert!(has_ipc_lock(&status("0000000000004000")));
+        assert!(!has_ipc_lock(&status("0000000000003fff")));
+        assert!(!has_ipc_lock("CapInh:\t0000000000004000\n"));
+        assert!(!has_ipc_lock(&status("garbage")));
+    }
+
     /// Two sessions on this host, as two processes of a run would be: a large message
     /// crosses in the publisher's shared memory with every byte intact, a small one is
-    /// copied, one that fits no pool gets a new pool, and one beyond the limit is copied.
+    /// copied, one that fits no pool gets a new pool, and one beyond the limit is copied;
+    /// a process that may not lock memory copies them all.
     #[test]
     fn large_messages_cross_in_shared_memory() {
         let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -441,7 +485,10 @@ mod tests {
         let got: Vec<Payload> = (0..sent.len())
             .map(|_| sub.rx.recv_timeout(Duration::from_secs(20)).unwrap().1)
             .collect();
+        // without the right to lock memory nothing goes through shared memory
+        let lockable = may_lock_memory();
         for (p, (m, shared)) in got.iter().zip(sent) {
+            let shared = shared && lockable;
             assert_eq!(p.len(), m.n);
             assert!(p[..] == m.bytes()[..], "bytes of a {}-byte message", m.n);
             assert_eq!(p.is_shared(), shared, "{}-byte message", m.n);
