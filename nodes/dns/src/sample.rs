@@ -450,6 +450,35 @@ impl Sampler {
     }
 }
 
+/// `x.rem_euclid(l)` for `l > 0`, bit for bit, without the `fmod` call where it is not
+/// needed: in [0, l) the remainder is x; in [-l, 0) it is x + l (what `rem_euclid` adds);
+/// in [l, 2l) it is x - l, which is exact there (Sterbenz). Elsewhere `rem_euclid` itself
+/// (test `fast_remainder_and_floor_are_bitwise_the_library_ones`).
+/// (`fmod` and `floor` are library calls on the baseline x86-64 target: with the tables
+/// they were a good part of sampling a point.)
+#[inline(always)]
+fn rem_euclid_fast(x: f64, l: f64) -> f64 {
+    if (0.0..l).contains(&x) {
+        x
+    } else if x < 0.0 && x > -l {
+        x + l
+    } else if x >= l && x < 2.0 * l {
+        x - l
+    } else {
+        x.rem_euclid(l)
+    }
+}
+
+/// `s.floor()` for `0 < s < 4.5 × 10¹⁵`, by truncation (exact there); otherwise `floor`.
+#[inline(always)]
+fn floor_fast(s: f64) -> f64 {
+    if s > 0.0 && s < 4.5e15 {
+        (s as u64) as f64
+    } else {
+        s.floor()
+    }
+}
+
 /// Lower node index in 1..=n and fraction for a periodic direction.
 #[inline(always)]
 fn periodic_bracket(x: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
@@ -459,8 +488,8 @@ fn periodic_bracket(x: f64, d: f64, n: usize, h: Hx) -> (usize, f64) {
         Hx::Face => 0.0,
     };
     // node m (1..=n) sits at (m - shift) d
-    let s = (x.rem_euclid(l)) / d + shift; // in [shift, n + shift)
-    let mut m = s.floor();
+    let s = rem_euclid_fast(x, l) / d + shift; // in [shift, n + shift)
+    let mut m = floor_fast(s);
     let mut f = s - m;
     if m < 1.0 {
         m += n as f64;
@@ -555,6 +584,44 @@ fn bracket(nodes: &[f64], y: f64) -> (usize, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The fast remainder and floor give the library's bits: random values over ±5 periods
+    /// and the edges (±0, ±l, 2l and their neighbours, huge, NaN, ±∞).
+    #[test]
+    fn fast_remainder_and_floor_are_bitwise_the_library_ones() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let up = |v: f64| f64::from_bits(v.to_bits() + 1);
+        let down = |v: f64| f64::from_bits(v.to_bits() - 1);
+        for l in [2.0 * std::f64::consts::PI, 942.477_796_076_938, 1.0, 3.7e-3] {
+            let mut xs: Vec<f64> = (0..200_000).map(|_| (rnd() - 0.5) * 10.0 * l).collect();
+            for e in [0.0, -0.0, l, -l, 2.0 * l, -2.0 * l] {
+                xs.extend([e, up(e.abs()), -up(e.abs())]);
+                if e != 0.0 {
+                    xs.extend([down(e.abs()), -down(e.abs())]);
+                }
+            }
+            xs.extend([1e300, -1e300, f64::NAN, f64::INFINITY, f64::NEG_INFINITY]);
+            for &v in &xs {
+                let (got, want) = (rem_euclid_fast(v, l), v.rem_euclid(l));
+                assert!(
+                    got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                    "rem_euclid({v:e}, {l}) = {want:e}, fast {got:e}"
+                );
+                let s = v / l * 17.0;
+                let (got, want) = (floor_fast(s), s.floor());
+                assert!(
+                    got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                    "floor({s:e}) = {want:e}, fast {got:e}"
+                );
+            }
+        }
+    }
 
     /// The table lookup gives the binary search's bracket for every y: random points, the
     /// nodes themselves, their neighbouring floats, and points beyond both ends.
