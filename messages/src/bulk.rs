@@ -496,6 +496,7 @@ impl<'a> SamplesView<'a> {
     }
 }
 
+#[inline(always)]
 fn f64_le(b: &[u8]) -> f64 {
     let mut a = [0u8; 8];
     a.copy_from_slice(b);
