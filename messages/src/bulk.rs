@@ -10,6 +10,7 @@
 
 use crate::codec::GroupHeader;
 use crate::types::{FiberGroupMetrics, FiberGroupState, FlowSamples};
+use std::mem::MaybeUninit;
 
 /// The CDR little-endian encapsulation header.
 const HEADER: [u8; 4] = [0, 1, 0, 0];
@@ -83,20 +84,29 @@ impl Sink for Count {
     }
 }
 
-/// Writes into a slice; what does not fit is counted, not written ([`Fill::exact`] says
-/// whether the message filled the slice exactly).
+/// Writes into a slice, initialised or not; what does not fit is counted, not written
+/// ([`Fill::exact`] says whether the message filled the slice exactly). The writes are
+/// consecutive from the slice's start, so a slice filled exactly has every byte written.
 pub(crate) struct Fill<'a> {
-    out: &'a mut [u8],
+    out: &'a mut [MaybeUninit<u8>],
     pos: usize,
 }
 
 impl<'a> Fill<'a> {
     pub(crate) fn new(out: &'a mut [u8]) -> Self {
+        // SAFETY: a `Fill` only ever writes initialised bytes into `out`, so the `[u8]` it
+        // borrows from stays initialised
+        let out = unsafe { &mut *(out as *mut [u8] as *mut [MaybeUninit<u8>]) };
+        Self { out, pos: 0 }
+    }
+
+    /// A slice not initialised yet (e.g. a transport's freshly loaned memory).
+    pub(crate) fn uninit(out: &'a mut [MaybeUninit<u8>]) -> Self {
         Self { out, pos: 0 }
     }
 
     /// The next `n` bytes of the slice (None once past its end); advances either way.
-    fn next(&mut self, n: usize) -> Option<&mut [u8]> {
+    fn next(&mut self, n: usize) -> Option<&mut [MaybeUninit<u8>]> {
         let from = self.pos;
         self.pos += n;
         self.out.get_mut(from..from + n)
@@ -104,6 +114,16 @@ impl<'a> Fill<'a> {
 
     pub(crate) fn exact(&self) -> bool {
         self.pos == self.out.len()
+    }
+
+    /// The slice, initialised, if the message filled it exactly.
+    pub(crate) fn finish(self) -> Option<&'a mut [u8]> {
+        if !self.exact() {
+            return None;
+        }
+        // SAFETY: `exact` means the writes, each a whole in-bounds range following the one
+        // before from index 0 (`next` never goes back), covered every byte of `out`
+        Some(unsafe { &mut *(self.out as *mut [MaybeUninit<u8>] as *mut [u8]) })
     }
 }
 
@@ -113,22 +133,26 @@ impl Sink for Fill<'_> {
     }
     fn bytes(&mut self, b: &[u8]) {
         if let Some(o) = self.next(b.len()) {
-            o.copy_from_slice(b);
+            o.write_copy_of_slice(b);
         }
     }
     fn zeros(&mut self, n: usize) {
         if let Some(o) = self.next(n) {
-            o.fill(0);
+            o.fill(MaybeUninit::new(0));
         }
     }
     fn u32s(&mut self, v: &[u32]) {
         if let Some(o) = self.next(4 * v.len()) {
-            put_u32s(o, v);
+            for (o, x) in o.chunks_exact_mut(4).zip(v) {
+                o.write_copy_of_slice(&x.to_le_bytes());
+            }
         }
     }
     fn f64s(&mut self, v: &[f64]) {
         if let Some(o) = self.next(8 * v.len()) {
-            put_f64s(o, v);
+            for (o, x) in o.chunks_exact_mut(8).zip(v) {
+                o.write_copy_of_slice(&x.to_le_bytes());
+            }
         }
     }
 }
@@ -344,6 +368,12 @@ pub(crate) trait Bulk {
     /// Writes its bytes into `out`; false if `out` is not exactly [`Bulk::bulk_len`] long.
     fn write_exact(&self, out: &mut [u8]) -> bool {
         self.write_to(Fill::new(out)).exact()
+    }
+
+    /// Writes its bytes into memory not initialised yet; `out`, initialised, if it is
+    /// exactly [`Bulk::bulk_len`] long.
+    fn write_uninit<'a>(&self, out: &'a mut [MaybeUninit<u8>]) -> Option<&'a mut [u8]> {
+        self.write_to(Fill::uninit(out)).finish()
     }
 }
 
@@ -576,13 +606,25 @@ mod tests {
         assert!(fits, "a slice of encoded_len bytes must fit");
         let short = n > 0 && !crate::encode_into(m, &mut vec![0u8; n - 1]);
         let long = !crate::encode_into(m, &mut vec![0u8; n + 1]);
+        // into memory not initialised: the same bytes, and the same refusals
+        let uninit = |len: usize| {
+            let mut buf = vec![MaybeUninit::<u8>::uninit(); len];
+            crate::encode_into_uninit(m, &mut buf).map(|b| b.to_vec())
+        };
+        assert_eq!(
+            uninit(n).as_ref(),
+            Some(&exact),
+            "into uninitialised memory"
+        );
+        let short = short && (n == 0 || uninit(n - 1).is_none());
+        let long = long && uninit(n + 1).is_none();
         (exact, short, long)
     }
 
     /// Random messages (random lengths, empty arrays, odd group-name lengths so every
     /// padding case occurs) are written to the very bytes the serde path writes — into a
-    /// growing buffer and into a slice sized by `encoded_len` (which refuses a slice of
-    /// any other length) — and read back to the same message.
+    /// growing buffer and into a slice sized by `encoded_len`, initialised or not (which
+    /// refuses a slice of any other length) — and read back to the same message.
     #[test]
     fn bulk_bytes_equal_the_serde_bytes() {
         let mut r = Rng::new(11);

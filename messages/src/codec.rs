@@ -5,6 +5,7 @@ use crate::schema;
 use crate::SCHEMA_VERSION;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
+use std::mem::MaybeUninit;
 
 /// What a decode can fail with (the message is then dropped and counted).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -42,6 +43,13 @@ pub trait Message: Serialize + DeserializeOwned {
         }
         fits
     }
+    /// Writes its CDR bytes into memory not initialised yet (a transport's loan, so that
+    /// it need not be zeroed first); `out`, initialised, if it is exactly
+    /// [`Message::encoded_len`] long.
+    fn write_cdr_uninit<'a>(&self, out: &'a mut [MaybeUninit<u8>]) -> Option<&'a mut [u8]> {
+        let b = self.write_cdr();
+        (b.len() == out.len()).then(|| out.write_copy_of_slice(&b))
+    }
     /// Reads CDR bytes, lengths checked before any allocation (the serde path after a
     /// layout walk unless the type reads its arrays in bulk).
     fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
@@ -72,6 +80,12 @@ macro_rules! message {
             }
             fn write_cdr_into(&self, out: &mut [u8]) -> bool {
                 crate::bulk::Bulk::write_exact(self, out)
+            }
+            fn write_cdr_uninit<'a>(
+                &self,
+                out: &'a mut [std::mem::MaybeUninit<u8>],
+            ) -> Option<&'a mut [u8]> {
+                crate::bulk::Bulk::write_uninit(self, out)
             }
             fn read_cdr(bytes: &[u8]) -> Result<Self, DecodeError> {
                 $read(bytes).map_err(|reason| DecodeError::Malformed {
@@ -106,6 +120,15 @@ pub fn encoded_len<M: Message>(m: &M) -> usize {
 /// transport's loaned shared memory, with no buffer in between.
 pub fn encode_into<M: Message>(m: &M, out: &mut [u8]) -> bool {
     m.write_cdr_into(out)
+}
+
+/// Encodes into memory not initialised yet, which must be exactly [`encoded_len`] long:
+/// `out`, now initialised, or None if it is not that long (`out` then unspecified).
+pub fn encode_into_uninit<'a, M: Message>(
+    m: &M,
+    out: &'a mut [MaybeUninit<u8>],
+) -> Option<&'a mut [u8]> {
+    m.write_cdr_uninit(out)
 }
 
 /// CDR through serde (the generic path; the bulk messages are tested and benched against it).

@@ -312,14 +312,22 @@ impl Bus for Iceoryx2Bus {
         self.wake_subscribers(topic)
     }
 
-    /// Encoded straight into the loaned shared memory (zeroed first: writing bytes that
-    /// were never initialised through a `&mut [u8]` is not allowed).
+    /// Encoded straight into the loaned shared memory, not zeroed first (42 MB of samples
+    /// per step at 6 × 10⁴ fibres).
     fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
         self.with_publisher(topic, |p| {
-            let mut sample = p.loan_slice(msg.len()).map_err(terr)?;
-            if !msg.write(sample.payload_mut()) {
+            let mut sample = p.loan_slice_uninit(msg.len()).map_err(terr)?;
+            let payload = sample.payload_mut();
+            let (at, len) = (payload.as_ptr() as *const u8, payload.len());
+            let initialised = msg
+                .write_uninit(payload)
+                .is_some_and(|b| std::ptr::eq(b.as_ptr(), at) && b.len() == len);
+            if !initialised {
                 return Err(crate::unwritable(topic));
             }
+            // SAFETY: the message handed back a `&mut [u8]` over exactly the loaned
+            // payload, and safe code can hold one only over initialised bytes
+            let sample = unsafe { sample.assume_init() };
             sample.send().map_err(terr)
         })?;
         self.wake_subscribers(topic)
@@ -425,5 +433,71 @@ mod tests {
                 bus.name()
             );
         }
+    }
+
+    /// Hands back other memory than the loan it was given: initialised and of the right
+    /// length, but not the loan's.
+    struct Elsewhere(usize);
+
+    impl Outgoing for Elsewhere {
+        fn len(&self) -> usize {
+            self.0
+        }
+        fn write(&self, out: &mut [u8]) -> bool {
+            out.fill(1);
+            true
+        }
+        fn write_uninit<'a>(
+            &self,
+            _out: &'a mut [std::mem::MaybeUninit<u8>],
+        ) -> Option<&'a mut [u8]> {
+            Some(Box::leak(vec![1u8; self.0].into_boxed_slice()))
+        }
+    }
+
+    /// A message is written into the loan without the loan being zeroed first: a bulk
+    /// message (its own writer) and one with only a plain `write` (through a buffer)
+    /// arrive as their encoded bytes; a message that hands back any memory but the loan's
+    /// is refused, and nothing goes out.
+    #[test]
+    fn loans_count_as_written_only_when_handed_back() {
+        let topics = vec!["t/loan".to_string()];
+        let id = run_id("loan");
+        let rx = Iceoryx2Bus::open(&id, topics.clone()).unwrap();
+        let tx = Iceoryx2Bus::open(&id, topics).unwrap();
+        let sub = rx.subscribe("t/loan").unwrap();
+        let recv = |wait_s| {
+            sub.rx
+                .recv_timeout(Duration::from_secs_f64(wait_s))
+                .map(|(_, p)| p)
+        };
+        let samples = fiberflow_messages::FlowSamples {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            group: "case1".into(),
+            step: 4,
+            t_plus: 0.8,
+            first_fiber: 0,
+            group_fibers: 3,
+            velocity: (0..30_000).map(|i| i as f64 * 0.5).collect(),
+            velocity_gradient: (0..90_000).map(|i| -(i as f64)).collect(),
+        };
+        let want = fiberflow_messages::encode(&samples);
+        // the loans are recycled: earlier bytes in them must not show through
+        for _ in 0..3 {
+            tx.publish_message("t/loan", &crate::Encode(samples.clone()))
+                .unwrap();
+            assert!(recv(10.0).unwrap()[..] == want[..]);
+            let m = Counting {
+                first: 9,
+                n: 70_001,
+            };
+            tx.publish_message("t/loan", &m).unwrap();
+            assert_eq!(&recv(10.0).unwrap()[..], &m.bytes()[..]);
+        }
+        assert!(tx.publish_message("t/loan", &Elsewhere(1000)).is_err());
+        assert!(
+            recv(0.5).is_err(),
+            "a message that did not write its loan went out"
+        );
     }
 }

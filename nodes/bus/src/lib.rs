@@ -15,6 +15,7 @@ pub mod zenoh_bus;
 pub use inbox::{DropCounter, Inbox};
 pub use outbox::Outbox;
 
+use std::mem::MaybeUninit;
 use std::sync::mpsc::Receiver;
 use std::sync::Arc;
 
@@ -85,6 +86,13 @@ pub trait Outgoing: Send + Sync {
     fn len(&self) -> usize;
     /// Writes exactly [`Outgoing::len`] bytes into `out` (that long); false if it cannot.
     fn write(&self, out: &mut [u8]) -> bool;
+    /// Writes exactly [`Outgoing::len`] bytes into memory not initialised yet (a loan
+    /// that then need not be zeroed first); `out`, initialised, or None if it cannot. The
+    /// default writes into a zeroed buffer and copies.
+    fn write_uninit<'a>(&self, out: &'a mut [MaybeUninit<u8>]) -> Option<&'a mut [u8]> {
+        let mut buf = vec![0u8; out.len()];
+        self.write(&mut buf).then(|| out.write_copy_of_slice(&buf))
+    }
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -101,6 +109,9 @@ impl Outgoing for Vec<u8> {
         }
         fits
     }
+    fn write_uninit<'a>(&self, out: &'a mut [MaybeUninit<u8>]) -> Option<&'a mut [u8]> {
+        (out.len() == Vec::len(self)).then(|| out.write_copy_of_slice(self))
+    }
 }
 
 /// A bus message encoded when it is published ([`fiberflow_messages::encode_into`]).
@@ -112,6 +123,9 @@ impl<M: fiberflow_messages::Message + Send + Sync> Outgoing for Encode<M> {
     }
     fn write(&self, out: &mut [u8]) -> bool {
         fiberflow_messages::encode_into(&self.0, out)
+    }
+    fn write_uninit<'a>(&self, out: &'a mut [MaybeUninit<u8>]) -> Option<&'a mut [u8]> {
+        fiberflow_messages::encode_into_uninit(&self.0, out)
     }
 }
 
