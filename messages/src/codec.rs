@@ -163,6 +163,27 @@ pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     Ok(m)
 }
 
+/// [`decode`] of a FiberGroupState into `out`, reusing its arrays' allocations (the flow
+/// node decodes tens of MB of states per step at scale): the same answers as `decode`
+/// (test `bulk::tests::state_decoded_into_a_used_one_is_decode`); `out` is unspecified
+/// after an error.
+pub fn decode_state_into(
+    out: &mut crate::FiberGroupState,
+    bytes: &[u8],
+) -> Result<(), DecodeError> {
+    crate::bulk::read_state_into(out, bytes).map_err(|reason| DecodeError::Malformed {
+        len: bytes.len(),
+        reason,
+    })?;
+    if out.schema_version != SCHEMA_VERSION {
+        return Err(DecodeError::Version {
+            got: out.schema_version,
+            expected: SCHEMA_VERSION,
+        });
+    }
+    Ok(())
+}
+
 /// The fields every group message (FlowSamples, FiberGroupState, FiberGroupMetrics) starts
 /// with, in wire order.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]

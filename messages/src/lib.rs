@@ -16,8 +16,8 @@ pub mod topics;
 pub mod types;
 
 pub use codec::{
-    decode, encode, encode_into, encode_into_uninit, encoded_len, peek_group_header, DecodeError,
-    GroupHeader, Message,
+    decode, decode_state_into, encode, encode_into, encode_into_uninit, encoded_len,
+    peek_group_header, DecodeError, GroupHeader, Message,
 };
 pub use types::*;
 

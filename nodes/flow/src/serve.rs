@@ -360,6 +360,8 @@ pub fn serve(
     let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
     // states of the step being served, by (group, first fibre)
     let mut pending: BTreeMap<(String, u32), FiberGroupState> = BTreeMap::new();
+    // states already served, decoded into again
+    let mut spare_states: Vec<FiberGroupState> = Vec::new();
     // the samples last published to each piece, to send again when a node waits for them
     let mut served: Served = BTreeMap::new();
     // running plane/time statistics of the served field, published as FlowProfiles
@@ -397,15 +399,34 @@ pub fn serve(
             if !topic.ends_with("/state") {
                 continue; // metrics and other fibre topics are not for us
             }
-            match fiberflow_messages::decode::<FiberGroupState>(&bytes) {
+            // decoded into a state served before, when there is one: its arrays (MBs per
+            // group at scale) keep their allocations
+            let decoded = match spare_states.pop() {
+                Some(mut s) => match fiberflow_messages::decode_state_into(&mut s, &bytes) {
+                    Ok(()) => Ok(s),
+                    Err(e) => {
+                        spare_states.push(s);
+                        Err(e)
+                    }
+                },
+                None => fiberflow_messages::decode::<FiberGroupState>(&bytes),
+            };
+            match decoded {
                 Ok(s) => match admit(&s, k, run) {
-                    Admit::Take => {
-                        pending.entry((s.group.clone(), s.first_fiber)).or_insert(s);
-                    }
+                    Admit::Take => match pending.entry((s.group.clone(), s.first_fiber)) {
+                        std::collections::btree_map::Entry::Vacant(e) => {
+                            e.insert(s);
+                        }
+                        std::collections::btree_map::Entry::Occupied(_) => spare_states.push(s),
+                    },
                     Admit::Ignore => {
-                        tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring the state of the step just served")
+                        tracing::debug!(group = %s.group, step = s.step, expected = k, "ignoring the state of the step just served");
+                        spare_states.push(s);
                     }
-                    Admit::Drop(why) => st_in.drops.drop_one(&topic, &why),
+                    Admit::Drop(why) => {
+                        st_in.drops.drop_one(&topic, &why);
+                        spare_states.push(s);
+                    }
                 },
                 Err(e) => st_in.drops.drop_one(&topic, &e.to_string()),
             }
@@ -454,6 +475,7 @@ pub fn serve(
             out.send(topic.clone(), msg.clone())?;
             served.insert((group.clone(), first_fiber), (k, topic, msg));
             timing.publishing_s += t1.elapsed().as_secs_f64();
+            spare_states.push(s);
         }
         if let Field::Dns(d) = &field {
             let solver = &d.solver;
