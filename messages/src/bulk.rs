@@ -570,23 +570,7 @@ impl Bulk for FiberGroupState {
 }
 
 pub(crate) fn read_state(bytes: &[u8]) -> Result<FiberGroupState, String> {
-    let mut s = FiberGroupState {
-        schema_version: 0,
-        group: String::new(),
-        step: 0,
-        t_plus: 0.0,
-        first_fiber: 0,
-        group_fibers: 0,
-        segments_per_fiber: Vec::new(),
-        segment_length: Vec::new(),
-        diameter: Vec::new(),
-        density_ratio: Vec::new(),
-        layer: Vec::new(),
-        centre: Vec::new(),
-        axis: Vec::new(),
-        velocity: Vec::new(),
-        angular_velocity: Vec::new(),
-    };
+    let mut s = FiberGroupState::default();
     read_state_into(&mut s, bytes)?;
     Ok(s)
 }

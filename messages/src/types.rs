@@ -98,7 +98,7 @@ pub struct FlowSamples {
 /// `axis`, `velocity` and `angular_velocity` are empty and it carries only what the flow
 /// node samples at (the centres), a quarter of the bytes. A recorder never writes a lean
 /// state.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FiberGroupState {
     pub schema_version: u32,
     pub group: String,

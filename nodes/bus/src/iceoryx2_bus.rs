@@ -366,17 +366,24 @@ mod tests {
         format!("test-{name}-{}", std::process::id())
     }
 
+    /// Two buses of one run, as two processes would open them (the receiver, the sender),
+    /// and the receiver's subscription to `topic`.
+    fn receiver_and_sender(name: &str, topic: &str) -> (Iceoryx2Bus, Iceoryx2Bus, Subscription) {
+        let topics = vec![topic.to_string()];
+        let id = run_id(name);
+        let rx = Iceoryx2Bus::open(&id, topics.clone()).unwrap();
+        let tx = Iceoryx2Bus::open(&id, topics).unwrap();
+        let sub = rx.subscribe(topic).unwrap();
+        (rx, tx, sub)
+    }
+
     /// Messages written straight into the loaned memory arrive with their bytes, still in
     /// the publisher's memory, while the caller holds fewer than `HELD_MAX` of them;
     /// beyond that they arrive copied (nothing stalls), and once the caller lets go they
     /// arrive in place again.
     #[test]
     fn messages_arrive_in_place_up_to_the_held_limit() {
-        let topics = vec!["t/big".to_string()];
-        let id = run_id("held");
-        let rx = Iceoryx2Bus::open(&id, topics.clone()).unwrap();
-        let tx = Iceoryx2Bus::open(&id, topics).unwrap();
-        let sub = rx.subscribe("t/big").unwrap();
+        let (_rx, tx, sub) = receiver_and_sender("held", "t/big");
         let recv = || {
             let (t, p) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
             assert_eq!(t, "t/big");
@@ -461,11 +468,7 @@ mod tests {
     /// is refused, and nothing goes out.
     #[test]
     fn loans_count_as_written_only_when_handed_back() {
-        let topics = vec!["t/loan".to_string()];
-        let id = run_id("loan");
-        let rx = Iceoryx2Bus::open(&id, topics.clone()).unwrap();
-        let tx = Iceoryx2Bus::open(&id, topics).unwrap();
-        let sub = rx.subscribe("t/loan").unwrap();
+        let (_rx, tx, sub) = receiver_and_sender("loan", "t/loan");
         let recv = |wait_s| {
             sub.rx
                 .recv_timeout(Duration::from_secs_f64(wait_s))

@@ -585,17 +585,23 @@ fn bracket(nodes: &[f64], y: f64) -> (usize, f64) {
 mod tests {
     use super::*;
 
-    /// The fast remainder and floor give the library's bits: random values over ±5 periods
-    /// and the edges (±0, ±l, 2l and their neighbours, huge, NaN, ±∞).
-    #[test]
-    fn fast_remainder_and_floor_are_bitwise_the_library_ones() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut rnd = || {
+    /// Uniform numbers in [0, 1) from a xorshift generator seeded with `seed` (the
+    /// sampler's tests draw their random points from it).
+    pub(super) fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut x = seed;
+        move || {
             x ^= x << 13;
             x ^= x >> 7;
             x ^= x << 17;
             (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        }
+    }
+
+    /// The fast remainder and floor give the library's bits: random values over ±5 periods
+    /// and the edges (±0, ±l, 2l and their neighbours, huge, NaN, ±∞).
+    #[test]
+    fn fast_remainder_and_floor_are_bitwise_the_library_ones() {
+        let mut rnd = uniform(0x2545_f491_4f6c_dd1d);
         let up = |v: f64| f64::from_bits(v.to_bits() + 1);
         let down = |v: f64| f64::from_bits(v.to_bits() - 1);
         for l in [2.0 * std::f64::consts::PI, 942.477_796_076_938, 1.0, 3.7e-3] {
@@ -638,12 +644,9 @@ mod tests {
                 .flat_map(|&v| [v, v.next_up(), v.next_down()])
                 .collect();
             probes.extend([-1.5, 1.5, -1.0 - 1e-17, 1.0 + 1e-17]);
-            let mut x = 0x2545_f491_4f6c_dd1du64;
+            let mut rnd = uniform(0x2545_f491_4f6c_dd1d);
             for _ in 0..100_000 {
-                x ^= x << 13;
-                x ^= x >> 7;
-                x ^= x << 17;
-                probes.push((x >> 11) as f64 / (1u64 << 53) as f64 * 2.2 - 1.1);
+                probes.push(rnd() * 2.2 - 1.1);
             }
             for p in probes {
                 let (a, b) = (table.bracket(p), bracket(&y, p));

@@ -401,16 +401,8 @@ pub fn serve(
             }
             // decoded into a state served before, when there is one: its arrays (MBs per
             // group at scale) keep their allocations
-            let decoded = match spare_states.pop() {
-                Some(mut s) => match fiberflow_messages::decode_state_into(&mut s, &bytes) {
-                    Ok(()) => Ok(s),
-                    Err(e) => {
-                        spare_states.push(s);
-                        Err(e)
-                    }
-                },
-                None => fiberflow_messages::decode::<FiberGroupState>(&bytes),
-            };
+            let mut s = spare_states.pop().unwrap_or_default();
+            let decoded = fiberflow_messages::decode_state_into(&mut s, &bytes).map(|()| s);
             match decoded {
                 Ok(s) => match admit(&s, k, run) {
                     Admit::Take => match pending.entry((s.group.clone(), s.first_fiber)) {

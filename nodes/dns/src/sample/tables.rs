@@ -164,13 +164,7 @@ mod tests {
         let smp = Sampler::with_scheme(g, Interpolation::Trilinear);
         let mut t = Tables::new();
         t.fill(&smp, g, &s.vel);
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut rnd = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::sample::tests::uniform(0x9e37_79b9_7f4a_7c15);
         let mut pts = Vec::new();
         for _ in 0..20_000 {
             pts.push([
