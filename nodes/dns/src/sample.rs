@@ -16,7 +16,7 @@ use crate::grid::Grid;
 use serde::{Deserialize, Serialize};
 
 mod tables;
-pub use tables::Tables;
+pub use tables::{Tables, LANES};
 
 /// Interpolation scheme of the fibre-position sampler.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -30,7 +30,7 @@ pub enum Interpolation {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Hx {
+pub(crate) enum Hx {
     Centre,
     Face,
 }
@@ -79,7 +79,7 @@ use Hx::{Centre as C, Face as F};
 /// Where each sampled quantity lives: (x location, y node list, z location) of u, v, w
 /// and then of ∂v_a/∂x_b in the order of [`Sample::grad`]. The gradient sits where the
 /// solver's staggered difference of the component naturally falls.
-const LOCATION: [(Hx, Vy, Hx); 12] = [
+pub(crate) const LOCATION: [(Hx, Vy, Hx); 12] = [
     (F, Vy::Centre, C),
     (C, Vy::Face, C),
     (C, Vy::Centre, F),
@@ -149,7 +149,7 @@ struct Brackets {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Vy {
+pub(crate) enum Vy {
     /// Wall, cell centres 1..=ny, wall (ny+2 nodes).
     Centre,
     /// Faces 0..=ny.
@@ -169,7 +169,7 @@ pub struct Sample {
 /// each of `bins` equal bins of the list's range, the node at or below the bin's start.
 /// Gives exactly [`bracket`]'s answer (test `lookup_brackets_like_the_search`).
 #[derive(Debug, Clone)]
-struct Nodes {
+pub(crate) struct Nodes {
     y: Vec<f64>,
     lo: f64,
     inv_bin: f64,
@@ -202,7 +202,7 @@ impl Nodes {
 
     /// [`bracket`] of `y` in this list.
     #[inline(always)]
-    fn bracket(&self, y: f64) -> (usize, f64) {
+    pub(crate) fn bracket(&self, y: f64) -> (usize, f64) {
         let nodes = &self.y;
         let n = nodes.len();
         if !(y > nodes[0]) {
@@ -232,7 +232,7 @@ pub struct Sampler {
     face: Vec<f64>,
     mid: Vec<f64>,
     /// The same lists with their bracket tables (trilinear).
-    lookup: [Nodes; 3],
+    pub(crate) lookup: [Nodes; 3],
     scheme: Interpolation,
     /// 1/Δx, 1/Δz and 1/Δy per row (centre-to-centre `dyc`, face-to-face `dyf`): the
     /// trilinear gradients multiply instead of dividing at every corner.

@@ -5,7 +5,7 @@
 //! (test `cell_order_gives_the_same_samples`).
 
 use crate::analytic::AnalyticFlow;
-use fiberflow_dns::sample::{Interpolation, Sampler, Tables};
+use fiberflow_dns::sample::{Interpolation, Sample, Sampler, Tables, LANES};
 use fiberflow_dns::Solver;
 use rayon::prelude::*;
 
@@ -15,11 +15,14 @@ pub type PointSample = ([f64; 3], [f64; 9]);
 /// One piece's samples: velocity (3 per point) and gradient (9 per point).
 pub type PieceSamples = (Vec<f64>, Vec<f64>);
 
-/// From this many points per step on, the trilinear sampler reads per-step tables: on the
-/// fine grid filling them costs ≈ 11 ms (two threads) and saves ≈ 90 ns per point (bench
-/// `sample_4e5_points_by_cell`: 151 ms direct, 113 ms from the tables at 4.2 × 10⁵
-/// points). Both give the same bits, so the choice never shows in a result.
-pub const TABLES_MIN_POINTS: usize = 150_000;
+/// From this many points per step on, the trilinear sampler reads per-step tables, four
+/// points at a time. On the fine grid, one thread (bench `sample_4e5_points_by_cell`, 4.2 ×
+/// 10⁵ points): 50 ms direct, 25 ms from the tables, which cost 7 ms to fill (two
+/// threads). In the flow node the direct sampler was the faster at 2.1 × 10⁵ points
+/// (sampling 0.36–0.40 s against 0.49–0.56 s over 20 steps, three alternated pairs) and
+/// level at 4.2 × 10⁵ (0.78–0.83 s against 0.72–0.93 s). Both give the same bits, so the
+/// choice never shows in a result.
+pub const TABLES_MIN_POINTS: usize = 400_000;
 
 /// The field the flow node serves.
 pub enum Field {
@@ -58,7 +61,12 @@ impl Field {
         match self {
             Field::Analytic(a) => {
                 let a = *a;
-                sample_fibres(pieces, reuse, |_| 0, |p| a.sample([p[0], p[1], p[2]]))
+                sample_fibres(
+                    pieces,
+                    reuse,
+                    |_| 0,
+                    one_by_one(|p| a.sample([p[0], p[1], p[2]])),
+                )
             }
             Field::Dns(d) => {
                 let tables =
@@ -68,16 +76,31 @@ impl Field {
                 }
                 let d = &**d;
                 let (g, re) = (&d.solver.grid, d.solver.cfg.re_tau);
-                let sample = |p: &[f64]| -> PointSample {
-                    let q = [p[0] / re, p[1] / re, p[2] / re];
-                    let sm = if tables {
-                        d.tables.sample(&d.sampler, g, q)
-                    } else {
-                        d.sampler.sample(g, &d.solver.vel, q)
-                    };
+                let outer = |p: &[f64]| [p[0] / re, p[1] / re, p[2] / re];
+                let plus = |sm: Sample| -> PointSample {
                     let mut grad = sm.grad;
                     grad.iter_mut().for_each(|x| *x /= re);
                     (sm.vel, grad)
+                };
+                let direct = |p: &[f64]| plus(d.sampler.sample(g, &d.solver.vel, outer(p)));
+                // from the tables, four points at a time (the same bits as one by one)
+                let from_tables = |c: &[f64], v: &mut [f64], gr: &mut [f64]| {
+                    for ((c, v), gr) in c
+                        .chunks(3 * LANES)
+                        .zip(v.chunks_mut(3 * LANES))
+                        .zip(gr.chunks_mut(9 * LANES))
+                    {
+                        // a short last group repeats its last point
+                        let n = c.len() / 3;
+                        let p: [[f64; 3]; LANES] =
+                            std::array::from_fn(|l| outer(&c[3 * l.min(n - 1)..]));
+                        let four = d.tables.sample4(&d.sampler, g, p);
+                        for (l, sm) in four.into_iter().take(n).enumerate() {
+                            let (sv, sg) = plus(sm);
+                            v[3 * l..3 * l + 3].copy_from_slice(&sv);
+                            gr[9 * l..9 * l + 9].copy_from_slice(&sg);
+                        }
+                    }
                 };
                 // a fibre's sort key: the grid cell (z plane, then y row, then x) of its
                 // first segment
@@ -89,14 +112,36 @@ impl Field {
                     (wrap(p[2], g.dz, g.nz) * (g.ny as u64 + 1) + j as u64) * g.nx as u64
                         + wrap(p[0], g.dx, g.nx)
                 };
-                sample_fibres(pieces, reuse, cell, sample)
+                if tables {
+                    sample_fibres(pieces, reuse, cell, from_tables)
+                } else {
+                    sample_fibres(pieces, reuse, cell, one_by_one(direct))
+                }
             }
         }
     }
 }
 
+/// A fibre's sampler (its centres, 3 per point, into its velocities and gradients) from
+/// a point's sampler.
+pub fn one_by_one(
+    sample: impl Fn(&[f64]) -> PointSample + Sync,
+) -> impl Fn(&[f64], &mut [f64], &mut [f64]) + Sync {
+    move |c, v, g| {
+        for ((p, vo), go) in c
+            .chunks_exact(3)
+            .zip(v.chunks_exact_mut(3))
+            .zip(g.chunks_exact_mut(9))
+        {
+            let (sv, sg) = sample(p);
+            vo.copy_from_slice(&sv);
+            go.copy_from_slice(&sg);
+        }
+    }
+}
+
 /// Velocity and gradient at the points of every piece (`centres`: 3 per point), per piece
-/// in its points' order. A piece's `segments_per_fiber` groups its points into fibres (if
+/// in its points' order, `sample` filling one fibre's at a time. A piece's `segments_per_fiber` groups its points into fibres (if
 /// it does not add up to the points, each point counts as its own fibre); the fibres of
 /// all pieces are sampled in the order of `cell` of their first point. The output reuses
 /// the buffers of `reuse` in order (every value is written, so what they held never shows).
@@ -104,7 +149,7 @@ pub fn sample_fibres(
     pieces: &[(&[f64], &[u32])],
     reuse: Vec<PieceSamples>,
     cell: impl Fn(&[f64]) -> u64 + Sync,
-    sample: impl Fn(&[f64]) -> PointSample + Sync,
+    sample: impl Fn(&[f64], &mut [f64], &mut [f64]) + Sync,
 ) -> Vec<PieceSamples> {
     let mut reuse = reuse.into_iter();
     let mut out: Vec<PieceSamples> = pieces
@@ -143,21 +188,37 @@ pub fn sample_fibres(
         .with_min_len(4096)
         .for_each(|f| f.0 = if f.1.len() >= 3 { cell(&f.1[..3]) } else { 0 });
     fibres.par_sort_unstable_by_key(|f| f.0);
-    fibres
-        .par_iter_mut()
-        .with_min_len(32)
-        .for_each(|(_, c, v, g)| {
-            for ((p, vo), go) in c
-                .chunks_exact(3)
-                .zip(v.chunks_exact_mut(3))
-                .zip(g.chunks_exact_mut(9))
-            {
-                let (sv, sg) = sample(p);
-                vo.copy_from_slice(&sv);
-                go.copy_from_slice(&sg);
+    // in cell order a fibre's arrays lie anywhere in the states and samples (tens of MB at
+    // scale): the arrays of the fibre two ahead are fetched into cache while this one is
+    // sampled (a third of the sampling time went to waiting for the centres)
+    fibres.par_chunks_mut(64).for_each(|chunk| {
+        for i in 0..chunk.len() {
+            if let Some((_, c, v, g)) = chunk.get(i + 2) {
+                prefetch(c);
+                prefetch(v);
+                prefetch(g);
             }
-        });
+            let (_, c, v, g) = &mut chunk[i];
+            sample(c, v, g);
+        }
+    });
     out
+}
+
+/// Asks the CPU to bring `data` into cache (a hint: no effect on any value).
+#[inline(always)]
+fn prefetch(data: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    for line in data.chunks(8) {
+        // SAFETY: a prefetch never faults and changes no memory; the address is in `data`.
+        unsafe {
+            std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                line.as_ptr().cast(),
+            )
+        };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = data;
 }
 
 #[cfg(test)]
@@ -177,6 +238,59 @@ mod tests {
         )
     }
 
+    /// Enough points for the per-step tables, in fibres of 1 to 9 segments (so every
+    /// length of a last group of four): every point gets the direct sampler's bits, in its
+    /// own slot, whether or not the buffers held other samples before.
+    #[test]
+    fn tables_four_at_a_time_give_the_direct_samples() {
+        let mut cfg = fiberflow_dns::DnsConfig::with_cells(16, 12, 8);
+        cfg.init = fiberflow_dns::InitialField::Turbulent {
+            amplitude: 0.3,
+            seed: 5,
+        };
+        let solver = Solver::new(cfg.clone()).unwrap();
+        let (g, re) = (solver.grid.clone(), solver.cfg.re_tau);
+        let direct = Sampler::with_scheme(&g, Interpolation::Trilinear);
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rnd = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let lens: Vec<u32> = (0..TABLES_MIN_POINTS / 4)
+            .map(|k| 1 + (k % 9) as u32)
+            .collect();
+        let n: usize = lens.iter().map(|&l| l as usize).sum();
+        assert!(n >= TABLES_MIN_POINTS);
+        let centres: Vec<f64> = (0..n)
+            .flat_map(|_| {
+                [
+                    (rnd() * 3.0 - 1.0) * g.lx * re,
+                    (rnd() * 2.0 - 1.0) * re,
+                    (rnd() * 3.0 - 1.0) * g.lz * re,
+                ]
+            })
+            .collect();
+        // the same field again (the initial field is seeded)
+        let mut field = Field::dns(Solver::new(cfg).unwrap(), Interpolation::Trilinear);
+        let stale = vec![(vec![f64::NAN; 3 * n], vec![f64::NAN; 9 * n])];
+        for reuse in [Vec::new(), stale] {
+            let out = field.sample_pieces(&[(&centres, &lens)], reuse);
+            for (k, p) in centres.chunks_exact(3).enumerate() {
+                let sm = direct.sample(&g, &solver.vel, [p[0] / re, p[1] / re, p[2] / re]);
+                let grad = sm.grad.map(|x| x / re);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(
+                    bits(&out[0].0[3 * k..3 * k + 3]),
+                    bits(&sm.vel),
+                    "point {k}"
+                );
+                assert_eq!(bits(&out[0].1[9 * k..9 * k + 9]), bits(&grad), "point {k}");
+            }
+        }
+    }
+
     /// Fibres of varied lengths in scrambled positions, sampled in cell order, give every
     /// point exactly its in-order sample; so do counts that do not add up (per point).
     #[test]
@@ -190,19 +304,24 @@ mod tests {
         let want_v: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).0).collect();
         let want_g: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).1).collect();
         for counts in [&lens[..], &lens[1..], &[]] {
-            let out = sample_fibres(&[(&centres, counts)], Vec::new(), cell, fake);
+            let out = sample_fibres(&[(&centres, counts)], Vec::new(), cell, one_by_one(fake));
             assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
             // reused buffers, too short, too long or the right size with stale values,
             // give the same answer
             for len in [5, 3 * n, 20 * n] {
                 let stale = vec![(vec![f64::NAN; len], vec![-1.0; 3 * len])];
-                let out = sample_fibres(&[(&centres, counts)], stale, cell, fake);
+                let out = sample_fibres(&[(&centres, counts)], stale, cell, one_by_one(fake));
                 assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
             }
         }
         // several pieces sampled in one pass: each gets its own points' samples
         let (a, b) = centres.split_at(3 * 400);
-        let out = sample_fibres(&[(a, &[]), (b, &lens[..3])], Vec::new(), cell, fake);
+        let out = sample_fibres(
+            &[(a, &[]), (b, &lens[..3])],
+            Vec::new(),
+            cell,
+            one_by_one(fake),
+        );
         assert_eq!(out.len(), 2);
         assert_eq!(
             (&out[0].0[..], &out[0].1[..]),
