@@ -2,8 +2,9 @@
 //! gradient at points spread over the fine grid, one thread. 10^5 points, trilinear and
 //! tricubic, in random order and ordered by grid cell; then 4.2 × 10^5 points ordered by
 //! cell (the 7 × 6 × 10^4 segment centres of the 6 × 10^4-fibre benchmark), sampled
-//! directly and from the per-step tables (filled once per step, two threads), and as many
-//! samples at one point (all cache hits: the arithmetic alone).
+//! directly and from the per-step tables (filled once per step, two threads), one point
+//! and four points at a time (`Tables::sample4`), and as many samples at one point (all
+//! cache hits: the arithmetic alone).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_dns::sample::{Interpolation, Sampler, Tables, LANES};
