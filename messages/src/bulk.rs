@@ -513,6 +513,42 @@ impl<'a> SamplesView<'a> {
         )
     }
 
+    /// [`Self::check`] without the values' finiteness, for a reader that checks it while
+    /// it reads them ([`Self::fill_points`]).
+    pub fn check_shape(&self) -> Result<(), String> {
+        let h = &self.header;
+        crate::sanity::check_samples_shape(
+            (h.t_plus, &h.group, h.first_fiber, h.group_fibers),
+            self.velocity.len() / 8,
+            self.velocity_gradient.len() / 8,
+        )
+    }
+
+    /// Reads the points into `out` in one pass, `set(slot, velocity, gradient)` per point
+    /// (as [`Self::points`] gives them), for as many points as both have; true if every
+    /// value read was finite (then the message passes [`Self::check`] if it passes
+    /// [`Self::check_shape`]).
+    #[inline]
+    pub fn fill_points<T>(&self, out: &mut [T], set: impl Fn(&mut T, [f64; 3], [f64; 9])) -> bool {
+        let mut finite = true;
+        for ((slot, v), g) in out
+            .iter_mut()
+            .zip(self.velocity.chunks_exact(24))
+            .zip(self.velocity_gradient.chunks_exact(72))
+        {
+            let (mut vel, mut grad) = ([0.0; 3], [0.0; 9]);
+            for (x, b) in vel.iter_mut().zip(v.chunks_exact(8)) {
+                *x = f64_le(b);
+            }
+            for (x, b) in grad.iter_mut().zip(g.chunks_exact(8)) {
+                *x = f64_le(b);
+            }
+            finite &= crate::sanity::all_finite(vel.iter().chain(&grad).copied());
+            set(slot, vel, grad);
+        }
+        finite
+    }
+
     /// Each point's velocity and gradient (`grad[3a + b] = ∂v_a/∂x_b`), in order.
     pub fn points(&self) -> impl Iterator<Item = ([f64; 3], [f64; 9])> + '_ {
         self.velocity
@@ -666,7 +702,9 @@ mod tests {
     }
 
     /// Random and corrupted FlowSamples: the in-place view with its check accepts exactly
-    /// what decoding with the message's check accepts, with the same header and values.
+    /// what decoding with the message's check accepts, with the same header and values;
+    /// its one-pass reader (`fill_points`) reads the same values and finds them finite,
+    /// with `check_shape` passing, exactly when `check` passes.
     #[test]
     fn samples_view_accepts_what_decode_accepts() {
         use crate::sanity::Sane;
@@ -689,6 +727,21 @@ mod tests {
                         b[at..at + 8].copy_from_slice(&f64::NAN.to_le_bytes());
                     }
                 }
+            }
+            // the one-pass reader: the values of `points`, and finite with a sound shape
+            // exactly when the full check passes
+            if let Ok(v) = SamplesView::read(&b) {
+                let mut got = vec![([f64::NAN; 3], [f64::NAN; 9]); v.len() + 1];
+                let finite = v.fill_points(&mut got, |s, vel, grad| *s = (vel, grad));
+                let want: Vec<_> = v.points().collect();
+                let bits = |p: &[([f64; 3], [f64; 9])]| -> Vec<u64> {
+                    p.iter()
+                        .flat_map(|(a, g)| a.iter().chain(g))
+                        .map(|x| x.to_bits())
+                        .collect()
+                };
+                assert_eq!(bits(&got[..want.len()]), bits(&want));
+                assert_eq!(v.check_shape().is_ok() && finite, v.check().is_ok());
             }
             let decoded = crate::decode::<FlowSamples>(&b)
                 .map_err(|e| e.to_string())

@@ -168,15 +168,24 @@ where
     V: Iterator<Item = f64> + Clone,
     G: Iterator<Item = f64> + Clone,
 {
+    check_samples_shape(piece_of, velocity_len, gradient_len)?;
+    finite_all("velocity", velocity())?;
+    finite_all("velocity_gradient", gradient())
+}
+
+/// [`check_samples`] but for the values' finiteness: time, group, piece and lengths.
+pub(crate) fn check_samples_shape(
+    piece_of: (f64, &str, u32, u32),
+    velocity_len: usize,
+    gradient_len: usize,
+) -> Result<(), String> {
     let (t_plus, group, first_fiber, group_fibers) = piece_of;
     time(t_plus)?;
     if group.is_empty() || !velocity_len.is_multiple_of(3) {
         return Err("empty group or velocity not in triples".into());
     }
     piece(first_fiber, 0, group_fibers)?;
-    len("velocity_gradient", gradient_len, 3 * velocity_len)?;
-    finite_all("velocity", velocity())?;
-    finite_all("velocity_gradient", gradient())
+    len("velocity_gradient", gradient_len, 3 * velocity_len)
 }
 
 /// `Err` naming the first value that is not finite (searched for only if there is one).
