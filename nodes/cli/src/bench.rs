@@ -7,6 +7,7 @@
 //! wall follows the CPU, not the transport).
 
 use anyhow::{bail, Context, Result};
+use fiberflow_analysis::bootstrap::{self, Interval};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -294,8 +295,9 @@ fn ensure_certificates(file: &Path) -> Result<()> {
 }
 
 /// The step wall of each run over that of the flow-only run of the same round (the runs
-/// of one round ran back to back, so the pair shares the host's load): median, min, max.
-fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64) {
+/// of one round ran back to back, so the pair shares the host's load): median, min, max,
+/// and the 95% bootstrap interval of the median (the rounds resampled).
+fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Interval) {
     let r: Vec<f64> = runs
         .iter()
         .zip(flow_only)
@@ -303,15 +305,23 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64) {
         .collect();
     let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = r.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    (median(r), lo, hi)
+    let ci = bootstrap::interval(r.len(), bootstrap::REPLICATES, 0x5ca1e, |w| {
+        median(
+            r.iter()
+                .zip(w)
+                .flat_map(|(&x, &k)| std::iter::repeat_n(x, k as usize))
+                .collect(),
+        )
+    });
+    (median(r), lo, hi, ci)
 }
 
 /// The markdown table: ms per coupling step, medians over the repeats.
 fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String {
     use std::fmt::Write as _;
     let mut md = String::from(
-        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | 95% interval of that median (bootstrap over rounds) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let per = |v: &[Figures], f: fn(&Figures) -> f64| {
         median(v.iter().map(f).collect()) * 1e3 / steps as f64
@@ -320,13 +330,15 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
         let step = per(v, |f| f.loop_s);
         let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
         let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
-        let (r_med, r_lo, r_hi) = results
+        let (r_med, r_lo, r_hi, ci) = results
             .get(&(0, baseline_of(t).to_string()))
             .map(|b| paired_ratios(v, b))
-            .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
+            .unwrap_or((f64::NAN, f64::NAN, f64::NAN, Interval::NAN));
         let _ = writeln!(
             md,
-            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} | {:.1} | {:.0} ({:.2}) |",
+            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} | {:.1} | {:.0} ({:.2}) |",
+            ci.lo,
+            ci.hi,
             per(v, |f| f.field_step_s),
             per(v, |f| f.sampling_s),
             per(v, |f| f.flow_publish_s),
@@ -359,9 +371,39 @@ mod tests {
                 .collect::<Vec<_>>()
         };
         // round by round 1.1, 0.9, 1.02: the medians of the columns (11/10) would say 1.1
-        let (m, lo, hi) = paired_ratios(&runs(&[11.0, 18.0, 10.2]), &runs(&[10.0, 20.0, 10.0]));
+        let (m, lo, hi, _) = paired_ratios(&runs(&[11.0, 18.0, 10.2]), &runs(&[10.0, 20.0, 10.0]));
         assert!((m - 1.02).abs() < 1e-12, "median {m}");
         assert!((lo - 0.9).abs() < 1e-12 && (hi - 1.1).abs() < 1e-12);
+    }
+
+    /// The interval of the median ratio: one point when every round agrees; otherwise
+    /// inside the rounds' range, around the median, and narrower with more rounds that
+    /// scatter alike.
+    #[test]
+    fn median_ratio_interval_resamples_the_rounds() {
+        let runs = |v: &[f64]| {
+            v.iter()
+                .map(|&loop_s| Figures {
+                    loop_s,
+                    ..Default::default()
+                })
+                .collect::<Vec<_>>()
+        };
+        let (_, _, _, same) = paired_ratios(&runs(&[1.05; 5]), &runs(&[1.0; 5]));
+        assert!((same.lo - 1.05).abs() < 1e-12 && (same.hi - 1.05).abs() < 1e-12);
+        let spread = |n: usize| {
+            let r: Vec<f64> = (0..n)
+                .map(|i| 0.95 + 0.1 * (i % 11) as f64 / 10.0)
+                .collect();
+            let (m, lo, hi, ci) = paired_ratios(&runs(&r), &runs(&vec![1.0; n]));
+            assert!(
+                lo <= ci.lo && ci.lo <= m && m <= ci.hi && ci.hi <= hi,
+                "{ci:?}"
+            );
+            ci.hi - ci.lo
+        };
+        let (few, many) = (spread(11), spread(110));
+        assert!(many < 0.6 * few, "{few} {many}");
     }
 
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.
