@@ -92,6 +92,9 @@ impl Field {
                     {
                         // a short last group repeats its last point
                         let n = c.len() / 3;
+                        if n == 0 {
+                            continue;
+                        }
                         let p: [[f64; 3]; LANES] =
                             std::array::from_fn(|l| outer(&c[3 * l.min(n - 1)..]));
                         let four = d.tables.sample4(&d.sampler, g, p);
@@ -141,9 +144,10 @@ pub fn one_by_one(
 }
 
 /// Velocity and gradient at the points of every piece (`centres`: 3 per point), per piece
-/// in its points' order, `sample` filling one fibre's at a time. A piece's `segments_per_fiber` groups its points into fibres (if
-/// it does not add up to the points, each point counts as its own fibre); the fibres of
-/// all pieces are sampled in the order of `cell` of their first point. The output reuses
+/// in its points' order, `sample` filling one fibre's at a time. A piece's
+/// `segments_per_fiber` groups its points into fibres (if it does not add up to the
+/// points, each point counts as its own fibre); the fibres of all pieces are sampled in
+/// the order of `cell` of their first point. The output reuses
 /// the buffers of `reuse` in order (every value is written, so what they held never shows).
 pub fn sample_fibres(
     pieces: &[(&[f64], &[u32])],
