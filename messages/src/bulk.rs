@@ -531,18 +531,7 @@ impl<'a> SamplesView<'a> {
     #[inline]
     pub fn fill_points<T>(&self, out: &mut [T], set: impl Fn(&mut T, [f64; 3], [f64; 9])) -> bool {
         let mut finite = true;
-        for ((slot, v), g) in out
-            .iter_mut()
-            .zip(self.velocity.chunks_exact(24))
-            .zip(self.velocity_gradient.chunks_exact(72))
-        {
-            let (mut vel, mut grad) = ([0.0; 3], [0.0; 9]);
-            for (x, b) in vel.iter_mut().zip(v.chunks_exact(8)) {
-                *x = f64_le(b);
-            }
-            for (x, b) in grad.iter_mut().zip(g.chunks_exact(8)) {
-                *x = f64_le(b);
-            }
+        for (slot, (vel, grad)) in out.iter_mut().zip(self.points()) {
             finite &= crate::sanity::all_finite(vel.iter().chain(&grad).copied());
             set(slot, vel, grad);
         }

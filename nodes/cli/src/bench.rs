@@ -359,17 +359,20 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
 mod tests {
     use super::*;
 
+    /// Runs with these loop times and nothing else.
+    fn runs(loop_s: &[f64]) -> Vec<Figures> {
+        loop_s
+            .iter()
+            .map(|&loop_s| Figures {
+                loop_s,
+                ..Default::default()
+            })
+            .collect()
+    }
+
     /// Ratios pair each run with the flow-only run of its own round.
     #[test]
     fn ratios_pair_runs_of_the_same_round() {
-        let runs = |v: &[f64]| {
-            v.iter()
-                .map(|&loop_s| Figures {
-                    loop_s,
-                    ..Default::default()
-                })
-                .collect::<Vec<_>>()
-        };
         // round by round 1.1, 0.9, 1.02: the medians of the columns (11/10) would say 1.1
         let (m, lo, hi, _) = paired_ratios(&runs(&[11.0, 18.0, 10.2]), &runs(&[10.0, 20.0, 10.0]));
         assert!((m - 1.02).abs() < 1e-12, "median {m}");
@@ -381,14 +384,6 @@ mod tests {
     /// scatter alike.
     #[test]
     fn median_ratio_interval_resamples_the_rounds() {
-        let runs = |v: &[f64]| {
-            v.iter()
-                .map(|&loop_s| Figures {
-                    loop_s,
-                    ..Default::default()
-                })
-                .collect::<Vec<_>>()
-        };
         let (_, _, _, same) = paired_ratios(&runs(&[1.05; 5]), &runs(&[1.0; 5]));
         assert!((same.lo - 1.05).abs() < 1e-12 && (same.hi - 1.05).abs() < 1e-12);
         let spread = |n: usize| {

@@ -171,29 +171,41 @@ mod tests {
     use crate::sample::Interpolation;
     use crate::{DnsConfig, InitialField, Solver};
 
+    /// A small turbulent field (seeded), its trilinear sampler and its filled tables.
+    fn field_and_tables(seed: u64) -> (Solver, Sampler, Tables) {
+        let mut cfg = DnsConfig::with_cells(12, 10, 8);
+        cfg.init = InitialField::Turbulent {
+            amplitude: 0.3,
+            seed,
+        };
+        let s = Solver::new(cfg).unwrap();
+        let smp = Sampler::with_scheme(&s.grid, Interpolation::Trilinear);
+        let mut t = Tables::new();
+        t.fill(&smp, &s.grid, &s.vel);
+        (s, smp, t)
+    }
+
+    /// 20,000 random points over three box lengths in x and z and beyond the walls.
+    fn random_points(g: &Grid, seed: u64) -> Vec<[f64; 3]> {
+        let mut rnd = crate::sample::tests::uniform(seed);
+        (0..20_000)
+            .map(|_| {
+                [
+                    rnd() * 3.0 * g.lx - g.lx,
+                    rnd() * 2.2 - 1.1,
+                    rnd() * 3.0 * g.lz - g.lz,
+                ]
+            })
+            .collect()
+    }
+
     /// Random points all over the channel, on and beyond the walls, and on the periodic
     /// seams: the tables give the direct sampler's velocity and gradient bit for bit.
     #[test]
     fn tables_sample_like_the_direct_sampler() {
-        let mut cfg = DnsConfig::with_cells(12, 10, 8);
-        cfg.init = InitialField::Turbulent {
-            amplitude: 0.3,
-            seed: 7,
-        };
-        let s = Solver::new(cfg).unwrap();
+        let (s, smp, t) = field_and_tables(7);
         let g = &s.grid;
-        let smp = Sampler::with_scheme(g, Interpolation::Trilinear);
-        let mut t = Tables::new();
-        t.fill(&smp, g, &s.vel);
-        let mut rnd = crate::sample::tests::uniform(0x9e37_79b9_7f4a_7c15);
-        let mut pts = Vec::new();
-        for _ in 0..20_000 {
-            pts.push([
-                rnd() * 3.0 * g.lx - g.lx,
-                rnd() * 2.2 - 1.1,
-                rnd() * 3.0 * g.lz - g.lz,
-            ]);
-        }
+        let mut pts = random_points(g, 0x9e37_79b9_7f4a_7c15);
         // seams and walls exactly
         for (a, b) in [(0.0, -1.0), (g.lx, 1.0), (g.dx * g.nx as f64, 0.0)] {
             pts.push([a, b, g.lz]);
@@ -218,25 +230,9 @@ mod tests {
     /// lanes.
     #[test]
     fn four_at_once_sample_like_one_at_a_time() {
-        let mut cfg = DnsConfig::with_cells(12, 10, 8);
-        cfg.init = InitialField::Turbulent {
-            amplitude: 0.3,
-            seed: 11,
-        };
-        let s = Solver::new(cfg).unwrap();
+        let (s, smp, t) = field_and_tables(11);
         let g = &s.grid;
-        let smp = Sampler::with_scheme(g, Interpolation::Trilinear);
-        let mut t = Tables::new();
-        t.fill(&smp, g, &s.vel);
-        let mut rnd = crate::sample::tests::uniform(0x2545_f491_4f6c_dd1d);
-        let mut pts = Vec::new();
-        for _ in 0..20_000 {
-            pts.push([
-                rnd() * 3.0 * g.lx - g.lx,
-                rnd() * 2.2 - 1.1,
-                rnd() * 3.0 * g.lz - g.lz,
-            ]);
-        }
+        let mut pts = random_points(g, 0x2545_f491_4f6c_dd1d);
         for (a, b) in [(0.0, -1.0), (g.lx, 1.0), (g.dx * g.nx as f64, 0.0)] {
             pts.extend([[a, b, g.lz], [a, b, 0.0], [g.dx * 0.5, b, g.dz * 3.5]]);
         }
