@@ -308,9 +308,20 @@ fn signal_group(pgid: i32, sig: i32) {
     }
 }
 
-/// Removes what an earlier run left in `out_dir`: its later recording segments and its
-/// checkpoints (`run.mcap` itself is rewritten by the recorder).
+/// Removes what an earlier run left in `out_dir`: its later recording segments, its
+/// checkpoints and its node logs (`run.mcap` itself is rewritten by the recorder). The
+/// logs go because a node appends to its log (a restarted node's lines follow those of
+/// the one that died), so a fresh run would otherwise carry an unrelated run's lines,
+/// and `bench-scale`, which sums every timing line, would count both.
 fn clear_previous_run(out_dir: &Path) -> Result<()> {
+    if let Ok(logs) = std::fs::read_dir(out_dir.join("logs")) {
+        for e in logs.flatten() {
+            let p = e.path();
+            if p.extension().is_some_and(|x| x == "log") {
+                std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+            }
+        }
+    }
     if let Ok(segs) = fiberflow_messages::segments::segment_paths(out_dir) {
         for s in segs.iter().filter(|p| !p.ends_with("run.mcap")) {
             std::fs::remove_file(s).with_context(|| format!("removing {}", s.display()))?;
@@ -667,6 +678,27 @@ mod tests {
         nodes.push("recorder".into());
         run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
         std::fs::read(out.join("run.mcap")).unwrap()
+    }
+
+    /// A fresh run in a used folder starts with empty logs, checkpoints and segments;
+    /// other files stay.
+    #[test]
+    fn a_fresh_run_clears_what_an_earlier_run_left() {
+        let dir = std::env::temp_dir().join(format!("ff-clear-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("logs")).unwrap();
+        std::fs::write(dir.join("logs/flow.log"), "old timing line\n").unwrap();
+        std::fs::write(dir.join("logs/notes.txt"), "mine").unwrap();
+        let ck = fiberflow_messages::checkpoints::root(&dir);
+        std::fs::create_dir_all(ck.join("step-10")).unwrap();
+        clear_previous_run(&dir).unwrap();
+        assert!(!dir.join("logs/flow.log").exists(), "old log left");
+        assert!(!ck.exists(), "old checkpoints left");
+        assert!(
+            dir.join("logs/notes.txt").exists(),
+            "a non-log file removed"
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     /// The flow node's DONE is lost in transit: the flow node, hearing nothing from the
