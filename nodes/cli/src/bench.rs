@@ -58,7 +58,8 @@ struct Figures {
     /// CPU time of the flow node, every fibre node and the recorder during the steps
     /// (each from its own timing line).
     nodes_cpu_s: f64,
-    /// The flow node's loop (all its stages).
+    /// The flow node's loop, wall clock from its first step to its last (its stages and
+    /// what lies between them); from logs without it, the sum of the stages.
     loop_s: f64,
     field_step_s: f64,
     sampling_s: f64,
@@ -113,7 +114,10 @@ fn read_figures(outs: &[PathBuf], process_s: f64) -> Result<Figures> {
                 f.sampling_s = g("sampling_s");
                 f.flow_publish_s = g("encoding_and_publishing_s");
                 f.waiting_s = g("waiting_for_states_s");
-                f.loop_s = f.field_step_s + f.sampling_s + f.flow_publish_s + f.waiting_s;
+                f.loop_s = v
+                    .get("loop_s")
+                    .copied()
+                    .unwrap_or(f.field_step_s + f.sampling_s + f.flow_publish_s + f.waiting_s);
             } else if line.contains("where the group's time went") {
                 groups += 1.0;
                 f.fibre_step_s += g("fibre_step_s");
@@ -456,6 +460,15 @@ mod tests {
         assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));
         // the flow node, both groups and the recorder
         assert_eq!(f.nodes_cpu_s, 14.5);
+        // a flow node that logs its loop's wall: that, not the sum of the stages, is the
+        // step wall (statistics and status lie between the stages)
+        std::fs::write(
+            logs.join("flow.log"),
+            "x INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" loop_s=\"7.750\" cpu_s=\"10.000\"\n",
+        )
+        .unwrap();
+        let f = read_figures(std::slice::from_ref(&dir), 12.0).unwrap();
+        assert_eq!((f.loop_s, f.field_step_s), (7.75, 4.0));
         std::fs::remove_dir_all(&dir).ok();
     }
 }

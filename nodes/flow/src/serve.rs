@@ -373,6 +373,8 @@ pub fn serve(
     let cpu_from = fiberflow_bus::usage::process_cpu_s();
     // the loop's messages go out on the outbox's thread while the field steps on
     let mut out = Outbox::new(bus.clone(), outbox_depth(run))?;
+    // the loop's whole wall, stages and what lies between them (statistics, status)
+    let loop_from = Instant::now();
     for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -576,6 +578,7 @@ pub fn serve(
             on_status(&status);
         }
     }
+    let loop_s = loop_from.elapsed().as_secs_f64();
     let background_publishing_s = out.finish()?;
     tracing::info!(
         steps = run.steps - run.start_step,
@@ -585,6 +588,7 @@ pub fn serve(
         encoding_and_publishing_s = format!("{:.3}", timing.encoding_s + timing.publishing_s),
         encoding_s = format!("{:.3}", timing.encoding_s),
         field_step_s = format!("{:.3}", timing.field_step_s),
+        loop_s = format!("{loop_s:.3}"),
         cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
         "where the flow node's time went"
     );
