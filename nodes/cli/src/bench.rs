@@ -35,6 +35,10 @@ pub struct BenchOptions {
     pub two_launchers_file: PathBuf,
 }
 
+/// The transports a run can be benchmarked over (`inproc`: every node a thread of the
+/// launcher's process, the bus in memory — what the process boundary costs).
+const TRANSPORTS: [&str; 3] = ["iceoryx2", "zenoh", "inproc"];
+
 /// The configuration label of a run over two launchers on loopback: zenoh with mutual
 /// TLS through the flow node's router, as if on two hosts; its flow-only pair is zenoh's.
 pub const TWO_LAUNCHERS: &str = "zenoh, two launchers";
@@ -86,7 +90,9 @@ fn fields(line: &str) -> BTreeMap<String, f64> {
 
 /// Reads the per-stage lines every node logged into `<out>/logs/` of each of `outs` (one
 /// per launcher of the run).
-fn read_figures(outs: &[PathBuf], process_s: f64) -> Result<Figures> {
+/// `one_process`: every node ran in one process (`inproc`), so each node's `cpu_s` is the
+/// whole process's and the flow node's alone counts (its loop spans the others').
+fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<Figures> {
     let mut f = Figures {
         process_s,
         ..Default::default()
@@ -104,11 +110,14 @@ fn read_figures(outs: &[PathBuf], process_s: f64) -> Result<Figures> {
         for line in text.lines() {
             let v = fields(line);
             let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
-            f.nodes_cpu_s += if line.contains("time went") {
-                g("cpu_s")
+            let counted = if one_process {
+                line.contains("where the flow node's time went")
             } else {
-                0.0
+                line.contains("time went")
             };
+            if counted {
+                f.nodes_cpu_s += g("cpu_s");
+            }
             if line.contains("where the flow node's time went") {
                 f.field_step_s = g("field_step_s");
                 f.sampling_s = g("sampling_s");
@@ -157,6 +166,16 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     }
     if o.steps == 0 || o.repeats == 0 {
         bail!("--steps and --repeats must be >= 1");
+    }
+    if let Some(t) = o
+        .transports
+        .iter()
+        .find(|t| !TRANSPORTS.contains(&t.as_str()))
+    {
+        bail!(
+            "--transports: {t:?} is not one of {}",
+            TRANSPORTS.join(", ")
+        );
     }
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
@@ -238,9 +257,18 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                 for s in &sets {
                     c.arg("--set").arg(s);
                 }
+                // the launcher's own messages, and with `inproc` every node's timing
+                // line, go to its standard error: kept beside the nodes' logs (not named
+                // *.log, which a fresh launch clears)
+                let logs = dir.join("logs");
+                std::fs::create_dir_all(&logs)
+                    .with_context(|| format!("creating {}", logs.display()))?;
+                let stderr_path = logs.join("launcher.stderr");
+                let stderr = std::fs::File::create(&stderr_path)
+                    .with_context(|| format!("creating {}", stderr_path.display()))?;
                 let child = c
                     .stdout(std::process::Stdio::null())
-                    .stderr(std::process::Stdio::null())
+                    .stderr(stderr)
                     .spawn()
                     .context("running fiberflow launch")?;
                 children.push(child);
@@ -262,7 +290,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                 );
             }
             let dirs: Vec<PathBuf> = launchers.into_iter().map(|(_, d)| d).collect();
-            let mut f = read_figures(&dirs, wall)?;
+            let mut f = read_figures(&dirs, wall, transport == "inproc")?;
             f.cpu_s = cpu;
             results.entry((*n, transport.clone())).or_default().push(f);
             bar.inc(1);
@@ -454,7 +482,7 @@ mod tests {
             "x INFO fiberflow::nodes: where the recorder's time went writing_s=\"0.125\" cpu_s=\"0.500\"\n",
         )
         .unwrap();
-        let f = read_figures(&[dir.clone(), worker], 12.0).unwrap();
+        let f = read_figures(&[dir.clone(), worker], 12.0, false).unwrap();
         assert_eq!(f.loop_s, 7.5);
         assert_eq!((f.fibre_step_s, f.group_publish_s), (2.0, 0.25));
         assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));
@@ -467,8 +495,11 @@ mod tests {
             "x INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" loop_s=\"7.750\" cpu_s=\"10.000\"\n",
         )
         .unwrap();
-        let f = read_figures(std::slice::from_ref(&dir), 12.0).unwrap();
+        let f = read_figures(std::slice::from_ref(&dir), 12.0, false).unwrap();
         assert_eq!((f.loop_s, f.field_step_s), (7.75, 4.0));
+        // every node a thread of one process: the flow node's cpu_s (the process's) alone
+        let f = read_figures(std::slice::from_ref(&dir), 12.0, true).unwrap();
+        assert_eq!(f.nodes_cpu_s, 10.0);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

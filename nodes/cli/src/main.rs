@@ -54,7 +54,8 @@ enum Cmd {
         /// Total fibre counts, multiples of 30 (0 = the flow alone).
         #[arg(long, value_delimiter = ',', default_value = "0,300,3000,30000,60000")]
         fibres: Vec<u64>,
-        /// Transports to compare.
+        /// Transports to compare: iceoryx2, zenoh, inproc (every node a thread of one
+        /// process).
         #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
         transports: Vec<String>,
         /// Coupling steps per run.
