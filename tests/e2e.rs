@@ -221,9 +221,19 @@ fn inject_into_a_run(name: &str, structured: bool) {
     if structured {
         inj.arg("--structured");
     }
+    let injecting = Instant::now();
     let o = inj.output().expect("inject");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // what the injector said (e.g. topics without a subscriber) and how long it took, for
+    // a failure below: a run that ended before the injection did counts fewer drops
+    let injector = format!(
+        "injection took {:.1} s; injector said: {} {}",
+        injecting.elapsed().as_secs_f64(),
+        String::from_utf8_lossy(&o.stdout).trim(),
+        String::from_utf8_lossy(&o.stderr).trim()
+    );
     let st = child.wait().expect("launcher");
+    let ended = injecting.elapsed();
     assert!(
         st.success(),
         "run with garbage failed; logs in {}",
@@ -238,7 +248,8 @@ fn inject_into_a_run(name: &str, structured: bool) {
         assert_eq!(
             drops.get(&key).map(String::as_str),
             Some("10000"),
-            "drops on {key}: {drops:?}"
+            "drops on {key}: {drops:?}; {injector}; run ended {:.1} s after the injection began",
+            ended.as_secs_f64()
         );
     }
 }
