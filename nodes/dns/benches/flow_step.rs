@@ -79,5 +79,21 @@ fn bench_step(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_step);
+/// What the flow node adds every `status_every` steps beside the step: a statistics
+/// sample of the field and the wall Re_tau.
+fn bench_statistics(c: &mut Criterion) {
+    let mut group = c.benchmark_group("statistics");
+    group.sample_size(20);
+    let s = solver(192);
+    let mut stats = fiberflow_dns::stats::RunningStats::new(&s.grid);
+    group.bench_function("add_fine_192x64x64", |b| {
+        b.iter(|| stats.add(&s.grid, &s.vel, 0.0))
+    });
+    group.bench_function("wall_re_tau_fine_192x64x64", |b| {
+        b.iter(|| fiberflow_dns::stats::wall_re_tau(&s.grid, &s.vel, s.cfg.re_tau))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_step, bench_statistics);
 criterion_main!(benches);
