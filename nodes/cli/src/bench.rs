@@ -110,15 +110,11 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
         for line in text.lines() {
             let v = fields(line);
             let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
-            let counted = if one_process {
-                line.contains("where the flow node's time went")
-            } else {
-                line.contains("time went")
-            };
-            if counted {
+            let flow_line = line.contains("where the flow node's time went");
+            if flow_line || (!one_process && line.contains("time went")) {
                 f.nodes_cpu_s += g("cpu_s");
             }
-            if line.contains("where the flow node's time went") {
+            if flow_line {
                 f.field_step_s = g("field_step_s");
                 f.sampling_s = g("sampling_s");
                 f.flow_publish_s = g("encoding_and_publishing_s");
