@@ -33,6 +33,91 @@ pub struct BenchOptions {
     /// The `[network]` launch file for those runs (hosts `head` and `worker`; its
     /// certificates are made with `launch/make-certs.sh` if missing).
     pub two_launchers_file: PathBuf,
+    /// A launch-file key whose values are compared, run by run (`--compare`).
+    pub compare: Option<Compare>,
+}
+
+/// `--compare KEY=V1,V2,…`: every fibre configuration runs once per value, in turn within
+/// each round; the flow-only runs take the first value.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Compare {
+    pub key: String,
+    pub values: Vec<String>,
+}
+
+impl std::str::FromStr for Compare {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (key, values) = s.split_once('=').ok_or_else(|| {
+            format!("{s:?} is not KEY=V1,V2,… (e.g. run.background_nodes=idle,normal)")
+        })?;
+        let values: Vec<String> = values.split(',').map(str::to_string).collect();
+        if key.is_empty() || values.iter().any(String::is_empty) {
+            return Err(format!("{s:?}: the key and every value must be non-empty"));
+        }
+        Ok(Self {
+            key: key.to_string(),
+            values,
+        })
+    }
+}
+
+/// One configuration of a round.
+#[derive(Debug, Clone, PartialEq)]
+struct Config {
+    fibres: u64,
+    /// The transport, or [`TWO_LAUNCHERS`].
+    transport: String,
+    /// The compared key's setting (`key=value`), if any.
+    setting: Option<String>,
+    /// The row's name: the transport, and the setting when one is compared.
+    label: String,
+    /// The label of the flow-only runs this configuration is compared with.
+    baseline: String,
+}
+
+/// The configurations of one round, in the order they run.
+fn configurations(o: &BenchOptions) -> Vec<Config> {
+    let settings: Vec<Option<String>> = match &o.compare {
+        Some(c) => c
+            .values
+            .iter()
+            .map(|v| Some(format!("{}={v}", c.key)))
+            .collect(),
+        None => vec![None],
+    };
+    let label = |t: &str, s: &Option<String>| match s {
+        Some(s) => format!("{t}, {s}"),
+        None => t.to_string(),
+    };
+    let runs = o
+        .fibres
+        .iter()
+        .flat_map(|&n| o.transports.iter().map(move |t| (n, t.clone())))
+        .chain(
+            o.two_launchers
+                .iter()
+                .map(|&n| (n, TWO_LAUNCHERS.to_string())),
+        );
+    let mut v = Vec::new();
+    for (n, t) in runs {
+        // the flow alone has no setting to compare: it runs with the first
+        let these = if n == 0 {
+            &settings[..1]
+        } else {
+            &settings[..]
+        };
+        for s in these {
+            v.push(Config {
+                fibres: n,
+                label: label(&t, s),
+                baseline: label(baseline_of(&t), &settings[0]),
+                transport: t.clone(),
+                setting: s.clone(),
+            });
+        }
+    }
+    v
 }
 
 /// The transports a run can be benchmarked over (`inproc`: every node a thread of the
@@ -178,16 +263,11 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     if o.two_launchers.iter().any(|n| *n == 0 || n % 60 != 0) {
         bail!("--two-launchers: every count must be a positive multiple of 60 (six groups of five layers, two shards)");
     }
-    let mut configs: Vec<(u64, String)> = o
-        .fibres
+    let configs = configurations(o);
+    let baselines: BTreeMap<String, String> = configs
         .iter()
-        .flat_map(|&n| o.transports.iter().map(move |t| (n, t.clone())))
+        .map(|c| (c.label.clone(), c.baseline.clone()))
         .collect();
-    configs.extend(
-        o.two_launchers
-            .iter()
-            .map(|&n| (n, TWO_LAUNCHERS.to_string())),
-    );
     if !o.two_launchers.is_empty() {
         ensure_certificates(&o.two_launchers_file)?;
     }
@@ -195,12 +275,13 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     let bar = crate::progress::bar(total as u64, "runs");
     let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
     for r in 0..o.repeats {
-        for (n, transport) in &configs {
+        for (i, c) in configs.iter().enumerate() {
+            let (n, transport) = (&c.fibres, &c.transport);
             let two = transport == TWO_LAUNCHERS;
             let out = o.out.join(if two {
-                format!("{n}-two-launchers-{r}")
+                format!("{n}-two-launchers-{i}-{r}")
             } else {
-                format!("{n}-{transport}-{r}")
+                format!("{n}-{transport}-{i}-{r}")
             });
             let file = if two {
                 &o.two_launchers_file
@@ -219,6 +300,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
                 }
             }
+            sets.extend(c.setting.clone());
             if o.record {
                 sets.extend(
                     [
@@ -243,7 +325,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
             } else {
                 vec![(vec!["--transport".into(), transport.clone()], out.clone())]
             };
-            bar.set_message(format!("{n} fibres, {transport}"));
+            bar.set_message(format!("{n} fibres, {}", c.label));
             let cpu0 = fiberflow_bus::usage::children_cpu_s();
             let t0 = Instant::now();
             let mut children = Vec::new();
@@ -281,19 +363,20 @@ pub fn run(o: &BenchOptions) -> Result<()> {
             let cpu = fiberflow_bus::usage::children_cpu_s() - cpu0;
             if let Some(st) = failed {
                 bail!(
-                    "{n} fibres over {transport} failed ({st}); logs in {}",
+                    "{n} fibres over {} failed ({st}); logs in {}",
+                    c.label,
                     out.display()
                 );
             }
             let dirs: Vec<PathBuf> = launchers.into_iter().map(|(_, d)| d).collect();
             let mut f = read_figures(&dirs, wall, transport == "inproc")?;
             f.cpu_s = cpu;
-            results.entry((*n, transport.clone())).or_default().push(f);
+            results.entry((*n, c.label.clone())).or_default().push(f);
             bar.inc(1);
         }
     }
     bar.finish_and_clear();
-    let table = table(&results, o.steps);
+    let table = table(&results, &baselines, o.steps);
     println!("{table}");
     let path = o.out.join("bench-scale.md");
     std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
@@ -345,7 +428,12 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Int
 }
 
 /// The markdown table: ms per coupling step, medians over the repeats.
-fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String {
+/// `baselines`: each row label's flow-only label.
+fn table(
+    results: &BTreeMap<(u64, String), Vec<Figures>>,
+    baselines: &BTreeMap<String, String>,
+    steps: u64,
+) -> String {
     use std::fmt::Write as _;
     let mut md = String::from(
         "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | 95% interval of that median (bootstrap over rounds) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
@@ -359,7 +447,7 @@ fn table(results: &BTreeMap<(u64, String), Vec<Figures>>, steps: u64) -> String 
         let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
         let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
         let (r_med, r_lo, r_hi, ci) = results
-            .get(&(0, baseline_of(t).to_string()))
+            .get(&(0, baselines.get(t).cloned().unwrap_or_else(|| t.clone())))
             .map(|b| paired_ratios(v, b))
             .unwrap_or((f64::NAN, f64::NAN, f64::NAN, Interval::NAN));
         let _ = writeln!(
@@ -429,6 +517,71 @@ mod tests {
         assert!(many < 0.6 * few, "{few} {many}");
     }
 
+    fn options(fibres: &[u64], transports: &[&str], compare: Option<&str>) -> BenchOptions {
+        BenchOptions {
+            fibres_file: "f.toml".into(),
+            flow_only_file: "0.toml".into(),
+            fibres: fibres.to_vec(),
+            transports: transports.iter().map(|t| t.to_string()).collect(),
+            steps: 20,
+            repeats: 1,
+            record: false,
+            out: "out".into(),
+            two_launchers: vec![],
+            two_launchers_file: "two.toml".into(),
+            compare: compare.map(|c| c.parse().unwrap()),
+        }
+    }
+
+    /// `--compare`: each fibre configuration once per value, in turn; the flow alone once
+    /// per transport with the first value, and every run compared with that.
+    #[test]
+    fn compared_values_run_in_turn_against_one_flow_only_run() {
+        let o = options(
+            &[0, 300],
+            &["iceoryx2", "zenoh"],
+            Some("run.background_nodes=idle,normal"),
+        );
+        let got: Vec<(u64, String, Option<String>, String)> = configurations(&o)
+            .into_iter()
+            .map(|c| (c.fibres, c.label, c.setting, c.baseline))
+            .collect();
+        let idle = "run.background_nodes=idle";
+        let normal = "run.background_nodes=normal";
+        let row = |n, t: &str, s: &str, b: &str| {
+            (
+                n,
+                format!("{t}, {s}"),
+                Some(s.to_string()),
+                format!("{b}, {idle}"),
+            )
+        };
+        assert_eq!(
+            got,
+            vec![
+                row(0, "iceoryx2", idle, "iceoryx2"),
+                row(0, "zenoh", idle, "zenoh"),
+                row(300, "iceoryx2", idle, "iceoryx2"),
+                row(300, "iceoryx2", normal, "iceoryx2"),
+                row(300, "zenoh", idle, "zenoh"),
+                row(300, "zenoh", normal, "zenoh"),
+            ]
+        );
+        // without --compare the rows are the transports, as before
+        let plain: Vec<String> = configurations(&options(&[0, 300], &["zenoh"], None))
+            .into_iter()
+            .map(|c| format!("{} {} {}", c.fibres, c.label, c.baseline))
+            .collect();
+        assert_eq!(plain, ["0 zenoh zenoh", "300 zenoh zenoh"]);
+        for bad in [
+            "run.background_nodes",
+            "=idle",
+            "run.background_nodes=idle,",
+        ] {
+            assert!(bad.parse::<Compare>().is_err(), "{bad}");
+        }
+    }
+
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.
     #[test]
     fn two_launchers_pair_with_zenohs_flow_only_runs() {
@@ -440,7 +593,17 @@ mod tests {
         results.insert((0, "iceoryx2".to_string()), vec![run(1.0)]);
         results.insert((0, "zenoh".to_string()), vec![run(2.0)]);
         results.insert((300, TWO_LAUNCHERS.to_string()), vec![run(3.0)]);
-        let md = table(&results, 20);
+        let o = options(&[0, 300], &["iceoryx2", "zenoh"], None);
+        let o = BenchOptions {
+            fibres: vec![0],
+            two_launchers: vec![300],
+            ..o
+        };
+        let baselines = configurations(&o)
+            .into_iter()
+            .map(|c| (c.label, c.baseline))
+            .collect();
+        let md = table(&results, &baselines, 20);
         let row = md
             .lines()
             .find(|l| l.contains(TWO_LAUNCHERS))

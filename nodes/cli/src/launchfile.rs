@@ -35,6 +35,22 @@ pub struct RunSection {
     /// What the launcher does when a node dies mid-run.
     #[serde(default)]
     pub restart: RestartSection,
+    /// How the fibre nodes and the recorder share the cores with the flow node.
+    #[serde(default)]
+    pub background_nodes: BackgroundPriority,
+}
+
+/// `run.background_nodes`: the CPU scheduling of the nodes off the DNS's critical path
+/// (fibre nodes, recorder) when they run as processes of their own.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BackgroundPriority {
+    /// Linux `SCHED_IDLE`: they run when a core would otherwise idle. Their step overlaps
+    /// the field step, whose parallel loops they would otherwise preempt.
+    #[default]
+    Idle,
+    /// The default time sharing, equal with the flow node.
+    Normal,
 }
 
 fn default_checkpoint_every_plus() -> f64 {
@@ -609,6 +625,7 @@ mod tests {
             ("fibers.nope.density_ratio=3", "no entry \"nope\""),
             ("run.steps", "KEY=VALUE"),
             ("run.restart.policy=sometimes", "policy"),
+            ("run.background_nodes=low", "background_nodes"),
         ] {
             let e = format!(
                 "{:#}",

@@ -8,6 +8,7 @@ mod launchfile;
 mod nodes;
 mod progress;
 mod recording;
+mod scheduling;
 mod spinup_cmd;
 
 use anyhow::{Context, Result};
@@ -83,6 +84,10 @@ enum Cmd {
         /// Where the runs and bench-scale.md go.
         #[arg(long, default_value = "recordings/bench-scale")]
         out: PathBuf,
+        /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
+        /// run.background_nodes=idle,normal). The flow-only runs take the first value.
+        #[arg(long, value_name = "KEY=V1,V2")]
+        compare: Option<bench::Compare>,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -284,6 +289,7 @@ fn main() -> Result<()> {
             two_launchers,
             two_launchers_file,
             out,
+            compare,
         } => bench::run(&bench::BenchOptions {
             fibres_file,
             flow_only_file,
@@ -295,6 +301,7 @@ fn main() -> Result<()> {
             repeats,
             record: !no_record,
             out,
+            compare,
         }),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
