@@ -49,7 +49,7 @@ impl std::str::FromStr for Compare {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         let (key, values) = s.split_once('=').ok_or_else(|| {
-            format!("{s:?} is not KEY=V1,V2,… (e.g. run.background_nodes=idle,normal)")
+            format!("{s:?} is not KEY=V1,V2,… (e.g. run.fibre_scheduling=idle,normal)")
         })?;
         let values: Vec<String> = values.split(',').map(str::to_string).collect();
         if key.is_empty() || values.iter().any(String::is_empty) {
@@ -540,14 +540,14 @@ mod tests {
         let o = options(
             &[0, 300],
             &["iceoryx2", "zenoh"],
-            Some("run.background_nodes=idle,normal"),
+            Some("run.fibre_scheduling=idle,normal"),
         );
         let got: Vec<(u64, String, Option<String>, String)> = configurations(&o)
             .into_iter()
             .map(|c| (c.fibres, c.label, c.setting, c.baseline))
             .collect();
-        let idle = "run.background_nodes=idle";
-        let normal = "run.background_nodes=normal";
+        let idle = "run.fibre_scheduling=idle";
+        let normal = "run.fibre_scheduling=normal";
         let row = |n, t: &str, s: &str, b: &str| {
             (
                 n,
@@ -574,9 +574,9 @@ mod tests {
             .collect();
         assert_eq!(plain, ["0 zenoh zenoh", "300 zenoh zenoh"]);
         for bad in [
-            "run.background_nodes",
+            "run.fibre_scheduling",
             "=idle",
-            "run.background_nodes=idle,",
+            "run.fibre_scheduling=idle,",
         ] {
             assert!(bad.parse::<Compare>().is_err(), "{bad}");
         }

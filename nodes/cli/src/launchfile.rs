@@ -35,22 +35,24 @@ pub struct RunSection {
     /// What the launcher does when a node dies mid-run.
     #[serde(default)]
     pub restart: RestartSection,
-    /// How the fibre nodes and the recorder share the cores with the flow node.
+    /// How the fibre nodes share the cores with the flow node.
     #[serde(default)]
-    pub background_nodes: BackgroundPriority,
+    pub fibre_scheduling: FibreScheduling,
 }
 
-/// `run.background_nodes`: the CPU scheduling of the nodes off the DNS's critical path
-/// (fibre nodes, recorder) when they run as processes of their own.
+/// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
+/// processes of their own (the in-process bus leaves every thread as it is).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum BackgroundPriority {
-    /// Linux `SCHED_IDLE`: they run when a core would otherwise idle. Their step overlaps
-    /// the field step, whose parallel loops they would otherwise preempt.
+pub enum FibreScheduling {
+    /// The default time sharing, equal with the flow node: safe on a machine shared
+    /// with other work.
     #[default]
-    Idle,
-    /// The default time sharing, equal with the flow node.
     Normal,
+    /// Linux `SCHED_IDLE`: they run when a core would otherwise idle, so they no longer
+    /// preempt the field step's parallel loops, which their step overlaps. For a run that
+    /// has the machine to itself: beside another busy run they get only its idle time.
+    Idle,
 }
 
 fn default_checkpoint_every_plus() -> f64 {
@@ -625,7 +627,7 @@ mod tests {
             ("fibers.nope.density_ratio=3", "no entry \"nope\""),
             ("run.steps", "KEY=VALUE"),
             ("run.restart.policy=sometimes", "policy"),
-            ("run.background_nodes=low", "background_nodes"),
+            ("run.fibre_scheduling=low", "fibre_scheduling"),
         ] {
             let e = format!(
                 "{:#}",
@@ -634,6 +636,35 @@ mod tests {
             assert!(e.contains(want), "--set {set}: {e}");
         }
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Every shipped launch file loads and passes the checks; the runs that have the
+    /// machine to themselves (the paper's set-ups, the scale benchmark) put their fibre
+    /// nodes in the DNS's idle time, the others share the cores as usual.
+    #[test]
+    fn every_shipped_launch_file_loads() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
+        let mut idle = Vec::new();
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            // the spin-up files configure `fiberflow spinup`, not a launch
+            let text = std::fs::read_to_string(&p).unwrap_or_default();
+            if p.extension().is_none_or(|x| x != "toml")
+                || !text.lines().any(|l| l.trim() == "[run]")
+            {
+                continue;
+            }
+            let (lf, _) =
+                LaunchFile::load_with(&p, &[]).unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
+            n += 1;
+            if lf.run.fibre_scheduling == FibreScheduling::Idle {
+                idle.push(p.file_name().unwrap().to_string_lossy().to_string());
+            }
+        }
+        idle.sort();
+        assert_eq!(n, 8, "launch files with a [run] table");
+        assert_eq!(idle, ["paper-1e4.toml", "paper.toml", "scale-1e4.toml"]);
     }
 
     #[test]

@@ -85,7 +85,7 @@ enum Cmd {
         #[arg(long, default_value = "recordings/bench-scale")]
         out: PathBuf,
         /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
-        /// run.background_nodes=idle,normal). The flow-only runs take the first value.
+        /// run.fibre_scheduling=idle,normal). The flow-only runs take the first value.
         #[arg(long, value_name = "KEY=V1,V2")]
         compare: Option<bench::Compare>,
     },

@@ -1,7 +1,7 @@
 //! `fiberflow node`: runs one node (flow, fiber group, recorder) on a bus. The launcher
 //! calls the same function in threads (inproc) or in child processes (zenoh).
 
-use crate::launchfile::{BackgroundPriority, LaunchFile};
+use crate::launchfile::{FibreScheduling, LaunchFile};
 use anyhow::{bail, Context, Result};
 use fiberflow_bus::zenoh_bus::{AccessControl, TlsFiles, ZenohBus, ZenohMode, ZenohSettings};
 use fiberflow_bus::{inproc::InprocBus, BusHandle, Inbox, Transport};
@@ -319,11 +319,12 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
         signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
             .context("installing SIGINT handler")?;
     }
-    if spec.node != "flow" && spec.launch.run.background_nodes == BackgroundPriority::Idle {
+    let fibre_node = !matches!(spec.node.as_str(), "flow" | "recorder");
+    if fibre_node && spec.launch.run.fibre_scheduling == FibreScheduling::Idle {
         // before the bus and the thread pool start their threads, which inherit it
         crate::scheduling::run_in_idle_time()?;
         tracing::info!(
-            "running under SCHED_IDLE, in the time the flow node leaves free (run.background_nodes)"
+            "running under SCHED_IDLE, in the time the flow node leaves free (run.fibre_scheduling)"
         );
     }
     let bus = open_bus(&spec)?;

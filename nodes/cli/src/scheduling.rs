@@ -1,11 +1,13 @@
-//! CPU scheduling of a node process: the nodes off the DNS's critical path (fibre nodes,
-//! recorder) may run under Linux `SCHED_IDLE`, in the time the flow node leaves free.
+//! CPU scheduling of a node process: the fibre nodes, off the DNS's critical path, may
+//! run under Linux `SCHED_IDLE`, in the time the flow node leaves free.
 //!
 //! Why: a fibre node's step overlaps the field step. Under the default time sharing each
 //! of its wake-ups preempts one of the two DNS threads in the middle of a parallel loop,
 //! whose other thread then waits at the loop's end. Under `SCHED_IDLE` the fibre node
 //! runs in the DNS's idle gaps (and, at the latest, while the flow node waits for the
-//! states), so its work no longer stretches the field step.
+//! states), so its work no longer stretches the field step. The recorder keeps the
+//! default: under `SCHED_IDLE` it fell behind at 6 × 10⁴ fibres and its back-pressure
+//! held the flow node (README, "Fibre nodes in the DNS's idle time").
 
 use anyhow::{bail, Result};
 
@@ -17,8 +19,8 @@ pub fn run_in_idle_time() -> Result<()> {
     let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
     if rc != 0 {
         bail!(
-            "could not put the node under SCHED_IDLE (run.background_nodes = \"idle\"): {}; \
-             set run.background_nodes = \"normal\"",
+            "could not put the node under SCHED_IDLE (run.fibre_scheduling = \"idle\"): {}; \
+             set run.fibre_scheduling = \"normal\"",
             std::io::Error::last_os_error()
         );
     }
