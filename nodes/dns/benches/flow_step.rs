@@ -93,6 +93,16 @@ fn bench_statistics(c: &mut Criterion) {
         b.iter(|| fiberflow_dns::stats::wall_re_tau(&s.grid, &s.vel, s.cfg.re_tau))
     });
     group.finish();
+    // the halo refresh the solver runs after every sub-step (its z-periodic plane copies
+    // ran on the calling thread alone)
+    let mut group = c.benchmark_group("halos");
+    group.sample_size(50);
+    let mut s = solver(192);
+    let grid = s.grid.clone();
+    group.bench_function("update_halos_fine_192x64x64", |b| {
+        b.iter(|| s.vel.update_halos(&grid))
+    });
+    group.finish();
 }
 
 criterion_group!(benches, bench_step, bench_statistics);
