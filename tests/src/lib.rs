@@ -43,12 +43,35 @@ pub fn root() -> PathBuf {
         .to_path_buf()
 }
 
-/// A fresh scratch folder.
+/// A fresh scratch folder. The first call of a test process removes the scratch folders
+/// of earlier test processes that have exited: each run's files stay for inspection until
+/// the next run, instead of piling up (≈ 0.6 GB per run of the suite).
 pub fn scratch(name: &str) -> PathBuf {
+    static CLEARED: std::sync::Once = std::sync::Once::new();
+    CLEARED.call_once(remove_stale_scratch);
     let d = std::env::temp_dir().join(format!("fiberflow-e2e-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("scratch dir");
     d
+}
+
+/// Removes `fiberflow-e2e-<pid>-*` folders whose process no longer runs.
+fn remove_stale_scratch() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let pid = name
+            .strip_prefix("fiberflow-e2e-")
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|p| p.parse::<u32>().ok());
+        if let Some(pid) = pid {
+            if !Path::new(&format!("/proc/{pid}")).exists() {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
 }
 
 /// Runs `fiberflow launch` and asserts success; returns stdout.
