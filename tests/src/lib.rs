@@ -44,8 +44,8 @@ pub fn root() -> PathBuf {
 }
 
 /// A fresh scratch folder. The first call of a test process removes the scratch folders
-/// of earlier test processes that have exited: each run's files stay for inspection until
-/// the next run, instead of piling up (≈ 0.6 GB per run of the suite).
+/// of earlier test processes that have exited more than an hour ago: a failed run's files
+/// stay for inspection, and runs no longer pile up (≈ 0.6 GB per run of the suite).
 pub fn scratch(name: &str) -> PathBuf {
     static CLEARED: std::sync::Once = std::sync::Once::new();
     CLEARED.call_once(remove_stale_scratch);
@@ -55,7 +55,8 @@ pub fn scratch(name: &str) -> PathBuf {
     d
 }
 
-/// Removes `fiberflow-e2e-<pid>-*` folders whose process no longer runs.
+/// Removes `fiberflow-e2e-<pid>-*` folders whose process no longer runs and which were
+/// last changed over an hour ago.
 fn remove_stale_scratch() {
     let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
         return;
@@ -67,7 +68,13 @@ fn remove_stale_scratch() {
             .and_then(|rest| rest.split('-').next())
             .and_then(|p| p.parse::<u32>().ok());
         if let Some(pid) = pid {
-            if !Path::new(&format!("/proc/{pid}")).exists() {
+            let old = e
+                .metadata()
+                .and_then(|m| m.modified())
+                .ok()
+                .and_then(|t| t.elapsed().ok())
+                .is_some_and(|age| age > std::time::Duration::from_secs(3600));
+            if old && !Path::new(&format!("/proc/{pid}")).exists() {
                 let _ = std::fs::remove_dir_all(e.path());
             }
         }
