@@ -38,7 +38,8 @@ pub struct BenchOptions {
 }
 
 /// `--compare KEY=V1,V2,…`: every fibre configuration runs once per value, in turn within
-/// each round; the flow-only runs take the first value.
+/// each round; the flow-only runs take the first value. KEY is a launch-file key, or
+/// `env:NAME` for an environment variable of the launcher and its nodes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Compare {
     pub key: String,
@@ -52,7 +53,7 @@ impl std::str::FromStr for Compare {
             format!("{s:?} is not KEY=V1,V2,… (e.g. run.fibre_scheduling=idle,normal)")
         })?;
         let values: Vec<String> = values.split(',').map(str::to_string).collect();
-        if key.is_empty() || values.iter().any(String::is_empty) {
+        if key.is_empty() || key == "env:" || values.iter().any(String::is_empty) {
             return Err(format!("{s:?}: the key and every value must be non-empty"));
         }
         Ok(Self {
@@ -118,6 +119,27 @@ fn configurations(o: &BenchOptions) -> Vec<Config> {
         }
     }
     v
+}
+
+/// A compared setting (`key=value`) as the launcher takes it.
+#[derive(Debug, PartialEq)]
+enum Setting<'a> {
+    /// A launch-file key: `--set key=value`.
+    Key(&'a str),
+    /// `env:NAME=value`: an environment variable of the launcher (and so of its nodes).
+    Env(&'a str, &'a str),
+}
+
+impl<'a> Setting<'a> {
+    fn of(setting: &'a str) -> Self {
+        match setting
+            .strip_prefix("env:")
+            .and_then(|kv| kv.split_once('='))
+        {
+            Some((name, value)) => Setting::Env(name, value),
+            None => Setting::Key(setting),
+        }
+    }
 }
 
 /// The transports a run can be benchmarked over (`inproc`: every node a thread of the
@@ -300,7 +322,12 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
                 }
             }
-            sets.extend(c.setting.clone());
+            let mut env = None;
+            match c.setting.as_deref().map(Setting::of) {
+                Some(Setting::Key(kv)) => sets.push(kv.to_string()),
+                Some(Setting::Env(name, value)) => env = Some((name, value)),
+                None => {}
+            }
             if o.record {
                 sets.extend(
                     [
@@ -332,6 +359,9 @@ pub fn run(o: &BenchOptions) -> Result<()> {
             for (args, dir) in &launchers {
                 let mut c = Command::new(&exe);
                 c.arg("launch").arg(file).arg("--out").arg(dir).args(args);
+                if let Some((name, value)) = env {
+                    c.env(name, value);
+                }
                 for s in &sets {
                     c.arg("--set").arg(s);
                 }
@@ -577,9 +607,29 @@ mod tests {
             "run.fibre_scheduling",
             "=idle",
             "run.fibre_scheduling=idle,",
+            "env:=1,2",
         ] {
             assert!(bad.parse::<Compare>().is_err(), "{bad}");
         }
+        // an environment variable instead of a launch key
+        let env: Vec<Option<String>> = configurations(&options(
+            &[0, 300],
+            &["zenoh"],
+            Some("env:RAYON_NUM_THREADS=2,1"),
+        ))
+        .into_iter()
+        .map(|c| c.setting)
+        .collect();
+        let settings: Vec<Setting> = env.iter().flatten().map(|s| Setting::of(s)).collect();
+        assert_eq!(
+            settings,
+            [
+                Setting::Env("RAYON_NUM_THREADS", "2"),
+                Setting::Env("RAYON_NUM_THREADS", "2"),
+                Setting::Env("RAYON_NUM_THREADS", "1"),
+            ]
+        );
+        assert_eq!(Setting::of(idle), Setting::Key(idle));
     }
 
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.

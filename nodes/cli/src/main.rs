@@ -85,7 +85,8 @@ enum Cmd {
         #[arg(long, default_value = "recordings/bench-scale")]
         out: PathBuf,
         /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
-        /// run.fibre_scheduling=idle,normal). The flow-only runs take the first value.
+        /// run.fibre_scheduling=idle,normal), or of an environment variable of the
+        /// launcher and its nodes: env:NAME=V1,V2,… The flow-only runs take the first value.
         #[arg(long, value_name = "KEY=V1,V2")]
         compare: Option<bench::Compare>,
     },
