@@ -142,6 +142,33 @@ impl<'a> Setting<'a> {
     }
 }
 
+/// The launcher of one run: `fiberflow launch FILE --out DIR ARGS --set …`, with the
+/// compared setting as one more `--set` or as an environment variable.
+fn launcher(
+    exe: &Path,
+    file: &Path,
+    dir: &Path,
+    args: &[String],
+    sets: &[String],
+    setting: Option<&str>,
+) -> Command {
+    let mut c = Command::new(exe);
+    c.arg("launch").arg(file).arg("--out").arg(dir).args(args);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    match setting.map(Setting::of) {
+        Some(Setting::Key(kv)) => {
+            c.arg("--set").arg(kv);
+        }
+        Some(Setting::Env(name, value)) => {
+            c.env(name, value);
+        }
+        None => {}
+    }
+    c
+}
+
 /// The transports a run can be benchmarked over (`inproc`: every node a thread of the
 /// launcher's process, the bus in memory — what the process boundary costs).
 const TRANSPORTS: [&str; 3] = ["iceoryx2", "zenoh", "inproc"];
@@ -322,12 +349,6 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
                 }
             }
-            let mut env = None;
-            match c.setting.as_deref().map(Setting::of) {
-                Some(Setting::Key(kv)) => sets.push(kv.to_string()),
-                Some(Setting::Env(name, value)) => env = Some((name, value)),
-                None => {}
-            }
             if o.record {
                 sets.extend(
                     [
@@ -357,14 +378,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
             let t0 = Instant::now();
             let mut children = Vec::new();
             for (args, dir) in &launchers {
-                let mut c = Command::new(&exe);
-                c.arg("launch").arg(file).arg("--out").arg(dir).args(args);
-                if let Some((name, value)) = env {
-                    c.env(name, value);
-                }
-                for s in &sets {
-                    c.arg("--set").arg(s);
-                }
+                let mut c = launcher(&exe, file, dir, args, &sets, c.setting.as_deref());
                 // the launcher's own messages, and with `inproc` every node's timing
                 // line, go to its standard error: kept beside the nodes' logs (not named
                 // *.log, which a fresh launch clears)
@@ -630,6 +644,38 @@ mod tests {
             ]
         );
         assert_eq!(Setting::of(idle), Setting::Key(idle));
+        // … and so the launcher gets a `--set` or an environment variable
+        let sets = ["run.steps=20".to_string()];
+        let args = |c: &Command| -> Vec<String> {
+            c.get_args().map(|a| a.to_string_lossy().into()).collect()
+        };
+        let envs = |c: &Command| -> Vec<(String, String)> {
+            c.get_envs()
+                .filter_map(|(k, v)| Some((k.to_str()?.into(), v?.to_str()?.into())))
+                .collect()
+        };
+        let (exe, file, dir) = (Path::new("ff"), Path::new("f.toml"), Path::new("out"));
+        let keyed = launcher(exe, file, dir, &[], &sets, Some(idle));
+        assert_eq!(
+            args(&keyed),
+            [
+                "launch",
+                "f.toml",
+                "--out",
+                "out",
+                "--set",
+                "run.steps=20",
+                "--set",
+                idle
+            ]
+        );
+        assert!(envs(&keyed).is_empty());
+        let env = launcher(exe, file, dir, &[], &sets, Some("env:RAYON_NUM_THREADS=1"));
+        assert_eq!(
+            args(&env),
+            ["launch", "f.toml", "--out", "out", "--set", "run.steps=20"]
+        );
+        assert_eq!(envs(&env), [("RAYON_NUM_THREADS".into(), "1".into())]);
     }
 
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.
