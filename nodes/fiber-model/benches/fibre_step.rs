@@ -67,5 +67,62 @@ fn bench(c: &mut Criterion) {
     grp.finish();
 }
 
-criterion_group!(benches, bench);
+/// What a fibre node reads out of its group every step, 10⁴ fibres of 7 segments (a
+/// fibre node's share at 6 × 10⁴): per-fibre metrics and a state message's arrays, read
+/// in the lane storage, beside the same through a copied-out `Segment` per segment (the
+/// way before).
+fn output(c: &mut Criterion) {
+    use fiberflow_fiber_model::metrics::metrics_of;
+    use rayon::prelude::*;
+    let mut grp = c.benchmark_group("group_output_1e4");
+    grp.sample_size(20);
+    let (g, _) = group(10_000);
+    grp.bench_function("metrics", |b| b.iter(|| g.metrics()));
+    grp.bench_function("metrics_by_segments", |b| {
+        b.iter(|| {
+            (0..g.len())
+                .into_par_iter()
+                .map_init(Vec::new, |buf, k| {
+                    buf.clear();
+                    buf.extend(g.segments(k));
+                    metrics_of(buf, g.props(k))
+                })
+                .collect::<Vec<_>>()
+        })
+    });
+    let mut arrays: [Vec<f64>; 4] = Default::default();
+    for full in [false, true] {
+        let name = if full { "full_state" } else { "lean_state" };
+        grp.bench_function(name, |b| {
+            b.iter(|| {
+                let [c, a, v, w] = &mut arrays;
+                for x in [&mut *c, &mut *a, &mut *v, &mut *w] {
+                    x.clear();
+                }
+                g.extend_state(full, c, a, v, w);
+            })
+        });
+        grp.bench_function(format!("{name}_by_segments"), |b| {
+            b.iter(|| {
+                let [c, a, v, w] = &mut arrays;
+                for x in [&mut *c, &mut *a, &mut *v, &mut *w] {
+                    x.clear();
+                }
+                for k in 0..g.len() {
+                    for s in g.segments(k) {
+                        c.extend_from_slice(s.r.as_slice());
+                        if full {
+                            a.extend_from_slice(s.z.as_slice());
+                            v.extend_from_slice(s.v.as_slice());
+                            w.extend_from_slice(s.w.as_slice());
+                        }
+                    }
+                }
+            })
+        });
+    }
+    grp.finish();
+}
+
+criterion_group!(benches, bench, output);
 criterion_main!(benches);

@@ -733,4 +733,38 @@ mod tests {
             assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
         }
     }
+
+    /// A state message's arrays read in the lane storage are the fibres' segments in
+    /// order, bit for bit (fibres of two lengths, so blocks of unequal fibres too): the
+    /// centres alone, appended to what the arrays held, or all four vectors with `full`.
+    #[test]
+    fn state_arrays_are_each_fibres_segments_in_order() {
+        let mut seed = 7u64;
+        let mut g = FibreGroup::new(params(0.0, 0.0), fibres_of(9, &[7, 4], false, &mut seed));
+        let fl = fluid(&g, &mut seed, false);
+        g.step(&fl, 0.2).expect("step");
+        let want = |f: fn(&crate::fibre::Segment) -> Vector3<f64>| -> Vec<u64> {
+            (0..g.len())
+                .flat_map(|k| g.segments(k).collect::<Vec<_>>())
+                .flat_map(|s| {
+                    let v = f(&s);
+                    [v.x, v.y, v.z]
+                })
+                .map(f64::to_bits)
+                .collect()
+        };
+        let bits_of = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let (mut c, mut a, mut v, mut w) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        g.extend_state(true, &mut c, &mut a, &mut v, &mut w);
+        assert_eq!(c.len(), 3 * g.segment_count());
+        assert_eq!(bits_of(&c), want(|s| s.r));
+        assert_eq!(bits_of(&a), want(|s| s.z));
+        assert_eq!(bits_of(&v), want(|s| s.v));
+        assert_eq!(bits_of(&w), want(|s| s.w));
+        let (mut c, mut a, mut v, mut w) = (vec![-1.0], Vec::new(), Vec::new(), Vec::new());
+        g.extend_state(false, &mut c, &mut a, &mut v, &mut w);
+        assert_eq!(c[0], -1.0);
+        assert_eq!(bits_of(&c[1..]), want(|s| s.r));
+        assert!(a.is_empty() && v.is_empty() && w.is_empty());
+    }
 }

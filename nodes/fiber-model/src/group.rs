@@ -12,9 +12,10 @@
 use crate::batch::{self, LaneConsts, LaneSeg};
 use crate::error::FibreError;
 use crate::fibre::{Fibre, Segment, SegmentProps};
-use crate::lanes::LANES;
-use crate::metrics::{metrics_of, FibreMetrics};
+use crate::lanes::{LANES, V3};
+use crate::metrics::{metrics_from, FibreMetrics};
 use crate::step::{step, FluidSample, ModelParams};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 
 /// Below this many segments a group steps (and measures its metrics) on the calling
@@ -219,19 +220,53 @@ impl FibreGroup {
     /// Shape and orientation metrics of every fibre, in order (in parallel from
     /// [`PARALLEL_MIN_SEGMENTS`] on).
     pub fn metrics(&self) -> Vec<FibreMetrics> {
-        let one = |buf: &mut Vec<Segment>, k: usize| {
-            buf.clear();
-            buf.extend(self.segments(k));
-            metrics_of(buf, self.props(k))
-        };
+        // read in the lane storage: centres and axes only, no segment copied out
+        let one = |k: usize| metrics_from(self.centres_and_axes(k), self.props(k));
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
-            let mut buf = Vec::new();
-            return (0..self.len()).map(|k| one(&mut buf, k)).collect();
+            return (0..self.len()).map(one).collect();
         }
-        (0..self.len())
-            .into_par_iter()
-            .map_init(Vec::new, one)
-            .collect()
+        (0..self.len()).into_par_iter().map(one).collect()
+    }
+
+    /// Fibre `k`'s segment centres and axes, first to last, read in the lane storage.
+    fn centres_and_axes(
+        &self,
+        k: usize,
+    ) -> impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + Clone + '_ {
+        let b = &self.blocks[k / LANES];
+        let l = k % LANES;
+        let at = move |v: &V3| Vector3::new(v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]);
+        self.state[b.start..b.start + self.fibre_len(k)]
+            .iter()
+            .map(move |s| (at(&s.r), at(&s.z)))
+    }
+
+    /// Appends every segment's centre (x, y, z; fibre by fibre, first segment to last) to
+    /// `centre`, and with `full` its axis, velocity and angular velocity to the others:
+    /// a state message's arrays, read in the lane storage.
+    pub fn extend_state(
+        &self,
+        full: bool,
+        centre: &mut Vec<f64>,
+        axis: &mut Vec<f64>,
+        velocity: &mut Vec<f64>,
+        angular_velocity: &mut Vec<f64>,
+    ) {
+        let put = |out: &mut Vec<f64>, v: &V3, l: usize| {
+            out.extend_from_slice(&[v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]]);
+        };
+        for k in 0..self.len() {
+            let b = &self.blocks[k / LANES];
+            let l = k % LANES;
+            for s in &self.state[b.start..b.start + self.fibre_len(k)] {
+                put(centre, &s.r, l);
+                if full {
+                    put(axis, &s.z, l);
+                    put(velocity, &s.v, l);
+                    put(angular_velocity, &s.w, l);
+                }
+            }
+        }
     }
 
     /// Segment centres in flat order (where the flow must be sampled).

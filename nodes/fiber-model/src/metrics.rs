@@ -25,14 +25,23 @@ pub fn metrics(f: &Fibre) -> FibreMetrics {
 
 /// The metrics of the fibre whose segments are `segments`, with properties `props`.
 pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FibreMetrics {
-    let n = segments.len();
+    metrics_from(segments.iter().map(|s| (s.r, s.z)), props)
+}
+
+/// The metrics of the fibre whose segments' centres and axes `rz` yields, first to last,
+/// with properties `props` (read where the segments are stored: nothing else is copied).
+pub fn metrics_from(
+    rz: impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + Clone,
+    props: &[SegmentProps],
+) -> FibreMetrics {
+    let n = rz.clone().count();
     let mut com = Vector3::zeros();
     let mut mass = 0.0;
     let mut zs = Vector3::zeros();
-    for (s, p) in segments.iter().zip(props) {
-        com += p.mass * s.r;
+    for ((r, z), p) in rz.clone().zip(props) {
+        com += p.mass * r;
         mass += p.mass;
-        zs += s.z;
+        zs += z;
     }
     com /= mass;
     let norm = zs.norm();
@@ -42,24 +51,18 @@ pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FibreMetrics 
         Vector3::zeros()
     };
     let sigma2 = if n > 1 {
-        segments
-            .iter()
-            .map(|s| (s.z - zhat).norm_squared())
+        rz.clone()
+            .map(|(_, z)| (z - zhat).norm_squared())
             .sum::<f64>()
             / (n - 1) as f64
     } else {
         0.0
     };
     // the free ends, as the first and last of `Fibre::joints`
-    let end_to_end = match (
-        segments.first(),
-        segments.last(),
-        props.first(),
-        props.last(),
-    ) {
-        (Some(a), Some(b), Some(pa), Some(pb)) => {
-            let start = a.r - 0.5 * pa.shape.length * a.z;
-            let end = b.r + 0.5 * pb.shape.length * b.z;
+    let end_to_end = match (rz.clone().next(), rz.last(), props.first(), props.last()) {
+        (Some((ra, za)), Some((rb, zb)), Some(pa), Some(pb)) => {
+            let start = ra - 0.5 * pa.shape.length * za;
+            let end = rb + 0.5 * pb.shape.length * zb;
             (end - start).norm()
         }
         _ => 0.0,

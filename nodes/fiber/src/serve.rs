@@ -178,16 +178,13 @@ pub fn serve(
             st.axis.clear();
             st.velocity.clear();
             st.angular_velocity.clear();
-            for k in 0..group.len() {
-                for s in group.segments(k) {
-                    st.centre.extend_from_slice(s.r.as_slice());
-                    if full {
-                        st.axis.extend_from_slice(s.z.as_slice());
-                        st.velocity.extend_from_slice(s.v.as_slice());
-                        st.angular_velocity.extend_from_slice(s.w.as_slice());
-                    }
-                }
-            }
+            group.extend_state(
+                full,
+                &mut st.centre,
+                &mut st.axis,
+                &mut st.velocity,
+                &mut st.angular_velocity,
+            );
             bus.publish_message(&state_topic, &state_msg)
         };
     let publish_metrics =
