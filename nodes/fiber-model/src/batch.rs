@@ -47,7 +47,7 @@ impl LaneSeg {
 
     /// The segment in lane `l`.
     pub fn get(&self, l: usize) -> Segment {
-        let at = |v: &V3| Vector3::new(v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]);
+        let at = |v: &V3| Vector3::from(v.lane(l));
         Segment {
             r: at(&self.r),
             z: at(&self.z),

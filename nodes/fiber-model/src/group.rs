@@ -12,7 +12,7 @@
 use crate::batch::{self, LaneConsts, LaneSeg};
 use crate::error::FibreError;
 use crate::fibre::{Fibre, Segment, SegmentProps};
-use crate::lanes::{LANES, V3};
+use crate::lanes::LANES;
 use crate::metrics::{metrics_from, FibreMetrics};
 use crate::step::{step, FluidSample, ModelParams};
 use nalgebra::Vector3;
@@ -177,10 +177,14 @@ impl FibreGroup {
 
     /// Fibre `k`'s segments, first to last.
     pub fn segments(&self, k: usize) -> impl Iterator<Item = Segment> + '_ {
+        let (segs, l) = self.lanes_of(k);
+        segs.iter().map(move |s| s.get(l))
+    }
+
+    /// The lane records holding fibre `k`'s segments, first to last, and its lane.
+    fn lanes_of(&self, k: usize) -> (&[LaneSeg], usize) {
         let b = &self.blocks[k / LANES];
-        self.state[b.start..b.start + self.fibre_len(k)]
-            .iter()
-            .map(move |s| s.get(k % LANES))
+        (&self.state[b.start..b.start + self.fibre_len(k)], k % LANES)
     }
 
     /// Replaces segment `i` of fibre `k` (velocities and all: the caller owns consistency).
@@ -233,12 +237,9 @@ impl FibreGroup {
         &self,
         k: usize,
     ) -> impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + Clone + '_ {
-        let b = &self.blocks[k / LANES];
-        let l = k % LANES;
-        let at = move |v: &V3| Vector3::new(v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]);
-        self.state[b.start..b.start + self.fibre_len(k)]
-            .iter()
-            .map(move |s| (at(&s.r), at(&s.z)))
+        let (segs, l) = self.lanes_of(k);
+        segs.iter()
+            .map(move |s| (Vector3::from(s.r.lane(l)), Vector3::from(s.z.lane(l))))
     }
 
     /// Appends every segment's centre (x, y, z; fibre by fibre, first segment to last) to
@@ -252,18 +253,14 @@ impl FibreGroup {
         velocity: &mut Vec<f64>,
         angular_velocity: &mut Vec<f64>,
     ) {
-        let put = |out: &mut Vec<f64>, v: &V3, l: usize| {
-            out.extend_from_slice(&[v.0[0].0[l], v.0[1].0[l], v.0[2].0[l]]);
-        };
         for k in 0..self.len() {
-            let b = &self.blocks[k / LANES];
-            let l = k % LANES;
-            for s in &self.state[b.start..b.start + self.fibre_len(k)] {
-                put(centre, &s.r, l);
+            let (segs, l) = self.lanes_of(k);
+            for s in segs {
+                centre.extend_from_slice(&s.r.lane(l));
                 if full {
-                    put(axis, &s.z, l);
-                    put(velocity, &s.v, l);
-                    put(angular_velocity, &s.w, l);
+                    axis.extend_from_slice(&s.z.lane(l));
+                    velocity.extend_from_slice(&s.v.lane(l));
+                    angular_velocity.extend_from_slice(&s.w.lane(l));
                 }
             }
         }

@@ -168,6 +168,12 @@ impl V3 {
         V3([F4::splat(v[0]), F4::splat(v[1]), F4::splat(v[2])])
     }
 
+    /// The vector in lane `l`.
+    #[inline(always)]
+    pub fn lane(&self, l: usize) -> [f64; 3] {
+        [self.0[0].0[l], self.0[1].0[l], self.0[2].0[l]]
+    }
+
     /// `s * v` (nalgebra's scalar product, element by element).
     #[inline(always)]
     pub fn scale(self, s: F4) -> V3 {
