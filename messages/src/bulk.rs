@@ -501,6 +501,19 @@ impl<'a> SamplesView<'a> {
         self.velocity.is_empty()
     }
 
+    /// The velocity (3 per point) and gradient (9 per point, ∂v_a/∂x_b at 3a + b)
+    /// arrays as the message holds them: little-endian `f64`s, where the bytes arrived.
+    pub fn arrays(&self) -> (&'a [u8], &'a [u8]) {
+        (self.velocity, self.velocity_gradient)
+    }
+
+    /// True if every value of both arrays is finite (read in place; with
+    /// [`Self::check_shape`], the same verdict as [`Self::check`]).
+    pub fn values_finite(&self) -> bool {
+        crate::sanity::all_finite(floats(self.velocity))
+            && crate::sanity::all_finite(floats(self.velocity_gradient))
+    }
+
     /// The checks of `FlowSamples` (lengths, piece, time, every value finite).
     pub fn check(&self) -> Result<(), String> {
         let h = &self.header;
@@ -513,8 +526,7 @@ impl<'a> SamplesView<'a> {
         )
     }
 
-    /// [`Self::check`] without the values' finiteness, for a reader that checks it while
-    /// it reads them ([`Self::fill_points`]).
+    /// [`Self::check`] without the values' finiteness ([`Self::values_finite`]).
     pub fn check_shape(&self) -> Result<(), String> {
         let h = &self.header;
         crate::sanity::check_samples_shape(
@@ -522,20 +534,6 @@ impl<'a> SamplesView<'a> {
             self.velocity.len() / 8,
             self.velocity_gradient.len() / 8,
         )
-    }
-
-    /// Reads the points into `out` in one pass, `set(slot, velocity, gradient)` per point
-    /// (as [`Self::points`] gives them), for as many points as both have; true if every
-    /// value read was finite (then the message passes [`Self::check`] if it passes
-    /// [`Self::check_shape`]).
-    #[inline]
-    pub fn fill_points<T>(&self, out: &mut [T], set: impl Fn(&mut T, [f64; 3], [f64; 9])) -> bool {
-        let mut finite = true;
-        for (slot, (vel, grad)) in out.iter_mut().zip(self.points()) {
-            finite &= crate::sanity::all_finite(vel.iter().chain(&grad).copied());
-            set(slot, vel, grad);
-        }
-        finite
     }
 
     /// Each point's velocity and gradient (`grad[3a + b] = ∂v_a/∂x_b`), in order.
@@ -717,20 +715,28 @@ mod tests {
                     }
                 }
             }
-            // the one-pass reader: the values of `points`, and finite with a sound shape
-            // exactly when the full check passes
+            // the in-place reader: the arrays hold the values of `points` (the gradient
+            // row by row), and they are finite with a sound shape exactly when the full
+            // check passes
             if let Ok(v) = SamplesView::read(&b) {
-                let mut got = vec![([f64::NAN; 3], [f64::NAN; 9]); v.len() + 1];
-                let finite = v.fill_points(&mut got, |s, vel, grad| *s = (vel, grad));
+                let (vel, grad) = v.arrays();
                 let want: Vec<_> = v.points().collect();
-                let bits = |p: &[([f64; 3], [f64; 9])]| -> Vec<u64> {
-                    p.iter()
-                        .flat_map(|(a, g)| a.iter().chain(g))
-                        .map(|x| x.to_bits())
+                let bits = |bytes: &[u8], per: usize| -> Vec<u64> {
+                    bytes
+                        .chunks_exact(8)
+                        .take(per * want.len())
+                        .map(|x| f64::from_le_bytes(x.try_into().expect("8 bytes")).to_bits())
                         .collect()
                 };
-                assert_eq!(bits(&got[..want.len()]), bits(&want));
-                assert_eq!(v.check_shape().is_ok() && finite, v.check().is_ok());
+                let want_bits = |f: fn(&([f64; 3], [f64; 9])) -> Vec<f64>| -> Vec<u64> {
+                    want.iter().flat_map(f).map(|x| x.to_bits()).collect()
+                };
+                assert_eq!(bits(vel, 3), want_bits(|p| p.0.to_vec()));
+                assert_eq!(bits(grad, 9), want_bits(|p| p.1.to_vec()));
+                assert_eq!(
+                    v.check_shape().is_ok() && v.values_finite(),
+                    v.check().is_ok()
+                );
             }
             let decoded = crate::decode::<FlowSamples>(&b)
                 .map_err(|e| e.to_string())

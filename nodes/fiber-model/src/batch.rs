@@ -10,7 +10,7 @@
 
 use crate::fibre::{Segment, SegmentProps};
 use crate::lanes::{F4, LANES, M3, V3};
-use crate::step::{FluidSample, ModelParams};
+use crate::step::{Fluid, FluidSample, ModelParams};
 use nalgebra::Vector3;
 
 /// Whether the model's terms are all covered by the lane step: no twisting stiffness,
@@ -181,7 +181,7 @@ pub fn step(
     consts: &[LaneConsts],
     stride: usize,
     used: usize,
-    fluid: &[&[FluidSample]; LANES],
+    fluid: &[Fluid<'_>; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
@@ -207,7 +207,7 @@ unsafe fn step_avx2(
     consts: &[LaneConsts],
     stride: usize,
     used: usize,
-    fluid: &[&[FluidSample]; LANES],
+    fluid: &[Fluid<'_>; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
@@ -337,7 +337,7 @@ fn kernel(
     consts: &[LaneConsts],
     stride: usize,
     used: usize,
-    fluid: &[&[FluidSample]; LANES],
+    fluid: &[Fluid<'_>; LANES],
     dt: f64,
     scratch: &mut Scratch,
 ) -> Result<(), usize> {
@@ -371,7 +371,8 @@ fn kernel(
     for i in 0..n {
         let c = &consts[i * stride];
         let s = &seg[i];
-        let fl = [&fluid[0][i], &fluid[1][i], &fluid[2][i], &fluid[3][i]];
+        let fl: [FluidSample; LANES] = std::array::from_fn(|l| fluid[l].at(i));
+        let fl = [&fl[0], &fl[1], &fl[2], &fl[3]];
         let z = s.z;
         let (v, w) = (s.v, s.w);
         let lane = |x: &dyn Fn(&FluidSample) -> f64| F4([x(fl[0]), x(fl[1]), x(fl[2]), x(fl[3])]);
@@ -552,7 +553,7 @@ mod tests {
     use crate::fibre::Fibre;
     use crate::group::FibreGroup;
     use crate::hydro::DragModel;
-    use crate::step::{FluidSample, ModelParams};
+    use crate::step::{Fluid, FluidSample, ModelParams};
     use nalgebra::{Matrix3, Vector3};
 
     /// A reproducible pseudo-random number in [-1, 1).
@@ -688,6 +689,51 @@ mod tests {
                 assert_eq!(bits(&batched), bits(&single), "N {segments:?}, step {step}");
                 assert_eq!(bits(&serial), bits(&single), "N {segments:?}, step {step}");
             }
+        }
+    }
+
+    /// Samples read where a message holds them (`Fluid::Wire`: little-endian bytes, the
+    /// gradient row by row) step a group to the same bits as the decoded samples: in
+    /// lanes, fibre by fibre (a group mixing lengths), on the pool and on this thread, and
+    /// when the fibres start at the fluid's velocity.
+    #[test]
+    fn samples_read_in_place_step_like_decoded_samples() {
+        let mut seed = 11u64;
+        for (count, segments) in [(9, &[7, 4][..]), (600, &[7][..])] {
+            let fs = fibres_of(count, segments, false, &mut seed);
+            let mut decoded = FibreGroup::new(params(0.05, 0.0), fs);
+            let mut wire = decoded.clone();
+            let fl = fluid(&decoded, &mut seed, false);
+            let le = |xs: &mut dyn Iterator<Item = f64>| -> Vec<u8> {
+                xs.flat_map(f64::to_le_bytes).collect()
+            };
+            let velocity = le(&mut fl.iter().flat_map(|f| [f.vel.x, f.vel.y, f.vel.z]));
+            let gradient = le(&mut fl
+                .iter()
+                .flat_map(|f| (0..9).map(move |i| f.grad[(i / 3, i % 3)])));
+            let w = Fluid::Wire {
+                velocity: &velocity,
+                gradient: &gradient,
+            };
+            assert_eq!(w.len(), fl.len());
+            for (i, f) in fl.iter().enumerate() {
+                assert_eq!(w.at(i), *f, "sample {i}");
+            }
+            decoded.set_velocity_to_fluid(&fl).expect("decoded start");
+            wire.set_velocity_to_fluid(w).expect("wire start");
+            assert_eq!(bits(&wire), bits(&decoded));
+            for step in 0..3 {
+                decoded.step(&fl, 0.2).expect("decoded step");
+                if step % 2 == 0 {
+                    wire.step(w, 0.2).expect("wire step");
+                } else {
+                    wire.step_serial(w, 0.2).expect("wire step here");
+                }
+                assert_eq!(bits(&wire), bits(&decoded), "{count} fibres, step {step}");
+            }
+            // the wrong number of samples is refused, not read past
+            let short = w.range(0, fl.len() - 1);
+            assert!(wire.step(short, 0.2).is_err());
         }
     }
 

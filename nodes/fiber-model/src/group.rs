@@ -14,7 +14,7 @@ use crate::error::FibreError;
 use crate::fibre::{Fibre, Segment, SegmentProps};
 use crate::lanes::LANES;
 use crate::metrics::{metrics_from, FibreMetrics};
-use crate::step::{step, FluidSample, ModelParams};
+use crate::step::{step, Fluid, FluidSample, ModelParams};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -274,21 +274,26 @@ impl FibreGroup {
     }
 
     /// Sets every segment's velocity to the fluid's (linear and angular).
-    pub fn set_velocity_to_fluid(&mut self, fluid: &[FluidSample]) -> Result<(), FibreError> {
+    pub fn set_velocity_to_fluid<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+    ) -> Result<(), FibreError> {
+        let fluid = fluid.into();
         self.check(fluid)?;
         for k in 0..self.len() {
             let o = self.offsets[k];
             for i in 0..self.fibre_len(k) {
                 let mut s = self.segment(k, i);
-                s.v = fluid[o + i].vel;
-                s.w = fluid[o + i].rotation();
+                let f = fluid.at(o + i);
+                s.v = f.vel;
+                s.w = f.rotation();
                 self.set_segment(k, i, s);
             }
         }
         Ok(())
     }
 
-    fn check(&self, fluid: &[FluidSample]) -> Result<(), FibreError> {
+    fn check(&self, fluid: Fluid<'_>) -> Result<(), FibreError> {
         if fluid.len() != self.segment_count() {
             return Err(FibreError::SampleCount {
                 expected: self.segment_count(),
@@ -302,7 +307,8 @@ impl FibreGroup {
     /// where the block allows it ([`batch`]); deterministic: fibres are independent and
     /// every fibre gets the same bits as from [`step`] one fibre at a time.
     /// Groups below [`PARALLEL_MIN_SEGMENTS`] are stepped on the calling thread.
-    pub fn step(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
+    pub fn step<'f>(&mut self, fluid: impl Into<Fluid<'f>>, dt: f64) -> Result<(), FibreError> {
+        let fluid = fluid.into();
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
             return self.step_here(fluid, dt, true);
         }
@@ -310,7 +316,12 @@ impl FibreGroup {
     }
 
     /// [`Self::step`] split over the thread pool whatever the group's size.
-    pub fn step_parallel(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
+    pub fn step_parallel<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+        dt: f64,
+    ) -> Result<(), FibreError> {
+        let fluid = fluid.into();
         self.check(fluid)?;
         let (ctx, parts) = self.split(fluid, dt, true);
         parts
@@ -319,27 +330,26 @@ impl FibreGroup {
     }
 
     /// [`Self::step`] on the current thread only (for single-thread benchmarks).
-    pub fn step_serial(&mut self, fluid: &[FluidSample], dt: f64) -> Result<(), FibreError> {
-        self.step_here(fluid, dt, true)
+    pub fn step_serial<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+        dt: f64,
+    ) -> Result<(), FibreError> {
+        self.step_here(fluid.into(), dt, true)
     }
 
     /// One fibre at a time with [`step`] on the current thread, never in lanes (the
     /// reference the lane step is compared with, in tests and benchmarks).
-    pub fn step_serial_unbatched(
+    pub fn step_serial_unbatched<'f>(
         &mut self,
-        fluid: &[FluidSample],
+        fluid: impl Into<Fluid<'f>>,
         dt: f64,
     ) -> Result<(), FibreError> {
-        self.step_here(fluid, dt, false)
+        self.step_here(fluid.into(), dt, false)
     }
 
     /// Every block on the current thread, in lanes where allowed if `use_lanes`.
-    fn step_here(
-        &mut self,
-        fluid: &[FluidSample],
-        dt: f64,
-        use_lanes: bool,
-    ) -> Result<(), FibreError> {
+    fn step_here(&mut self, fluid: Fluid<'_>, dt: f64, use_lanes: bool) -> Result<(), FibreError> {
         self.check(fluid)?;
         let (ctx, parts) = self.split(fluid, dt, use_lanes);
         let mut work = Work::default();
@@ -353,7 +363,7 @@ impl FibreGroup {
     /// can be stepped independently.
     fn split<'a>(
         &'a mut self,
-        fluid: &'a [FluidSample],
+        fluid: Fluid<'a>,
         dt: f64,
         use_lanes: bool,
     ) -> (Ctx<'a>, Vec<(Block, &'a mut [LaneSeg])>) {
@@ -410,6 +420,8 @@ fn same_props(a: &SegmentProps, b: &SegmentProps) -> bool {
 struct Work {
     lanes: batch::Scratch,
     one: Option<Fibre>,
+    /// One fibre's samples, decoded for the fibre-by-fibre step.
+    fluid: Vec<FluidSample>,
 }
 
 /// What a block's step reads besides its own storage.
@@ -420,15 +432,15 @@ struct Ctx<'a> {
     offsets: &'a [usize],
     consts: &'a [LaneConsts],
     stride: usize,
-    fluid: &'a [FluidSample],
+    fluid: Fluid<'a>,
     dt: f64,
     use_lanes: bool,
 }
 
 impl Ctx<'_> {
     /// The samples of fibre `k`.
-    fn fluid_of(&self, k: usize) -> &[FluidSample] {
-        &self.fluid[self.offsets[k]..self.offsets[k + 1]]
+    fn fluid_of(&self, k: usize) -> Fluid<'_> {
+        self.fluid.range(self.offsets[k], self.offsets[k + 1])
     }
 
     /// Steps block `b` (storage `seg`): in lanes if it can, else fibre by fibre.
@@ -436,7 +448,7 @@ impl Ctx<'_> {
         let first = b.index * LANES;
         if self.use_lanes && b.lanes {
             // unused lanes repeat fibre `first`
-            let samples: [&[FluidSample]; LANES] =
+            let samples: [Fluid<'_>; LANES] =
                 std::array::from_fn(|l| self.fluid_of(first + if l < b.used { l } else { 0 }));
             let consts = if self.stride == 0 {
                 self.consts
@@ -471,7 +483,8 @@ impl Ctx<'_> {
             one.props
                 .extend_from_slice(&self.props[self.offsets[k]..self.offsets[k + 1]]);
             one.density = self.density[k];
-            step(self.params, one, self.fluid_of(k), self.dt).map_err(|e| match e {
+            let fluid = self.fluid_of(k).decoded(&mut work.fluid);
+            step(self.params, one, fluid, self.dt).map_err(|e| match e {
                 FibreError::Singular { .. } => FibreError::Singular { fibre: k },
                 other => other,
             })?;

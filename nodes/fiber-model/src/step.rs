@@ -54,6 +54,104 @@ impl FluidSample {
     }
 }
 
+/// The fluid at a group's segments, in segment order, as the step reads it: decoded
+/// samples, or a samples message's arrays read where they arrived (nothing copied first).
+#[derive(Debug, Clone, Copy)]
+pub enum Fluid<'a> {
+    Decoded(&'a [FluidSample]),
+    /// Little-endian `f64`s: `velocity` 3 per segment, `gradient` 9 per segment with
+    /// ∂v_a/∂x_b at 3a + b (row by row). Lengths that disagree count as the shorter.
+    Wire {
+        velocity: &'a [u8],
+        gradient: &'a [u8],
+    },
+}
+
+impl<'a> Fluid<'a> {
+    /// Segments held.
+    pub fn len(&self) -> usize {
+        match self {
+            Fluid::Decoded(s) => s.len(),
+            Fluid::Wire { velocity, gradient } => (velocity.len() / 24).min(gradient.len() / 72),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Segments `from..to` (within [`Self::len`]).
+    pub fn range(&self, from: usize, to: usize) -> Fluid<'a> {
+        match *self {
+            Fluid::Decoded(s) => Fluid::Decoded(&s[from..to]),
+            Fluid::Wire { velocity, gradient } => Fluid::Wire {
+                velocity: &velocity[24 * from..24 * to],
+                gradient: &gradient[72 * from..72 * to],
+            },
+        }
+    }
+
+    /// Segment `i`'s sample (`i` < [`Self::len`]).
+    #[inline(always)]
+    pub fn at(&self, i: usize) -> FluidSample {
+        match self {
+            Fluid::Decoded(s) => s[i],
+            Fluid::Wire { velocity, gradient } => {
+                let (v, g) = (
+                    &velocity[24 * i..24 * i + 24],
+                    &gradient[72 * i..72 * i + 72],
+                );
+                let x = |b: &[u8], k: usize| {
+                    let mut a = [0u8; 8];
+                    a.copy_from_slice(&b[8 * k..8 * k + 8]);
+                    f64::from_le_bytes(a)
+                };
+                FluidSample {
+                    vel: Vector3::new(x(v, 0), x(v, 1), x(v, 2)),
+                    grad: Matrix3::new(
+                        x(g, 0),
+                        x(g, 1),
+                        x(g, 2),
+                        x(g, 3),
+                        x(g, 4),
+                        x(g, 5),
+                        x(g, 6),
+                        x(g, 7),
+                        x(g, 8),
+                    ),
+                }
+            }
+        }
+    }
+
+    /// The samples as a slice: the decoded ones themselves, or the wire's decoded into `buf`.
+    pub fn decoded<'b>(&self, buf: &'b mut Vec<FluidSample>) -> &'b [FluidSample]
+    where
+        'a: 'b,
+    {
+        match *self {
+            Fluid::Decoded(s) => s,
+            Fluid::Wire { .. } => {
+                buf.clear();
+                buf.extend((0..self.len()).map(|i| self.at(i)));
+                buf
+            }
+        }
+    }
+}
+
+impl<'a> From<&'a [FluidSample]> for Fluid<'a> {
+    fn from(s: &'a [FluidSample]) -> Self {
+        Fluid::Decoded(s)
+    }
+}
+
+impl<'a> From<&'a Vec<FluidSample>> for Fluid<'a> {
+    fn from(s: &'a Vec<FluidSample>) -> Self {
+        Fluid::Decoded(s)
+    }
+}
+
 /// Physical parameters shared by every fibre of a group.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ModelParams {

@@ -4,14 +4,14 @@
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
-use fiberflow_fiber_model::{FibreError, FluidSample};
+use fiberflow_fiber_model::step::Fluid;
+use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::checkpoints;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FiberGroupMetrics, FiberGroupState, Heartbeat, RunAnnouncement, SamplesView,
     SCHEMA_VERSION,
 };
-use nalgebra::{Matrix3, Vector3};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -219,7 +219,6 @@ pub fn serve(
     // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
     let mut timing = (0.0, 0.0, 0.0);
     let cpu_from = fiberflow_bus::usage::process_cpu_s();
-    let mut fluid: Vec<FluidSample> = Vec::new();
     // the longest wait for samples so far that needed no resend: a wait three times as
     // long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
     // several resends fit in it) means a message was probably lost
@@ -230,8 +229,9 @@ pub fn serve(
         let mut resent = false;
         let mut resend_after = (3 * longest_wait).clamp(RESEND_AFTER_MIN, resend_cap);
         let mut resend_at = wait_from + resend_after;
-        // the wait ends with the samples converted; converting counts as the fibre step
-        let converting = loop {
+        // the wait ends with the samples checked (checking counts as the fibre step); the
+        // step reads them where they arrived (a transport's shared memory), not copied
+        let (checking, samples) = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
                 hb(lifecycle::FAILED, k, samples_in.drops.total())?;
@@ -255,8 +255,6 @@ pub fn serve(
                 resend_at = now + resend_after;
             }
             let wait = left.min(resend_at.saturating_duration_since(now));
-            // read where they arrived (a transport's shared memory) and converted
-            // straight into `fluid` below, with no arrays in between
             let Some((topic, bytes)) = samples_in.recv_raw(wait) else {
                 continue;
             };
@@ -285,18 +283,10 @@ pub fn serve(
                     .drops
                     .drop_one(&topic, "samples for another number of segments");
             } else {
-                // the buffer lives across steps (6.7 MB per 10^4 fibres of 7 segments)
-                // instead of being allocated again every step
                 let t0 = Instant::now();
-                fluid.resize(n, FluidSample::at_rest());
-                let finite = view.fill_points(&mut fluid, |f, v, g| {
-                    f.vel = Vector3::from(v);
-                    f.grad = Matrix3::from_row_slice(&g);
-                });
-                if finite {
-                    break t0.elapsed();
+                if view.values_finite() {
+                    break (t0.elapsed(), bytes);
                 }
-                // the next samples overwrite every slot of `fluid`
                 let why = view.check().err().unwrap_or_default();
                 samples_in
                     .drops
@@ -306,20 +296,27 @@ pub fn serve(
         let (mut waited_s, mut stepped_s, mut published_s) = timing;
         // a wait that ended only after a resend says how long a loss took to repair, not
         // how long a healthy step takes: it must not stretch the next resend deadline
-        let waited = wait_from.elapsed().saturating_sub(converting);
+        let waited = wait_from.elapsed().saturating_sub(checking);
         if !resent {
             longest_wait = longest_wait.max(waited);
         }
         waited_s += waited.as_secs_f64();
-        stepped_s += converting.as_secs_f64();
+        stepped_s += checking.as_secs_f64();
         let t0 = Instant::now();
+        // read again: the view borrowed the payload inside the loop (read and checked
+        // there; only the header is parsed here)
+        let view = SamplesView::read(&samples)
+            .map_err(|e| FiberNodeError::Protocol(format!("samples checked a moment ago: {e}")))?;
+        let (velocity, gradient) = view.arrays();
+        let fluid = Fluid::Wire { velocity, gradient };
         if k == 0 && cfg.initial_velocity == InitialVelocity::Fluid {
-            group.set_velocity_to_fluid(&fluid)?;
+            group.set_velocity_to_fluid(fluid)?;
             // the state of step 0 went out before the fluid's velocity was known: send it
             // again complete (the recorder keeps the last state 0, the flow node ignores it)
             publish_state(&group, 0)?;
         }
-        group.step(&fluid, dt)?;
+        group.step(fluid, dt)?;
+        drop(samples);
         stepped_s += t0.elapsed().as_secs_f64();
         let t0 = Instant::now();
         publish_state(&group, k + 1)?;
