@@ -728,11 +728,10 @@ mod tests {
                         .map(|x| f64::from_le_bytes(x.try_into().expect("8 bytes")).to_bits())
                         .collect()
                 };
-                let want_bits = |f: fn(&([f64; 3], [f64; 9])) -> Vec<f64>| -> Vec<u64> {
-                    want.iter().flat_map(f).map(|x| x.to_bits()).collect()
-                };
-                assert_eq!(bits(vel, 3), want_bits(|p| p.0.to_vec()));
-                assert_eq!(bits(grad, 9), want_bits(|p| p.1.to_vec()));
+                let want_vel: Vec<u64> = want.iter().flat_map(|p| p.0.map(f64::to_bits)).collect();
+                let want_grad: Vec<u64> = want.iter().flat_map(|p| p.1.map(f64::to_bits)).collect();
+                assert_eq!(bits(vel, 3), want_vel);
+                assert_eq!(bits(grad, 9), want_grad);
                 assert_eq!(
                     v.check_shape().is_ok() && v.values_finite(),
                     v.check().is_ok()
