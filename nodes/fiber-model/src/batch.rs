@@ -765,6 +765,33 @@ mod tests {
             assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
         }
         assert!(ms.iter().any(|m| m.sigma2 > 0.0), "the fibres bent");
+        // blocks of equally long fibres (read four at a time) with a partial last block,
+        // one-segment fibres (σ² = 0), and a fibre folded back on itself (Σẑ_i = 0)
+        for (count, segments) in [(9, &[7][..]), (6, &[1][..]), (7, &[2][..])] {
+            let mut g = FibreGroup::new(
+                params(0.0, 0.0),
+                fibres_of(count, segments, false, &mut seed),
+            );
+            let fl = fluid(&g, &mut seed, false);
+            g.step(&fl, 0.2).expect("step");
+            if segments == [2] {
+                let mut s = g.segment(5, 1);
+                s.z = -g.segment(5, 0).z;
+                g.set_segment(5, 1, s);
+            }
+            let ms = g.metrics();
+            assert_eq!(ms.len(), count);
+            for (k, m) in ms.iter().enumerate() {
+                assert_eq!(
+                    *m,
+                    crate::metrics::metrics(&g.fibre(k)),
+                    "{segments:?}: fibre {k}"
+                );
+            }
+            if segments == [2] {
+                assert_eq!(ms[5].orientation, Vector3::zeros(), "folded fibre");
+            }
+        }
         // a group large enough to be stepped and measured in parallel (and so a step on
         // the pool and one on this thread give the same bits)
         let big = fibres_of(600, &[7], true, &mut seed);
