@@ -471,6 +471,32 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Int
     (median(r), lo, hi, ci)
 }
 
+/// The flow node's serial coupling work in each run — sampling, handing the samples over
+/// and waiting for the states, stages the flow alone does not have — over the step wall of
+/// the flow-only run of the same round: median, min, max.
+fn paired_serial_share(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64) {
+    let r: Vec<f64> = runs
+        .iter()
+        .zip(flow_only)
+        .map(|(a, b)| (a.sampling_s + a.flow_publish_s + a.waiting_s) / b.loop_s)
+        .collect();
+    let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = r.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    (median(r), lo, hi)
+}
+
+/// Milliseconds as the table prints a stage: two decimals below 1 ms, one below 10 ms,
+/// whole above (so that the paper-size stages do not all read 0).
+fn stage_ms(x: f64) -> String {
+    if x < 1.0 {
+        format!("{x:.2}")
+    } else if x < 10.0 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:.0}")
+    }
+}
+
 /// The markdown table: ms per coupling step, medians over the repeats.
 /// `baselines`: each row label's flow-only label.
 fn table(
@@ -480,8 +506,8 @@ fn table(
 ) -> String {
     use std::fmt::Write as _;
     let mut md = String::from(
-        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | 95% interval of that median (bootstrap over rounds) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | 95% interval of that median (bootstrap over rounds) | flow node's serial coupling (sampling + samples out + waiting), % of the flow-only step: median (min–max) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     let per = |v: &[Figures], f: fn(&Figures) -> f64| {
         median(v.iter().map(f).collect()) * 1e3 / steps as f64
@@ -490,22 +516,31 @@ fn table(
         let step = per(v, |f| f.loop_s);
         let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
         let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
-        let (r_med, r_lo, r_hi, ci) = results
-            .get(&(0, baselines.get(t).cloned().unwrap_or_else(|| t.clone())))
-            .map(|b| paired_ratios(v, b))
-            .unwrap_or((f64::NAN, f64::NAN, f64::NAN, Interval::NAN));
+        let base = results.get(&(0, baselines.get(t).cloned().unwrap_or_else(|| t.clone())));
+        let (r_med, r_lo, r_hi, ci) = base.map(|b| paired_ratios(v, b)).unwrap_or((
+            f64::NAN,
+            f64::NAN,
+            f64::NAN,
+            Interval::NAN,
+        ));
+        let (s_med, s_lo, s_hi) =
+            base.map(|b| paired_serial_share(v, b))
+                .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
         let _ = writeln!(
             md,
-            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} | {:.1} | {:.0} ({:.2}) |",
+            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.1} ({:.1}–{:.1}) | {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {:.0} ({:.2}) |",
             ci.lo,
             ci.hi,
-            per(v, |f| f.field_step_s),
-            per(v, |f| f.sampling_s),
-            per(v, |f| f.flow_publish_s),
-            per(v, |f| f.waiting_s),
-            per(v, |f| f.fibre_step_s),
-            per(v, |f| f.group_publish_s),
-            per(v, |f| f.recording_s),
+            100.0 * s_med,
+            100.0 * s_lo,
+            100.0 * s_hi,
+            stage_ms(per(v, |f| f.field_step_s)),
+            stage_ms(per(v, |f| f.sampling_s)),
+            stage_ms(per(v, |f| f.flow_publish_s)),
+            stage_ms(per(v, |f| f.waiting_s)),
+            stage_ms(per(v, |f| f.fibre_step_s)),
+            stage_ms(per(v, |f| f.group_publish_s)),
+            stage_ms(per(v, |f| f.recording_s)),
             median(v.iter().map(|f| f.process_s).collect()),
             median(v.iter().map(|f| f.cpu_s).collect()),
             per(v, |f| f.nodes_cpu_s),
@@ -537,6 +572,51 @@ mod tests {
         let (m, lo, hi, _) = paired_ratios(&runs(&[11.0, 18.0, 10.2]), &runs(&[10.0, 20.0, 10.0]));
         assert!((m - 1.02).abs() < 1e-12, "median {m}");
         assert!((lo - 0.9).abs() < 1e-12 && (hi - 1.1).abs() < 1e-12);
+    }
+
+    /// The serial-coupling column: each run's sampling, handing over and waiting over its
+    /// round's flow-only step; stages print with decimals where they are small.
+    #[test]
+    fn serial_coupling_share_pairs_runs_of_the_same_round() {
+        let run = |loop_s, sampling_s, flow_publish_s, waiting_s| Figures {
+            loop_s,
+            sampling_s,
+            flow_publish_s,
+            waiting_s,
+            ..Default::default()
+        };
+        // rounds: 0.3 / 10 = 3%, 0.1 / 20 = 0.5%, 0.2 / 10 = 2%
+        let coupled = [
+            run(10.5, 0.1, 0.1, 0.1),
+            run(21.0, 0.05, 0.02, 0.03),
+            run(10.3, 0.1, 0.05, 0.05),
+        ];
+        let alone = [
+            run(10.0, 0.0, 0.0, 0.0),
+            run(20.0, 0.0, 0.0, 0.0),
+            run(10.0, 0.0, 0.0, 0.0),
+        ];
+        let (m, lo, hi) = paired_serial_share(&coupled, &alone);
+        assert!(
+            (m - 0.02).abs() < 1e-12 && (lo - 0.005).abs() < 1e-12 && (hi - 0.03).abs() < 1e-12
+        );
+        let mut results = BTreeMap::new();
+        results.insert((0, "iceoryx2".to_string()), alone.to_vec());
+        results.insert((300, "iceoryx2".to_string()), coupled.to_vec());
+        let md = table(&results, &BTreeMap::new(), 100);
+        let row = md.lines().find(|l| l.starts_with("| 300 |")).expect("row");
+        // 2.0% (0.5–3.0); sampling 0.1 s / 100 steps = 1.0 ms, waiting 0.5–1 ms
+        assert!(row.contains("| 2.0 (0.5–3.0) |"), "{row}");
+        assert!(row.contains("| 1.0 | 0.50 | 0.50 |"), "{row}");
+        assert_eq!(
+            md.lines().nth(1).map(|l| l.matches('|').count()),
+            row.matches('|').count().into(),
+            "as many columns as the header"
+        );
+        assert_eq!(
+            (stage_ms(0.423), stage_ms(4.23), stage_ms(42.3)),
+            ("0.42".into(), "4.2".into(), "42".into())
+        );
     }
 
     /// The interval of the median ratio: one point when every round agrees; otherwise
