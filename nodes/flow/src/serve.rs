@@ -373,8 +373,12 @@ pub fn serve(
     let cpu_from = fiberflow_bus::usage::process_cpu_s();
     // the loop's messages go out on the outbox's thread while the field steps on
     let mut out = Outbox::new(bus.clone(), outbox_depth(run))?;
-    // the loop's whole wall, stages and what lies between them (statistics, status)
+    // the loop's whole wall, stages and what lies between them (statistics, status),
+    // less the start-up wait for the first states (below)
     let loop_from = Instant::now();
+    // the wait for the first step's states is the fibre nodes starting up (once per run,
+    // tens of ms): start-up, logged apart from the loop's per-step stages
+    let mut start_wait_s = 0.0;
     for k in run.start_step..=run.steps {
         // gather every group's state at step k
         let wait_from = Instant::now();
@@ -426,7 +430,12 @@ pub fn serve(
             }
         }
         let t_plus = k as f64 * cfg.dt_plus;
-        timing.waiting_s += wait_from.elapsed().as_secs_f64();
+        let waited_s = wait_from.elapsed().as_secs_f64();
+        if k == run.start_step {
+            start_wait_s = waited_s;
+        } else {
+            timing.waiting_s += waited_s;
+        }
         // every piece's points in one pass, in cell order (parallel; the same bits as one
         // by one)
         let t0 = Instant::now();
@@ -578,7 +587,7 @@ pub fn serve(
             on_status(&status);
         }
     }
-    let loop_s = loop_from.elapsed().as_secs_f64();
+    let loop_s = loop_from.elapsed().as_secs_f64() - start_wait_s;
     let background_publishing_s = out.finish()?;
     tracing::info!(
         steps = run.steps - run.start_step,
@@ -589,6 +598,7 @@ pub fn serve(
         encoding_s = format!("{:.3}", timing.encoding_s),
         field_step_s = format!("{:.3}", timing.field_step_s),
         loop_s = format!("{loop_s:.3}"),
+        start_wait_s = format!("{start_wait_s:.3}"),
         cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
         "where the flow node's time went"
     );
