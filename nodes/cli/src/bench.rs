@@ -458,8 +458,6 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Int
         .zip(flow_only)
         .map(|(a, b)| a.loop_s / b.loop_s)
         .collect();
-    let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = r.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let ci = bootstrap::interval(r.len(), bootstrap::REPLICATES, 0x5ca1e, |w| {
         median(
             r.iter()
@@ -468,7 +466,8 @@ fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Int
                 .collect(),
         )
     });
-    (median(r), lo, hi, ci)
+    let (m, lo, hi) = median_min_max(r);
+    (m, lo, hi, ci)
 }
 
 /// The flow node's serial coupling work in each run — sampling, handing the samples over
@@ -482,6 +481,11 @@ fn paired_serial_share(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f6
         .zip(flow_only)
         .map(|(a, b)| (serial(a) - serial(b)) / b.loop_s)
         .collect();
+    median_min_max(r)
+}
+
+/// Median, smallest and largest of `r`.
+fn median_min_max(r: Vec<f64>) -> (f64, f64, f64) {
     let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
     let hi = r.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     (median(r), lo, hi)
