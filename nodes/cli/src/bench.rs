@@ -77,7 +77,10 @@ struct Config {
     baseline: String,
 }
 
-/// The configurations of one round, in the order they run.
+/// The configurations of one round, in the order of the first round: each transport's
+/// flow-only run followed by the runs compared with it (the two-launcher runs with
+/// zenoh's), so that a run and its baseline run next to each other. Later rounds take
+/// them in [`round_order`].
 fn configurations(o: &BenchOptions) -> Vec<Config> {
     let settings: Vec<Option<String>> = match &o.compare {
         Some(c) => c
@@ -117,6 +120,28 @@ fn configurations(o: &BenchOptions) -> Vec<Config> {
                 setting: s.clone(),
             });
         }
+    }
+    // grouped by baseline, in the order the transports were given (stable: within a
+    // group the flow alone first, then by fibre count); runs without a flow-only run of
+    // their own keep their place at the end
+    let block = |c: &Config| {
+        o.transports
+            .iter()
+            .position(|t| label(t, &settings[0]) == c.baseline)
+            .unwrap_or(o.transports.len())
+    };
+    v.sort_by_key(|c| (block(c), c.fibres > 0));
+    v
+}
+
+/// The order of round `r` (0-based): the first round's order, reversed in every other
+/// round. A run and its baseline are neighbours either way, and which of them runs first
+/// alternates (A B, B A, …), so a host that drifts, or a run that slows the next one,
+/// moves the paired ratios up in one round and down in the next instead of all one way.
+fn round_order<T>(configs: &[T], r: usize) -> Vec<&T> {
+    let mut v: Vec<&T> = configs.iter().collect();
+    if r % 2 == 1 {
+        v.reverse();
     }
     v
 }
@@ -323,8 +348,9 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     let total = configs.len() * o.repeats;
     let bar = crate::progress::bar(total as u64, "runs");
     let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
+    let numbered: Vec<(usize, &Config)> = configs.iter().enumerate().collect();
     for r in 0..o.repeats {
-        for (i, c) in configs.iter().enumerate() {
+        for &(i, c) in round_order(&numbered, r) {
             let (n, transport) = (&c.fibres, &c.transport);
             let two = transport == TWO_LAUNCHERS;
             let out = o.out.join(if two {
@@ -693,9 +719,9 @@ mod tests {
             got,
             vec![
                 row(0, "iceoryx2", idle, "iceoryx2"),
-                row(0, "zenoh", idle, "zenoh"),
                 row(300, "iceoryx2", idle, "iceoryx2"),
                 row(300, "iceoryx2", normal, "iceoryx2"),
+                row(0, "zenoh", idle, "zenoh"),
                 row(300, "zenoh", idle, "zenoh"),
                 row(300, "zenoh", normal, "zenoh"),
             ]
@@ -765,6 +791,55 @@ mod tests {
             ["launch", "f.toml", "--out", "out", "--set", "run.steps=20"]
         );
         assert_eq!(envs(&env), [("RAYON_NUM_THREADS".into(), "1".into())]);
+    }
+
+    /// Each transport's flow-only run is followed by the runs compared with it (the
+    /// two-launcher runs by zenoh's), and every other round runs the list backwards: a run
+    /// and its baseline stay neighbours, and which runs first alternates.
+    #[test]
+    fn runs_sit_next_to_their_baseline_and_rounds_alternate() {
+        let o = BenchOptions {
+            two_launchers: vec![600],
+            ..options(&[0, 300, 60000], &["iceoryx2", "zenoh", "inproc"], None)
+        };
+        let configs = configurations(&o);
+        let names: Vec<String> = configs
+            .iter()
+            .map(|c| format!("{} {}", c.fibres, c.label))
+            .collect();
+        assert_eq!(
+            names,
+            [
+                "0 iceoryx2",
+                "300 iceoryx2",
+                "60000 iceoryx2",
+                "0 zenoh",
+                "300 zenoh",
+                "60000 zenoh",
+                format!("600 {TWO_LAUNCHERS}").as_str(),
+                "0 inproc",
+                "300 inproc",
+                "60000 inproc",
+            ]
+        );
+        // every run after its own baseline's flow-only run and before the next one's
+        for (k, c) in configs.iter().enumerate() {
+            let base = configs
+                .iter()
+                .rposition(|b| b.fibres == 0 && b.label == c.baseline)
+                .expect("a flow-only run for every baseline");
+            assert!(base <= k, "{names:?}");
+            assert!(
+                configs[base..=k]
+                    .iter()
+                    .all(|x| x.fibres > 0 || x.label == c.baseline),
+                "{names:?}"
+            );
+        }
+        let first: Vec<usize> = round_order(&[1, 2, 3], 0).into_iter().copied().collect();
+        let second: Vec<usize> = round_order(&[1, 2, 3], 1).into_iter().copied().collect();
+        let third: Vec<usize> = round_order(&[1, 2, 3], 2).into_iter().copied().collect();
+        assert_eq!((first, second, third), (vec![1, 2, 3], vec![3, 2, 1], vec![1, 2, 3]));
     }
 
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.
