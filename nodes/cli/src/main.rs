@@ -62,7 +62,8 @@ enum Cmd {
         /// Coupling steps per run.
         #[arg(long, default_value_t = 20)]
         steps: u64,
-        /// Runs per configuration (interleaved).
+        /// Runs per configuration: rounds of every configuration, each run beside its
+        /// flow-only baseline, every other round in reverse order.
         #[arg(long, default_value_t = 2)]
         repeats: usize,
         /// Leave the recorder off (default: on, states every 10 steps, no samples).
