@@ -606,18 +606,19 @@ fn whole_states(path: &std::path::Path) -> std::collections::BTreeMap<(String, u
 #[test]
 fn sharded_groups_match_unsharded_bitwise() {
     let _one = one_run_at_a_time();
-    let run = |name: &str, shards: u32| {
+    let run_on = |name: &str, shards: u32, transport: &str, processes: u32| {
         let out = scratch(name);
         let mut c = Command::new(fiberflow());
         c.arg("launch")
             .arg(root().join("launch/quick.toml"))
-            .args(["--transport", "iceoryx2", "--out"])
+            .args(["--transport", transport, "--out"])
             .arg(&out);
         for s in [
             "run.steps=40".to_string(),
             "run.checkpoint_every_plus=5".into(),
             format!("fibers.case1.shards={shards}"),
             format!("fibers.case4.shards={shards}"),
+            format!("run.fibre_processes={processes}"),
         ] {
             c.arg("--set").arg(s);
         }
@@ -638,6 +639,7 @@ fn sharded_groups_match_unsharded_bitwise() {
             .collect();
         (out, table)
     };
+    let run = |name: &str, shards: u32| run_on(name, shards, "iceoryx2", 0);
     let (one, table_one) = run("shards-1", 1);
     let (three, table_three) = run("shards-3", 3);
     let a = whole_states(&one);
@@ -646,6 +648,33 @@ fn sharded_groups_match_unsharded_bitwise() {
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
     for (k, v) in &a {
         assert!(v == &b[k], "{k:?}: sharded state differs");
+    }
+    // the ten fibre nodes as threads of two processes (iceoryx2), or of one (zenoh):
+    // the same bits, one log per process
+    for (name, transport, processes) in [
+        ("shards-3-in-2", "iceoryx2", 2),
+        ("shards-3-in-1", "zenoh", 1),
+    ] {
+        let (out, table) = run_on(name, 3, transport, processes);
+        let c = whole_states(&out);
+        assert_eq!(a.keys().collect::<Vec<_>>(), c.keys().collect::<Vec<_>>());
+        for (k, v) in &a {
+            assert!(v == &c[k], "{name}: {k:?}: state differs");
+        }
+        assert_eq!(table, table_one, "{name}: analysis differs");
+        let mut logs: Vec<String> = std::fs::read_dir(out.join("logs"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().to_string())
+            .filter(|n| n.ends_with(".log"))
+            .collect();
+        logs.sort();
+        let mut want: Vec<String> = (1..=processes)
+            .map(|i| format!("fibres-{i}.log"))
+            .chain(["flow.log".into(), "recorder.log".into()])
+            .collect();
+        want.sort();
+        assert_eq!(logs, want, "{name}");
     }
     // the sharded recording really holds slices
     let slices = states(&three.join("run.mcap"));

@@ -266,11 +266,17 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
     }
     for e in entries {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
+        // fibre nodes sharing a process (`run.fibre_processes`) share a log, and each
+        // one's `cpu_s` is their process's: counted once, the largest
+        let mut fibre_process_cpu_s: f64 = 0.0;
         for line in text.lines() {
             let v = fields(line);
             let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
             let flow_line = line.contains("where the flow node's time went");
-            if flow_line || (!one_process && line.contains("time went")) {
+            let group_line = line.contains("where the group's time went");
+            if group_line && !one_process {
+                fibre_process_cpu_s = fibre_process_cpu_s.max(g("cpu_s"));
+            } else if flow_line || (!one_process && line.contains("time went")) {
                 f.nodes_cpu_s += g("cpu_s");
             }
             if flow_line {
@@ -290,6 +296,7 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
                 f.recording_s = g("writing_s");
             }
         }
+        f.nodes_cpu_s += fibre_process_cpu_s;
     }
     if f.loop_s == 0.0 {
         let dirs: Vec<String> = outs.iter().map(|o| o.display().to_string()).collect();
@@ -919,6 +926,18 @@ mod tests {
         // every node a thread of one process: the flow node's cpu_s (the process's) alone
         let f = read_figures(std::slice::from_ref(&dir), 12.0, true).unwrap();
         assert_eq!(f.nodes_cpu_s, 10.0);
+        // two groups in one process (`run.fibre_processes`): one log, each line's cpu_s the
+        // process's, counted once (the larger); the stages still average over the groups
+        std::fs::remove_file(logs.join("case1.log")).unwrap();
+        let line = |g: &str, s: &str, cpu: &str| format!("x INFO fiberflow_fiber::serve: where the group's time went group={g} steps=20 fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"{cpu}\"\n");
+        std::fs::write(
+            logs.join("fibres-1.log"),
+            line("case1", "1.000", "2.000") + &line("case2", "3.000", "2.250"),
+        )
+        .unwrap();
+        let f = read_figures(std::slice::from_ref(&dir), 12.0, false).unwrap();
+        assert_eq!(f.nodes_cpu_s, 10.0 + 2.25 + 0.5);
+        assert_eq!(f.fibre_step_s, 2.0);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -150,6 +150,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         transport: transport.clone(),
         zenoh_listen: vec![],
         zenoh_connect: vec![],
+        co_nodes: vec![],
         host: host.clone(),
         out_dir: out_dir.clone(),
         start_step: 0,
@@ -480,9 +481,11 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
-    for n in nodes {
+    for (n, co_nodes) in processes(nodes, base.launch.run.fibre_processes) {
         let mut spec = base.clone();
-        spec.node = n.clone();
+        spec.node = co_nodes.first().cloned().unwrap_or_else(|| n.clone());
+        spec.co_nodes = co_nodes.iter().skip(1).cloned().collect();
+        let n = &n;
         if !zenoh {
             // shared memory: nothing to configure
         } else if n == "flow" {
@@ -559,6 +562,46 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     result
 }
 
+/// The node processes of one launcher, in start order: (process name, its nodes). The
+/// flow node and the recorder run alone; with `fibre_processes` = N ≥ 1 the fibre nodes
+/// are cut into N runs of consecutive nodes, near-equal in count, named `fibres-1`, …
+/// (a run of one keeps its node's name); with 0 each is a process of its own.
+fn processes(nodes: &[String], fibre_processes: u32) -> Vec<(String, Vec<String>)> {
+    let is_fibre = |n: &String| n != "flow" && n != "recorder";
+    let fibres: Vec<&String> = nodes.iter().filter(|n| is_fibre(n)).collect();
+    let k = if fibre_processes == 0 {
+        fibres.len()
+    } else {
+        (fibre_processes as usize).min(fibres.len())
+    };
+    let mut chunks: Vec<Vec<String>> = Vec::new();
+    let mut rest = &fibres[..];
+    for i in 0..k {
+        let take = rest.len().div_ceil(k - i);
+        let (a, b) = rest.split_at(take);
+        chunks.push(a.iter().map(|n| n.to_string()).collect());
+        rest = b;
+    }
+    let mut out = Vec::new();
+    let mut chunks = chunks.into_iter().enumerate();
+    for n in nodes {
+        if !is_fibre(n) {
+            out.push((n.clone(), vec![n.clone()]));
+        } else {
+            // the fibre processes take the place of the first fibre node (the iterator
+            // is empty after that)
+            for (i, c) in chunks.by_ref() {
+                let name = match &c[..] {
+                    [one] => one.clone(),
+                    _ => format!("fibres-{}", i + 1),
+                };
+                out.push((name, c));
+            }
+        }
+    }
+    out
+}
+
 /// Waits for the children; on a signal or a failed node, stops the rest (TERM, then KILL).
 fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ended> {
     let mut ended: Option<Ended> = None;
@@ -620,6 +663,44 @@ mod tests {
 
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder
     /// included); returns every recorded state by (topic, step).
+    /// `run.fibre_processes`: 0 keeps a process per node; N cuts the fibre nodes into N
+    /// runs of consecutive nodes, near-equal, between the flow node and the recorder.
+    #[test]
+    fn fibre_nodes_are_spread_over_the_processes_asked_for() {
+        let nodes: Vec<String> = ["flow", "a", "b", "c", "d", "e", "recorder"]
+            .map(String::from)
+            .to_vec();
+        let shape = |k| -> Vec<(String, String)> {
+            processes(&nodes, k)
+                .into_iter()
+                .map(|(p, n)| (p, n.join(" ")))
+                .collect()
+        };
+        let own = |n: &str| (n.to_string(), n.to_string());
+        assert_eq!(
+            shape(0),
+            ["flow", "a", "b", "c", "d", "e", "recorder"].map(own).to_vec()
+        );
+        let p = |name: &str, n: &str| (name.to_string(), n.to_string());
+        assert_eq!(
+            shape(1),
+            [own("flow"), p("fibres-1", "a b c d e"), own("recorder")]
+        );
+        assert_eq!(
+            shape(2),
+            [own("flow"), p("fibres-1", "a b c"), p("fibres-2", "d e"), own("recorder")]
+        );
+        // as many processes as nodes, or more: a process each, named by its node
+        assert_eq!(shape(5), shape(0));
+        assert_eq!(shape(9), shape(0));
+        // a launcher with no fibre nodes (a worker host may have only some)
+        let alone = ["flow".to_string()];
+        assert_eq!(
+            processes(&alone, 3),
+            [("flow".to_string(), vec!["flow".to_string()])]
+        );
+    }
+
     fn run_on(bus: BusHandle, out: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
         recorded_states(&run_launch_on(bus, out))
     }
@@ -667,6 +748,7 @@ mod tests {
             transport: "inproc".into(),
             zenoh_listen: vec![],
             zenoh_connect: vec![],
+            co_nodes: vec![],
             host: None,
             out_dir: out.to_path_buf(),
             start_step: 0,

@@ -38,6 +38,12 @@ pub struct RunSection {
     /// How the fibre nodes share the cores with the flow node.
     #[serde(default)]
     pub fibre_scheduling: FibreScheduling,
+    /// Processes that carry the fibre nodes of one launcher: 0 (the default) runs each
+    /// fibre node in a process of its own; N ≥ 1 spreads them over N processes, each
+    /// running its share as threads on one bus connection (fewer processes, transport
+    /// sessions and task switches; a node that dies takes its process's others with it).
+    #[serde(default)]
+    pub fibre_processes: u32,
 }
 
 /// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
@@ -381,6 +387,14 @@ impl LaunchFile {
                 self.recorder.states_every
             );
         }
+        let fibre_nodes = self.pieces().map(|p| p.len()).unwrap_or(0);
+        if r.fibre_processes as usize > fibre_nodes.max(1) {
+            bail!(
+                "run.fibre_processes must be in 0..={} (the fibre nodes; 0 = a process each) (got {})",
+                fibre_nodes.max(1),
+                r.fibre_processes
+            );
+        }
         self.flow.validate()?;
         let mut names = std::collections::BTreeSet::new();
         for f in &self.fibers {
@@ -628,6 +642,8 @@ mod tests {
             ("run.steps", "KEY=VALUE"),
             ("run.restart.policy=sometimes", "policy"),
             ("run.fibre_scheduling=low", "fibre_scheduling"),
+            ("run.fibre_processes=-1", "fibre_processes"),
+            ("run.fibre_processes=99", "run.fibre_processes must be in 0..="),
         ] {
             let e = format!(
                 "{:#}",

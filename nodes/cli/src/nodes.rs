@@ -18,6 +18,10 @@ use std::sync::Arc;
 pub struct NodeSpec {
     /// "flow", "recorder", or a fibre group name.
     pub node: String,
+    /// Further fibre nodes this process runs, as threads on the same bus
+    /// (`run.fibre_processes`).
+    #[serde(default)]
+    pub co_nodes: Vec<String>,
     pub launch: LaunchFile,
     pub launch_file_name: String,
     pub launch_text: String,
@@ -271,6 +275,43 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
     Ok(())
 }
 
+/// Runs the spec's node and its co-nodes until the run ends, each on a thread of its
+/// own, all on `bus`. The first failure returns at once, naming its node: the process then
+/// exits and takes its other nodes with it, as separate processes would be stopped by the
+/// launcher, instead of leaving them to wait out the step timeout.
+fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
+    if spec.co_nodes.is_empty() {
+        return run_node(spec, bus, stop).with_context(|| format!("node {} failed", spec.node));
+    }
+    let names: Vec<String> = std::iter::once(spec.node.clone())
+        .chain(spec.co_nodes.iter().cloned())
+        .collect();
+    let (done_tx, done_rx) = std::sync::mpsc::channel();
+    for name in &names {
+        let mut s = spec.clone();
+        s.node = name.clone();
+        s.co_nodes.clear();
+        let (bus, stop, done) = (bus.clone(), stop.clone(), done_tx.clone());
+        std::thread::Builder::new()
+            .name(format!("node-{name}"))
+            .spawn(move || {
+                let r = run_node(&s, bus, stop).with_context(|| format!("node {} failed", s.node));
+                let _ = done.send(r);
+            })
+            .with_context(|| format!("starting node {name}"))?;
+    }
+    drop(done_tx);
+    for _ in &names {
+        match done_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(e),
+            // a node thread that panicked dropped its sender without a result
+            Err(_) => bail!("a node of {} panicked", names.join(", ")),
+        }
+    }
+    Ok(())
+}
+
 /// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most
 /// `timeout_s`, and gives up earlier once no heartbeat has arrived for 10 s (a DONE lost
 /// in transit must not hold the run open); logs the nodes it did not hear from.
@@ -328,8 +369,7 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
         );
     }
     let bus = open_bus(&spec)?;
-    let result =
-        run_node(&spec, bus.clone(), stop).with_context(|| format!("node {} failed", spec.node));
+    let result = run_nodes(&spec, bus.clone(), stop);
     if spec.transport == "zenoh" {
         // a node's last words (final state, DONE) are queued in the zenoh session, which
         // drops its queues when the process exits: give them time to leave
