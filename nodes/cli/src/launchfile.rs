@@ -656,7 +656,8 @@ mod tests {
 
     /// Every shipped launch file loads and passes the checks; the runs that have the
     /// machine to themselves (the paper's set-ups, the scale benchmark) put their fibre
-    /// nodes in the DNS's idle time, the others share the cores as usual.
+    /// nodes in the DNS's idle time and in one process, the others share the cores as
+    /// usual, a process per node.
     #[test]
     fn every_shipped_launch_file_loads() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
@@ -677,6 +678,13 @@ mod tests {
             if lf.run.fibre_scheduling == FibreScheduling::Idle {
                 idle.push(p.file_name().unwrap().to_string_lossy().to_string());
             }
+            // the same runs carry their fibre nodes in one process
+            assert_eq!(
+                lf.run.fibre_processes,
+                u32::from(lf.run.fibre_scheduling == FibreScheduling::Idle),
+                "{}",
+                p.display()
+            );
         }
         idle.sort();
         assert_eq!(n, 8, "launch files with a [run] table");
