@@ -846,7 +846,10 @@ mod tests {
         let first: Vec<usize> = round_order(&[1, 2, 3], 0).into_iter().copied().collect();
         let second: Vec<usize> = round_order(&[1, 2, 3], 1).into_iter().copied().collect();
         let third: Vec<usize> = round_order(&[1, 2, 3], 2).into_iter().copied().collect();
-        assert_eq!((first, second, third), (vec![1, 2, 3], vec![3, 2, 1], vec![1, 2, 3]));
+        assert_eq!(
+            (first, second, third),
+            (vec![1, 2, 3], vec![3, 2, 1], vec![1, 2, 3])
+        );
     }
 
     /// A two-launcher run is compared with zenoh's flow-only run of the same round.
@@ -929,7 +932,9 @@ mod tests {
         // two groups in one process (`run.fibre_processes`): one log, each line's cpu_s the
         // process's, counted once (the larger); the stages still average over the groups
         std::fs::remove_file(logs.join("case1.log")).unwrap();
-        let line = |g: &str, s: &str, cpu: &str| format!("x INFO fiberflow_fiber::serve: where the group's time went group={g} steps=20 fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"{cpu}\"\n");
+        let line = |g: &str, s: &str, cpu: &str| {
+            format!("x INFO fiberflow_fiber::serve: where the group's time went group={g} steps=20 fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"{cpu}\"\n")
+        };
         std::fs::write(
             logs.join("fibres-1.log"),
             line("case1", "1.000", "2.000") + &line("case2", "3.000", "2.250"),

@@ -679,7 +679,9 @@ mod tests {
         let own = |n: &str| (n.to_string(), n.to_string());
         assert_eq!(
             shape(0),
-            ["flow", "a", "b", "c", "d", "e", "recorder"].map(own).to_vec()
+            ["flow", "a", "b", "c", "d", "e", "recorder"]
+                .map(own)
+                .to_vec()
         );
         let p = |name: &str, n: &str| (name.to_string(), n.to_string());
         assert_eq!(
@@ -688,7 +690,12 @@ mod tests {
         );
         assert_eq!(
             shape(2),
-            [own("flow"), p("fibres-1", "a b c"), p("fibres-2", "d e"), own("recorder")]
+            [
+                own("flow"),
+                p("fibres-1", "a b c"),
+                p("fibres-2", "d e"),
+                own("recorder")
+            ]
         );
         // as many processes as nodes, or more: a process each, named by its node
         assert_eq!(shape(5), shape(0));

@@ -643,7 +643,10 @@ mod tests {
             ("run.restart.policy=sometimes", "policy"),
             ("run.fibre_scheduling=low", "fibre_scheduling"),
             ("run.fibre_processes=-1", "fibre_processes"),
-            ("run.fibre_processes=99", "run.fibre_processes must be in 0..="),
+            (
+                "run.fibre_processes=99",
+                "run.fibre_processes must be in 0..=",
+            ),
         ] {
             let e = format!(
                 "{:#}",
