@@ -73,7 +73,10 @@ struct Shared {
     node: Node<Svc>,
     topics: Vec<String>,
     services: Mutex<HashMap<String, PubSub>>,
-    publishers: Mutex<HashMap<String, BytePublisher>>,
+    /// A publisher per topic, each behind its own lock: threads of one process that
+    /// publish on different topics (fibre nodes sharing a process) encode and send at
+    /// the same time; the map's lock is held only to find or create one.
+    publishers: Mutex<HashMap<String, Arc<Mutex<BytePublisher>>>>,
     subscribers: Mutex<Vec<Route>>,
     /// Notifiers of the wake-up events of the processes (node ids) this one has woken.
     notifiers: Mutex<HashMap<u128, Notifier<Svc>>>,
@@ -253,22 +256,25 @@ impl Iceoryx2Bus {
         topic: &str,
         f: impl FnOnce(&BytePublisher) -> Result<R, BusError>,
     ) -> Result<R, BusError> {
-        let mut pubs = self.shared.publishers.lock().map_err(lock_err)?;
-        if !pubs.contains_key(topic) {
-            let p = self.shared.with_service(topic, |s| {
-                s.publisher_builder()
-                    .initial_max_slice_len(4096)
-                    .allocation_strategy(AllocationStrategy::PowerOfTwo)
-                    .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-                    .create()
-                    .map_err(terr)
-            })?;
-            pubs.insert(topic.to_string(), p);
-        }
-        let p = pubs
-            .get(topic)
-            .ok_or_else(|| BusError::Transport("publisher vanished".into()))?;
-        f(p)
+        let publisher = {
+            let mut pubs = self.shared.publishers.lock().map_err(lock_err)?;
+            if !pubs.contains_key(topic) {
+                let p = self.shared.with_service(topic, |s| {
+                    s.publisher_builder()
+                        .initial_max_slice_len(4096)
+                        .allocation_strategy(AllocationStrategy::PowerOfTwo)
+                        .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                        .create()
+                        .map_err(terr)
+                })?;
+                pubs.insert(topic.to_string(), Arc::new(Mutex::new(p)));
+            }
+            pubs.get(topic)
+                .cloned()
+                .ok_or_else(|| BusError::Transport("publisher vanished".into()))?
+        };
+        let p = publisher.lock().map_err(lock_err)?;
+        f(&p)
     }
 
     /// Wakes the processes subscribed to `topic`, each once.
