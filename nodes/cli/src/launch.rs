@@ -481,11 +481,13 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
-    for (n, co_nodes) in processes(nodes, base.launch.run.fibre_processes) {
+    for (n, members) in processes(nodes, base.launch.run.fibre_processes) {
         let mut spec = base.clone();
-        spec.node = co_nodes.first().cloned().unwrap_or_else(|| n.clone());
-        spec.co_nodes = co_nodes.iter().skip(1).cloned().collect();
-        let n = &n;
+        // the process runs its first node and the others beside it
+        if let Some((first, rest)) = members.split_first() {
+            spec.node = first.clone();
+            spec.co_nodes = rest.to_vec();
+        }
         if !zenoh {
             // shared memory: nothing to configure
         } else if n == "flow" {
