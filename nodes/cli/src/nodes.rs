@@ -378,3 +378,44 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
     drop(bus);
     result
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::launchfile::LaunchFile;
+
+    /// Nodes sharing a process: one that fails returns its error at once, naming it, while
+    /// the other still waits for a run announcement that never comes (an hour here: a
+    /// process that waited for all its nodes would hang this test).
+    #[test]
+    fn a_failing_co_node_ends_its_process_at_once() {
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/analytic-shear.toml");
+        let (lf, text) = LaunchFile::load_with(&file, &["run.step_timeout_s=3600".into()]).unwrap();
+        let waiting = lf.fibre_nodes().unwrap()[0].clone();
+        let out = std::env::temp_dir().join(format!("ff-co-nodes-{}", std::process::id()));
+        let spec = NodeSpec {
+            node: waiting,
+            co_nodes: vec!["nope".into()],
+            launch: lf,
+            launch_file_name: "analytic-shear.toml".into(),
+            launch_text: text,
+            transport: "inproc".into(),
+            zenoh_listen: vec![],
+            zenoh_connect: vec![],
+            host: None,
+            out_dir: out.clone(),
+            start_step: 0,
+            resume_dir: None,
+            segment: 0,
+        };
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let e = run_nodes(&spec, bus, Arc::new(AtomicBool::new(false))).unwrap_err();
+        let msg = format!("{e:#}");
+        assert!(msg.contains("node nope failed"), "{msg}");
+        assert!(
+            msg.contains("neither flow, recorder nor a fibre node"),
+            "{msg}"
+        );
+        std::fs::remove_dir_all(&out).ok();
+    }
+}
