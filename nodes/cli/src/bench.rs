@@ -23,7 +23,8 @@ pub struct BenchOptions {
     /// Total fibre counts (multiples of 30: six groups of five layers).
     pub fibres: Vec<u64>,
     pub transports: Vec<String>,
-    pub steps: u64,
+    /// Coupling steps per run; `None`: the launch files' `run.steps` (they must agree).
+    pub steps: Option<u64>,
     pub repeats: usize,
     /// Record (states every 10 steps, metrics every step, no samples).
     pub record: bool,
@@ -322,11 +323,37 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// The steps every run takes: `--steps`, or else the `run.steps` shared by the fibre
+/// file and the flow-only file (`files`: each file with its `run.steps`), so that a
+/// coupled run and its baseline always run alike.
+fn steps_per_run(given: Option<u64>, files: &[(&Path, u64)]) -> Result<u64> {
+    if let Some(s) = given {
+        return Ok(s);
+    }
+    let Some(&(first, steps)) = files.first() else {
+        bail!("no launch file to take run.steps from: pass --steps");
+    };
+    if let Some((other, s)) = files.iter().find(|(_, s)| *s != steps) {
+        bail!(
+            "run.steps is {steps} in {} but {s} in {}: pass --steps, or give both files the same run.steps",
+            first.display(),
+            other.display()
+        );
+    }
+    Ok(steps)
+}
+
 pub fn run(o: &BenchOptions) -> Result<()> {
     if o.fibres.iter().any(|n| n % 30 != 0) {
         bail!("--fibres: every count must be a multiple of 30 (six groups of five layers)");
     }
-    if o.steps == 0 || o.repeats == 0 {
+    let mut files = Vec::new();
+    for f in [&o.fibres_file, &o.flow_only_file] {
+        let (lf, _) = crate::launchfile::LaunchFile::load_with(f, &[])?;
+        files.push((f.as_path(), lf.run.steps));
+    }
+    let steps = steps_per_run(o.steps, &files)?;
+    if steps == 0 || o.repeats == 0 {
         bail!("--steps and --repeats must be >= 1");
     }
     if let Some(t) = o
@@ -373,7 +400,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                 &o.fibres_file
             };
             let mut sets = vec![
-                format!("run.steps={}", o.steps),
+                format!("run.steps={steps}"),
                 "run.analyze=false".into(),
                 "run.checkpoint_every_plus=0".into(),
             ];
@@ -453,7 +480,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
         }
     }
     bar.finish_and_clear();
-    let table = table(&results, &baselines, o.steps);
+    let table = table(&results, &baselines, steps);
     println!("{table}");
     let path = o.out.join("bench-scale.md");
     std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
@@ -683,13 +710,39 @@ mod tests {
         assert!(many < 0.6 * few, "{few} {many}");
     }
 
+    /// Without `--steps` every run takes the launch files' shared `run.steps` (150 in the
+    /// shipped scale files); files that disagree are an error naming both and the key;
+    /// `--steps` wins.
+    #[test]
+    fn runs_take_the_launch_files_steps_unless_told() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
+        let shipped: Vec<(PathBuf, u64)> = ["scale-1e4.toml", "scale-flow-only.toml"]
+            .iter()
+            .map(|f| {
+                let p = dir.join(f);
+                let (lf, _) = crate::launchfile::LaunchFile::load_with(&p, &[]).unwrap();
+                (p, lf.run.steps)
+            })
+            .collect();
+        let files: Vec<(&Path, u64)> = shipped.iter().map(|(p, s)| (p.as_path(), *s)).collect();
+        assert_eq!(steps_per_run(None, &files).unwrap(), 150);
+        assert_eq!(steps_per_run(Some(20), &files).unwrap(), 20);
+        let (a, b) = (Path::new("a.toml"), Path::new("b.toml"));
+        let e = steps_per_run(None, &[(a, 150), (b, 20)]).unwrap_err().to_string();
+        assert!(
+            e.contains("run.steps") && e.contains("a.toml") && e.contains("b.toml") && e.contains("--steps"),
+            "{e}"
+        );
+        assert_eq!(steps_per_run(Some(30), &[(a, 150), (b, 20)]).unwrap(), 30);
+    }
+
     fn options(fibres: &[u64], transports: &[&str], compare: Option<&str>) -> BenchOptions {
         BenchOptions {
             fibres_file: "f.toml".into(),
             flow_only_file: "0.toml".into(),
             fibres: fibres.to_vec(),
             transports: transports.iter().map(|t| t.to_string()).collect(),
-            steps: 20,
+            steps: Some(20),
             repeats: 1,
             record: false,
             out: "out".into(),

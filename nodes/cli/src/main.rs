@@ -59,9 +59,10 @@ enum Cmd {
         /// process).
         #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
         transports: Vec<String>,
-        /// Coupling steps per run.
-        #[arg(long, default_value_t = 20)]
-        steps: u64,
+        /// Coupling steps per run [default: the launch files' run.steps, 150 in the
+        /// shipped ones; the two files must agree].
+        #[arg(long)]
+        steps: Option<u64>,
         /// Runs per configuration: rounds of every configuration, each run beside its
         /// flow-only baseline, every other round in reverse order.
         #[arg(long, default_value_t = 2)]
