@@ -728,9 +728,14 @@ mod tests {
         assert_eq!(steps_per_run(None, &files).unwrap(), 150);
         assert_eq!(steps_per_run(Some(20), &files).unwrap(), 20);
         let (a, b) = (Path::new("a.toml"), Path::new("b.toml"));
-        let e = steps_per_run(None, &[(a, 150), (b, 20)]).unwrap_err().to_string();
+        let e = steps_per_run(None, &[(a, 150), (b, 20)])
+            .unwrap_err()
+            .to_string();
         assert!(
-            e.contains("run.steps") && e.contains("a.toml") && e.contains("b.toml") && e.contains("--steps"),
+            e.contains("run.steps")
+                && e.contains("a.toml")
+                && e.contains("b.toml")
+                && e.contains("--steps"),
             "{e}"
         );
         assert_eq!(steps_per_run(Some(30), &[(a, 150), (b, 20)]).unwrap(), 30);
