@@ -277,7 +277,8 @@ impl Iceoryx2Bus {
         f(&p)
     }
 
-    /// Wakes the processes subscribed to `topic`, each once.
+    /// Wakes the processes subscribed to `topic`, each once (inside
+    /// [`Bus::publish_together`] on this thread: at its end).
     fn wake_subscribers(&self, topic: &str) -> Result<(), BusError> {
         let mut nodes: Vec<u128> = Vec::new();
         self.shared.with_service(topic, |s| {
@@ -290,11 +291,32 @@ impl Iceoryx2Bus {
             });
             Ok(())
         })?;
-        for node in nodes {
-            self.shared.wake(node)?;
+        let deferred = HELD_WAKES.with(|held| {
+            let mut held = held.borrow_mut();
+            match held.as_mut() {
+                Some(h) => {
+                    for n in &nodes {
+                        if !h.contains(n) {
+                            h.push(*n);
+                        }
+                    }
+                    true
+                }
+                None => false,
+            }
+        });
+        if !deferred {
+            for node in nodes {
+                self.shared.wake(node)?;
+            }
         }
         Ok(())
     }
+}
+
+thread_local! {
+    /// Inside [`Bus::publish_together`]: the processes to wake when it ends.
+    static HELD_WAKES: std::cell::RefCell<Option<Vec<u128>>> = const { std::cell::RefCell::new(None) };
 }
 
 impl Drop for Iceoryx2Bus {
@@ -339,6 +361,31 @@ impl Bus for Iceoryx2Bus {
         self.wake_subscribers(topic)
     }
 
+    fn publish_together(
+        &self,
+        publish: &mut dyn FnMut() -> Result<(), BusError>,
+    ) -> Result<(), BusError> {
+        // nested: the outer call wakes
+        let outer = HELD_WAKES.with(|held| {
+            let mut held = held.borrow_mut();
+            let outer = held.is_none();
+            if outer {
+                *held = Some(Vec::new());
+            }
+            outer
+        });
+        let result = publish();
+        if !outer {
+            return result;
+        }
+        // every message sent before the failure is woken for too
+        let nodes = HELD_WAKES.with(|held| held.borrow_mut().take().unwrap_or_default());
+        for node in nodes {
+            self.shared.wake(node)?;
+        }
+        result
+    }
+
     fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError> {
         let (tx, rx) = channel();
         let mut new = Vec::new();
@@ -381,6 +428,35 @@ mod tests {
         let tx = Iceoryx2Bus::open(&id, topics).unwrap();
         let sub = rx.subscribe(topic).unwrap();
         (rx, tx, sub)
+    }
+
+    /// Inside `publish_together` messages go out at once but their wake-ups are held, one
+    /// per subscribing process, until the outermost call ends (also when it fails); every
+    /// message arrives, in order.
+    #[test]
+    fn publishing_together_wakes_each_process_once_at_the_end() {
+        let (rx, tx, sub) = receiver_and_sender("together", "t/tog");
+        let held = || HELD_WAKES.with(|h| h.borrow().clone());
+        tx.publish_together(&mut || {
+            tx.publish("t/tog", &[1])?;
+            tx.publish("t/tog", &[2])?;
+            assert_eq!(held(), Some(vec![rx.shared.node.id().value()]));
+            tx.publish_together(&mut || tx.publish("t/tog", &[3]))?;
+            assert_eq!(held().map(|h| h.len()), Some(1), "the inner call woke");
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(held(), None);
+        let failed = tx.publish_together(&mut || {
+            tx.publish("t/tog", &[4])?;
+            Err(BusError::Transport("refused".into()))
+        });
+        assert!(failed.is_err());
+        assert_eq!(held(), None, "a failed call left wake-ups held");
+        for want in 1..=4u8 {
+            let (_, p) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
+            assert_eq!(&p[..], &[want]);
+        }
     }
 
     /// Messages written straight into the loaned memory arrive with their bytes, still in

@@ -158,6 +158,16 @@ pub trait Bus: Send + Sync {
     fn subscribe(&self, pattern: &str) -> Result<Subscription, BusError>;
     /// Transport name for logs.
     fn name(&self) -> &'static str;
+    /// Runs `publish`, whose messages from this thread go out as usual but wake each
+    /// subscribing process once, at the end, instead of once per message (iceoryx2: a
+    /// process's receive thread then drains them all in one wake-up). Transports
+    /// without per-message wake-ups just run it.
+    fn publish_together(
+        &self,
+        publish: &mut dyn FnMut() -> Result<(), BusError>,
+    ) -> Result<(), BusError> {
+        publish()
+    }
 }
 
 /// The error of a message that did not write the bytes it announced (a bug, reported

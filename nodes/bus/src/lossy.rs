@@ -92,4 +92,11 @@ impl Bus for LossyBus {
     fn name(&self) -> &'static str {
         "lossy"
     }
+
+    fn publish_together(
+        &self,
+        publish: &mut dyn FnMut() -> Result<(), BusError>,
+    ) -> Result<(), BusError> {
+        self.inner.publish_together(publish)
+    }
 }

@@ -245,34 +245,57 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             );
             report_drops("recorder", &s.drops);
         }
-        node => {
-            let Some(p) = pieces.iter().find(|p| p.node() == node) else {
-                bail!("node {node:?} is neither flow, recorder nor a fibre node of the launch file ({})", fibre_nodes.join(", "));
-            };
-            let Some(cfg) = lf.fibers.iter().find(|f| f.group == p.group) else {
-                bail!("fibre node {node:?} has no group in the launch file");
-            };
-            let ck = fiberflow_fiber::serve::Checkpointing {
-                start_step: spec.start_step,
-                resume_dir: spec.resume_dir.clone(),
-                every: lf.run.checkpoint_every_steps(),
-                root: spec.checkpoint_root(),
-                config_digest: digest(&spec.launch_text),
-                full_states_every: lf.recorder.states_every,
-            };
-            let drops = fiberflow_fiber::serve::serve(
-                cfg,
-                p.index,
-                bus,
-                &lf.run.id,
-                lf.box_plus(),
-                lf.run.step_timeout_s,
-                &ck,
-            )?;
-            report_drops(node, &drops);
-        }
+        node => run_fibre_nodes(spec, &[node.to_string()], bus)?,
     }
     Ok(())
+}
+
+/// Runs fibre nodes of the launch file on this thread, stepping them in turn
+/// (`fiberflow_fiber::serve::serve_many`), until the run ends.
+fn run_fibre_nodes(spec: &NodeSpec, names: &[String], bus: BusHandle) -> Result<()> {
+    let lf = &spec.launch;
+    let pieces = lf.pieces()?;
+    let mut nodes = Vec::new();
+    for node in names {
+        let Some(p) = pieces.iter().find(|p| &p.node() == node) else {
+            let all: Vec<String> = pieces.iter().map(|p| p.node()).collect();
+            bail!(
+                "node {node:?} is neither flow, recorder nor a fibre node of the launch file ({})",
+                all.join(", ")
+            );
+        };
+        let Some(cfg) = lf.fibers.iter().find(|f| f.group == p.group) else {
+            bail!("fibre node {node:?} has no group in the launch file");
+        };
+        nodes.push((cfg, p.index));
+    }
+    let ck = fiberflow_fiber::serve::Checkpointing {
+        start_step: spec.start_step,
+        resume_dir: spec.resume_dir.clone(),
+        every: lf.run.checkpoint_every_steps(),
+        root: spec.checkpoint_root(),
+        config_digest: digest(&spec.launch_text),
+        full_states_every: lf.recorder.states_every,
+    };
+    let served = fiberflow_fiber::serve::serve_many(
+        &nodes,
+        bus,
+        &lf.run.id,
+        lf.box_plus(),
+        lf.run.step_timeout_s,
+        &ck,
+    )?;
+    for (node, drops) in &served {
+        report_drops(node, drops);
+    }
+    Ok(())
+}
+
+/// Whether `name` is one of the launch file's fibre nodes.
+fn is_fibre_node(spec: &NodeSpec, name: &str) -> bool {
+    spec.launch
+        .pieces()
+        .is_ok_and(|ps| ps.iter().any(|p| p.node() == name))
 }
 
 /// Runs the spec's node and its co-nodes until the run ends, each on a thread of its
@@ -286,6 +309,11 @@ fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<(
     let names: Vec<String> = std::iter::once(spec.node.clone())
         .chain(spec.co_nodes.iter().cloned())
         .collect();
+    // fibre nodes only (the launcher's `fibres-i` processes): one thread steps them all
+    if names.iter().all(|n| is_fibre_node(spec, n)) {
+        return run_fibre_nodes(spec, &names, bus)
+            .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
+    }
     let (done_tx, done_rx) = std::sync::mpsc::channel();
     for name in &names {
         let mut s = spec.clone();

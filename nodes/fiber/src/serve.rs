@@ -1,12 +1,16 @@
 //! The fibre node's loop: announce readiness, then per step publish the state at t_k,
-//! wait for the flow samples of step k, and integrate to t_{k+1}.
+//! wait for the flow samples of step k, and integrate to t_{k+1}. Several fibre nodes of
+//! one process ([`serve_many`]) step in turn on one thread: at paper size each thread of
+//! its own cost the process more in task switches than the fibres' physics.
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
+use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::step::Fluid;
 use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::checkpoints;
+use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FiberGroupMetrics, FiberGroupState, Heartbeat, RunAnnouncement, SamplesView,
@@ -61,182 +65,329 @@ pub fn serve(
     timeout_s: f64,
     ck: &Checkpointing,
 ) -> Result<DropCounter, FiberNodeError> {
-    let t = Topics::new(run_id);
-    let piece = cfg
-        .pieces(box_plus)?
-        .into_iter()
-        .nth(shard as usize)
-        .ok_or_else(|| {
-            FiberNodeError::Protocol(format!(
-                "group {} has {} shards, no shard {shard}",
-                cfg.group, cfg.shards
-            ))
-        })?;
-    // every shard builds the whole group and keeps its slice: the same fibres, bit for
-    // bit, whatever the shard count
-    let built = cfg
-        .build(box_plus)?
-        .slice(piece.first_fiber as usize, piece.fibers as usize);
-    let node = piece.node();
-    let mut group = built.group;
-    if let Some(dir) = &ck.resume_dir {
-        let path = checkpoints::piece(dir, &node);
-        let snap = GroupSnapshot::read(&path)?;
-        if snap.step != ck.start_step {
-            return Err(FiberNodeError::Protocol(format!(
-                "{} holds step {}, the run resumes at step {}",
-                path.display(),
-                snap.step,
-                ck.start_step
-            )));
-        }
-        snap.restore(&mut group).map_err(|e| {
-            FiberNodeError::Protocol(format!(
-                "{} does not fit group {}: {e}",
-                path.display(),
-                cfg.group
-            ))
-        })?;
-        tracing::info!(
-            step = ck.start_step,
-            "group restored from a coupled checkpoint"
-        );
-    }
-    let layers = built.layers;
-    let name = cfg.group.clone();
-    let mut samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
-    let mut ann_in = Inbox::new(bus.subscribe(&t.announce())?);
-    let hb = |state: u8, step: u64, dropped: u64| -> Result<(), BusError> {
-        bus.publish(
-            &t.heartbeat(&node),
-            &encode(&Heartbeat {
-                schema_version: SCHEMA_VERSION,
-                node: node.clone(),
-                state,
-                step,
-                dropped,
-            }),
-        )
-    };
-    // readiness until the run is announced
+    let mut drops = serve_many(&[(cfg, shard)], bus, run_id, box_plus, timeout_s, ck)?;
+    Ok(drops.pop().map(|(_, d)| d).unwrap_or_default())
+}
+
+/// Runs several fibre nodes (each a group's shard) on this thread to the end of the run,
+/// stepping them in turn: every node publishes its state of step k before any waits for
+/// its samples of step k, so the flow node, which answers once it holds every state, is
+/// never kept waiting by the order. One thread is woken once per step instead of one
+/// per node. Returns each node's name and drop counts.
+pub fn serve_many(
+    nodes: &[(&FiberNodeConfig, u32)],
+    bus: BusHandle,
+    run_id: &str,
+    box_plus: [f64; 3],
+    timeout_s: f64,
+    ck: &Checkpointing,
+) -> Result<Vec<(String, DropCounter)>, FiberNodeError> {
+    let mut served = nodes
+        .iter()
+        .map(|(cfg, shard)| Served::prepare(cfg, *shard, bus.clone(), run_id, box_plus, ck))
+        .collect::<Result<Vec<_>, _>>()?;
+    // readiness until every node's run is announced
     let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
-    let ann = loop {
+    let mut announced: Vec<Option<RunAnnouncement>> = vec![None; served.len()];
+    while announced.iter().any(Option::is_none) {
         if Instant::now() > deadline {
+            let waiting: Vec<&str> = served
+                .iter()
+                .zip(&announced)
+                .filter(|(_, a)| a.is_none())
+                .map(|(s, _)| s.node.as_str())
+                .collect();
             return Err(FiberNodeError::Protocol(format!(
-                "node {node}: no run announcement within {timeout_s:.0} s (is the flow node running?)"
+                "node {}: no run announcement within {timeout_s:.0} s (is the flow node running?)",
+                waiting.join(", ")
             )));
         }
-        hb(lifecycle::READY, 0, 0)?;
-        if let Some((topic, a)) = ann_in.recv::<RunAnnouncement>(Duration::from_millis(200)) {
-            if a.run_id != run_id
-                || (!ck.config_digest.is_empty() && a.config_digest != ck.config_digest)
-            {
-                ann_in
-                    .drops
-                    .drop_one(&topic, "announcement of another run or configuration");
-            } else if a.groups.contains(&name) {
-                break a;
+        for (s, a) in served.iter_mut().zip(announced.iter_mut()) {
+            if a.is_none() {
+                s.hb(lifecycle::READY, 0)?;
             }
         }
-    };
-    let dt = ann.dt_plus;
-    // the state message is kept and refilled every step: its per-fibre arrays are set once
-    // and the segment arrays (MBs per step at scale) keep their allocations
-    let mut state_msg = Encode(FiberGroupState {
-        schema_version: SCHEMA_VERSION,
-        group: name.clone(),
-        step: 0,
-        t_plus: 0.0,
-        first_fiber: piece.first_fiber,
-        group_fibers: piece.group_fibers,
-        segments_per_fiber: (0..group.len())
-            .map(|k| group.fibre_len(k) as u32)
-            .collect(),
-        segment_length: (0..group.len())
-            .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.length))
-            .collect(),
-        diameter: (0..group.len())
-            .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.diameter))
-            .collect(),
-        density_ratio: (0..group.len()).map(|k| group.density(k)).collect(),
-        layer: layers.clone(),
-        centre: Vec::new(),
-        axis: Vec::new(),
-        velocity: Vec::new(),
-        angular_velocity: Vec::new(),
-    });
-    let state_topic = t.fiber_state(&name);
-    let mut publish_state =
-        |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
-            let full = ck.full_states_every <= 1
-                || step.is_multiple_of(ck.full_states_every)
-                || step == ann.steps;
-            let st = &mut state_msg.0;
-            st.step = step;
-            st.t_plus = step as f64 * dt;
-            st.centre.clear();
-            st.axis.clear();
-            st.velocity.clear();
-            st.angular_velocity.clear();
-            group.extend_state(
-                full,
-                &mut st.centre,
-                &mut st.axis,
-                &mut st.velocity,
-                &mut st.angular_velocity,
-            );
-            bus.publish_message(&state_topic, &state_msg)
-        };
-    let publish_metrics =
-        |group: &fiberflow_fiber_model::group::FibreGroup, step: u64| -> Result<(), BusError> {
-            let ms = group.metrics();
-            let n = ms.len().max(1) as f64;
-            let m = FiberGroupMetrics {
-                schema_version: SCHEMA_VERSION,
-                group: name.clone(),
-                step,
-                t_plus: step as f64 * dt,
-                first_fiber: piece.first_fiber,
-                group_fibers: piece.group_fibers,
-                centre_of_mass: ms
-                    .iter()
-                    .flat_map(|m| m.centre_of_mass.iter().copied())
-                    .collect(),
-                z1: ms.iter().map(|m| m.z1).collect(),
-                sigma2: ms.iter().map(|m| m.sigma2).collect(),
-                end_to_end: ms.iter().map(|m| m.end_to_end).collect(),
-                mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
-                mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
-            };
-            bus.publish_message(&t.fiber_metrics(&name), &Encode(m))
-        };
-    let start = ck.start_step;
-    publish_state(&group, start)?;
-    if start == 0 || start.is_multiple_of(cfg.metrics_every) {
-        publish_metrics(&group, start)?;
+        let wait = Duration::from_millis(200) / served.len().max(1) as u32;
+        for (s, a) in served.iter_mut().zip(announced.iter_mut()) {
+            if a.is_none() {
+                *a = s.announcement(wait, ck);
+            }
+        }
+    }
+    for (s, a) in served.iter_mut().zip(announced) {
+        if let Some(a) = a {
+            s.start(a)?;
+        }
     }
     let step_timeout = Duration::from_secs_f64(timeout_s);
-    // wall seconds: waiting for and decoding samples, fibre step, encoding and publishing
-    let mut timing = (0.0, 0.0, 0.0);
-    let cpu_from = fiberflow_bus::usage::process_cpu_s();
-    // the longest wait for samples so far that needed no resend: a wait three times as
-    // long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
-    // several resends fit in it) means a message was probably lost
-    let mut longest_wait = Duration::ZERO;
-    let resend_cap = (step_timeout / 4).max(RESEND_AFTER_MIN);
-    for k in start..ann.steps {
+    let steps = served.iter().map(|s| s.steps).max().unwrap_or(0);
+    for k in ck.start_step..steps {
+        for s in served.iter_mut().filter(|s| k < s.steps) {
+            s.step(k, step_timeout, timeout_s)?;
+        }
+        // the new states together: one wake-up of each subscribing process per step,
+        // not one per node
+        bus.publish_together(&mut || {
+            for s in served.iter_mut().filter(|s| k < s.steps) {
+                s.publish_step(k + 1)?;
+            }
+            Ok(())
+        })?;
+        for s in served.iter().filter(|s| k < s.steps) {
+            s.checkpoint(k + 1)?;
+        }
+    }
+    served.into_iter().map(Served::finish).collect()
+}
+
+/// One fibre node's group, its messages and its bookkeeping between steps.
+struct Served {
+    node: String,
+    name: String,
+    t: Topics,
+    bus: BusHandle,
+    piece: Piece,
+    group: FibreGroup,
+    run_id: String,
+    /// The step the run starts (or resumes) from.
+    start: u64,
+    initial_velocity: InitialVelocity,
+    metrics_every: u64,
+    samples_in: Inbox,
+    ann_in: Inbox,
+    /// Refilled every step: its per-fibre arrays are set once and the segment arrays (MBs
+    /// per step at scale) keep their allocations.
+    state_msg: Encode<FiberGroupState>,
+    state_topic: String,
+    full_states_every: u64,
+    checkpoint_every: u64,
+    checkpoint_root: Option<PathBuf>,
+    dt: f64,
+    steps: u64,
+    /// Wall seconds: waiting for and decoding samples, fibre step, encoding and publishing.
+    timing: (f64, f64, f64),
+    /// The longest wait for samples so far that needed no resend: a wait three times as
+    /// long (at least RESEND_AFTER_MIN, at most a quarter of the step timeout, so that
+    /// several resends fit in it) means a message was probably lost.
+    longest_wait: Duration,
+    cpu_from: f64,
+}
+
+impl Served {
+    /// Builds (or restores) the node's slice of its group and subscribes to its topics.
+    fn prepare(
+        cfg: &FiberNodeConfig,
+        shard: u32,
+        bus: BusHandle,
+        run_id: &str,
+        box_plus: [f64; 3],
+        ck: &Checkpointing,
+    ) -> Result<Self, FiberNodeError> {
+        let t = Topics::new(run_id);
+        let piece = cfg
+            .pieces(box_plus)?
+            .into_iter()
+            .nth(shard as usize)
+            .ok_or_else(|| {
+                FiberNodeError::Protocol(format!(
+                    "group {} has {} shards, no shard {shard}",
+                    cfg.group, cfg.shards
+                ))
+            })?;
+        // every shard builds the whole group and keeps its slice: the same fibres, bit for
+        // bit, whatever the shard count
+        let built = cfg
+            .build(box_plus)?
+            .slice(piece.first_fiber as usize, piece.fibers as usize);
+        let node = piece.node();
+        let mut group = built.group;
+        if let Some(dir) = &ck.resume_dir {
+            let path = checkpoints::piece(dir, &node);
+            let snap = GroupSnapshot::read(&path)?;
+            if snap.step != ck.start_step {
+                return Err(FiberNodeError::Protocol(format!(
+                    "{} holds step {}, the run resumes at step {}",
+                    path.display(),
+                    snap.step,
+                    ck.start_step
+                )));
+            }
+            snap.restore(&mut group).map_err(|e| {
+                FiberNodeError::Protocol(format!(
+                    "{} does not fit group {}: {e}",
+                    path.display(),
+                    cfg.group
+                ))
+            })?;
+            tracing::info!(
+                node = %node,
+                step = ck.start_step,
+                "group restored from a coupled checkpoint"
+            );
+        }
+        let name = cfg.group.clone();
+        let samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
+        let ann_in = Inbox::new(bus.subscribe(&t.announce())?);
+        let state_msg = Encode(FiberGroupState {
+            schema_version: SCHEMA_VERSION,
+            group: name.clone(),
+            step: 0,
+            t_plus: 0.0,
+            first_fiber: piece.first_fiber,
+            group_fibers: piece.group_fibers,
+            segments_per_fiber: (0..group.len())
+                .map(|k| group.fibre_len(k) as u32)
+                .collect(),
+            segment_length: (0..group.len())
+                .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.length))
+                .collect(),
+            diameter: (0..group.len())
+                .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.diameter))
+                .collect(),
+            density_ratio: (0..group.len()).map(|k| group.density(k)).collect(),
+            layer: built.layers,
+            centre: Vec::new(),
+            axis: Vec::new(),
+            velocity: Vec::new(),
+            angular_velocity: Vec::new(),
+        });
+        Ok(Self {
+            state_topic: t.fiber_state(&name),
+            node,
+            name,
+            t,
+            bus,
+            piece,
+            group,
+            run_id: run_id.to_string(),
+            start: ck.start_step,
+            initial_velocity: cfg.initial_velocity,
+            metrics_every: cfg.metrics_every,
+            samples_in,
+            ann_in,
+            state_msg,
+            full_states_every: ck.full_states_every,
+            checkpoint_every: ck.every,
+            checkpoint_root: ck.root.clone(),
+            dt: 0.0,
+            steps: 0,
+            timing: (0.0, 0.0, 0.0),
+            longest_wait: Duration::ZERO,
+            cpu_from: 0.0,
+        })
+    }
+
+    fn hb(&self, state: u8, step: u64) -> Result<(), BusError> {
+        self.bus.publish(
+            &self.t.heartbeat(&self.node),
+            &encode(&Heartbeat {
+                schema_version: SCHEMA_VERSION,
+                node: self.node.clone(),
+                state,
+                step,
+                dropped: self.samples_in.drops.total(),
+            }),
+        )
+    }
+
+    /// The run's announcement for this node's group, if one arrives within `wait`
+    /// (announcements of another run or configuration are dropped and counted).
+    fn announcement(&mut self, wait: Duration, ck: &Checkpointing) -> Option<RunAnnouncement> {
+        let (topic, a) = self.ann_in.recv::<RunAnnouncement>(wait)?;
+        if a.run_id != self.run_id
+            || (!ck.config_digest.is_empty() && a.config_digest != ck.config_digest)
+        {
+            self.ann_in
+                .drops
+                .drop_one(&topic, "announcement of another run or configuration");
+            None
+        } else if a.groups.contains(&self.name) {
+            Some(a)
+        } else {
+            None
+        }
+    }
+
+    /// Takes the run's time step and length and publishes the state the run starts from.
+    fn start(&mut self, ann: RunAnnouncement) -> Result<(), FiberNodeError> {
+        self.dt = ann.dt_plus;
+        self.steps = ann.steps;
+        let start = self.start;
+        self.publish_state(start)?;
+        if start == 0 || start.is_multiple_of(self.metrics_every) {
+            self.publish_metrics(start)?;
+        }
+        self.cpu_from = fiberflow_bus::usage::process_cpu_s();
+        Ok(())
+    }
+
+    fn publish_state(&mut self, step: u64) -> Result<(), BusError> {
+        let full = self.full_states_every <= 1
+            || step.is_multiple_of(self.full_states_every)
+            || step == self.steps;
+        let st = &mut self.state_msg.0;
+        st.step = step;
+        st.t_plus = step as f64 * self.dt;
+        st.centre.clear();
+        st.axis.clear();
+        st.velocity.clear();
+        st.angular_velocity.clear();
+        self.group.extend_state(
+            full,
+            &mut st.centre,
+            &mut st.axis,
+            &mut st.velocity,
+            &mut st.angular_velocity,
+        );
+        self.bus.publish_message(&self.state_topic, &self.state_msg)
+    }
+
+    fn publish_metrics(&self, step: u64) -> Result<(), BusError> {
+        let ms = self.group.metrics();
+        let n = ms.len().max(1) as f64;
+        let m = FiberGroupMetrics {
+            schema_version: SCHEMA_VERSION,
+            group: self.name.clone(),
+            step,
+            t_plus: step as f64 * self.dt,
+            first_fiber: self.piece.first_fiber,
+            group_fibers: self.piece.group_fibers,
+            centre_of_mass: ms
+                .iter()
+                .flat_map(|m| m.centre_of_mass.iter().copied())
+                .collect(),
+            z1: ms.iter().map(|m| m.z1).collect(),
+            sigma2: ms.iter().map(|m| m.sigma2).collect(),
+            end_to_end: ms.iter().map(|m| m.end_to_end).collect(),
+            mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
+            mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
+        };
+        self.bus
+            .publish_message(&self.t.fiber_metrics(&self.name), &Encode(m))
+    }
+
+    /// Waits for the samples of step `k` (sending the state again when they are late) and
+    /// integrates to t_{k+1}; [`Served::publish_step`] then sends the new state.
+    fn step(
+        &mut self,
+        k: u64,
+        step_timeout: Duration,
+        timeout_s: f64,
+    ) -> Result<(), FiberNodeError> {
+        let resend_cap = (step_timeout / 4).max(RESEND_AFTER_MIN);
         let wait_from = Instant::now();
         let mut resent = false;
-        let mut resend_after = (3 * longest_wait).clamp(RESEND_AFTER_MIN, resend_cap);
+        let mut resend_after = (3 * self.longest_wait).clamp(RESEND_AFTER_MIN, resend_cap);
         let mut resend_at = wait_from + resend_after;
         // the wait ends with the samples checked (checking counts as the fibre step); the
         // step reads them where they arrived (a transport's shared memory), not copied
         let (checking, samples) = loop {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
-                hb(lifecycle::FAILED, k, samples_in.drops.total())?;
+                self.hb(lifecycle::FAILED, k)?;
                 return Err(FiberNodeError::Protocol(format!(
-                    "node {node}: no flow samples for step {k} within {timeout_s:.0} s"
+                    "node {}: no flow samples for step {k} within {timeout_s:.0} s",
+                    self.node
                 )));
             }
             let now = Instant::now();
@@ -244,61 +395,55 @@ pub fn serve(
                 // our state or the samples were lost in transit: send the state again and
                 // say we wait (the flow node resends samples it already served)
                 tracing::info!(
+                    node = %self.node,
                     step = k,
                     waited_s = format!("{:.1}", wait_from.elapsed().as_secs_f64()),
                     "no samples yet: sending the state again"
                 );
-                publish_state(&group, k)?;
-                hb(lifecycle::WAITING, k, samples_in.drops.total())?;
+                self.publish_state(k)?;
+                self.hb(lifecycle::WAITING, k)?;
                 resent = true;
                 resend_after = (2 * resend_after).min(resend_cap);
                 resend_at = now + resend_after;
             }
             let wait = left.min(resend_at.saturating_duration_since(now));
-            let Some((topic, bytes)) = samples_in.recv_raw(wait) else {
+            let Some((topic, bytes)) = self.samples_in.recv_raw(wait) else {
                 continue;
             };
             let view = match SamplesView::read(&bytes) {
                 Ok(v) => v,
                 Err(e) => {
-                    samples_in.drops.drop_one(&topic, &e.to_string());
+                    self.samples_in.drops.drop_one(&topic, &e.to_string());
                     continue;
                 }
             };
-            let n = group.segment_count();
+            let n = self.group.segment_count();
             let h = &view.header;
+            let drops = &mut self.samples_in.drops;
             // the values' finiteness is checked while they are read, below
             if let Err(why) = view.check_shape() {
-                samples_in
-                    .drops
-                    .drop_one(&topic, &format!("inconsistent: {why}"));
-            } else if h.group != name || h.first_fiber != piece.first_fiber {
-                samples_in
-                    .drops
-                    .drop_one(&topic, "samples for another group or shard");
+                drops.drop_one(&topic, &format!("inconsistent: {why}"));
+            } else if h.group != self.name || h.first_fiber != self.piece.first_fiber {
+                drops.drop_one(&topic, "samples for another group or shard");
             } else if h.step != k {
-                samples_in.drops.drop_one(&topic, "samples of another step");
+                drops.drop_one(&topic, "samples of another step");
             } else if view.len() != n {
-                samples_in
-                    .drops
-                    .drop_one(&topic, "samples for another number of segments");
+                drops.drop_one(&topic, "samples for another number of segments");
             } else {
                 let t0 = Instant::now();
                 if view.values_finite() {
                     break (t0.elapsed(), bytes);
                 }
                 let why = view.check().err().unwrap_or_default();
-                samples_in
-                    .drops
-                    .drop_one(&topic, &format!("inconsistent: {why}"));
+                drops.drop_one(&topic, &format!("inconsistent: {why}"));
             }
         };
-        let (mut waited_s, mut stepped_s, mut published_s) = timing;
+        let (mut waited_s, mut stepped_s, published_s) = self.timing;
         // a wait that ended only after a resend says how long a loss took to repair, not
         // how long a healthy step takes: it must not stretch the next resend deadline
         let waited = wait_from.elapsed().saturating_sub(checking);
         if !resent {
-            longest_wait = longest_wait.max(waited);
+            self.longest_wait = self.longest_wait.max(waited);
         }
         waited_s += waited.as_secs_f64();
         stepped_s += checking.as_secs_f64();
@@ -309,51 +454,70 @@ pub fn serve(
             .map_err(|e| FiberNodeError::Protocol(format!("samples checked a moment ago: {e}")))?;
         let (velocity, gradient) = view.arrays();
         let fluid = Fluid::Wire { velocity, gradient };
-        if k == 0 && cfg.initial_velocity == InitialVelocity::Fluid {
-            group.set_velocity_to_fluid(fluid)?;
+        if k == 0 && self.initial_velocity == InitialVelocity::Fluid {
+            self.group.set_velocity_to_fluid(fluid)?;
             // the state of step 0 went out before the fluid's velocity was known: send it
             // again complete (the recorder keeps the last state 0, the flow node ignores it)
-            publish_state(&group, 0)?;
+            self.publish_state(0)?;
         }
-        group.step(fluid, dt)?;
+        self.group.step(fluid, self.dt)?;
         drop(samples);
         stepped_s += t0.elapsed().as_secs_f64();
+        self.timing = (waited_s, stepped_s, published_s);
+        Ok(())
+    }
+
+    /// Publishes the state of step `step` just integrated to (and its metrics when due).
+    fn publish_step(&mut self, step: u64) -> Result<(), BusError> {
         let t0 = Instant::now();
-        publish_state(&group, k + 1)?;
-        if (k + 1) % cfg.metrics_every == 0 || k + 1 == ann.steps {
-            publish_metrics(&group, k + 1)?;
+        self.publish_state(step)?;
+        if step % self.metrics_every == 0 || step == self.steps {
+            self.publish_metrics(step)?;
         }
-        published_s += t0.elapsed().as_secs_f64();
-        timing = (waited_s, stepped_s, published_s);
-        if let Some(root) = &ck.root {
-            if checkpoints::is_checkpoint_step(k + 1, ck.every, ann.steps) {
-                let dir = checkpoints::step_dir(root, k + 1);
-                std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io {
-                    path: dir.display().to_string(),
-                    source,
-                })?;
-                let t0 = Instant::now();
-                GroupSnapshot::capture(&group, k + 1).write(&checkpoints::piece(&dir, &node))?;
-                tracing::info!(
-                    step = k + 1,
-                    ms = t0.elapsed().as_millis() as u64,
-                    "checkpoint written"
-                );
-            }
+        self.timing.2 += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Saves the group's coupled checkpoint of step `step` when one is due.
+    fn checkpoint(&self, step: u64) -> Result<(), FiberNodeError> {
+        let Some(root) = &self.checkpoint_root else {
+            return Ok(());
+        };
+        if !checkpoints::is_checkpoint_step(step, self.checkpoint_every, self.steps) {
+            return Ok(());
         }
+        let dir = checkpoints::step_dir(root, step);
+        std::fs::create_dir_all(&dir).map_err(|source| CheckpointError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let t0 = Instant::now();
+        GroupSnapshot::capture(&self.group, step).write(&checkpoints::piece(&dir, &self.node))?;
+        tracing::info!(
+            node = %self.node,
+            step,
+            ms = t0.elapsed().as_millis() as u64,
+            "checkpoint written"
+        );
+        Ok(())
     }
-    tracing::info!(
-        steps = ann.steps - start,
-        waiting_for_samples_s = format!("{:.3}", timing.0),
-        fibre_step_s = format!("{:.3}", timing.1),
-        encoding_and_publishing_s = format!("{:.3}", timing.2),
-        cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
-        "where the group's time went"
-    );
-    hb(lifecycle::DONE, ann.steps, samples_in.drops.total())?;
-    let mut drops = samples_in.drops.clone();
-    for (k, v) in ann_in.drops.by_topic {
-        *drops.by_topic.entry(k).or_insert(0) += v;
+
+    /// Logs where the node's time went, says DONE, and returns its drop counts.
+    fn finish(self) -> Result<(String, DropCounter), FiberNodeError> {
+        tracing::info!(
+            group = %self.node,
+            steps = self.steps - self.start,
+            waiting_for_samples_s = format!("{:.3}", self.timing.0),
+            fibre_step_s = format!("{:.3}", self.timing.1),
+            encoding_and_publishing_s = format!("{:.3}", self.timing.2),
+            cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - self.cpu_from),
+            "where the group's time went"
+        );
+        self.hb(lifecycle::DONE, self.steps)?;
+        let mut drops = self.samples_in.drops.clone();
+        for (k, v) in self.ann_in.drops.by_topic {
+            *drops.by_topic.entry(k).or_insert(0) += v;
+        }
+        Ok((self.node, drops))
     }
-    Ok(drops)
 }
