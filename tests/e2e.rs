@@ -7,6 +7,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// Large messages (1500 fibres: ≈ 1 MB of samples and 0.3 MB of states per step) take the
 /// transports' shared-memory paths — zenoh's pools (the flow node logs adding one) and
 /// iceoryx2's in-place delivery — and still give the in-process bus's states bit for bit.
+/// Over iceoryx2 the two fibre nodes share one process, where a group this large gets a
+/// thread of its own (`fiberflow_fiber::serve::serve_many`).
 #[test]
 fn large_messages_in_shared_memory_give_identical_states() {
     let _one = one_run_at_a_time();
@@ -17,9 +19,22 @@ fn large_messages_in_shared_memory_give_identical_states() {
     let sa = states(&a.join("run.mcap"));
     for transport in ["zenoh", "iceoryx2"] {
         let b = scratch(&format!("large-{transport}"));
+        let mut sets = sets.to_vec();
+        if transport == "iceoryx2" {
+            sets.push("run.fibre_processes=1");
+        }
         launch_with(&file, &b, transport, &sets);
         let sb = states(&b.join("run.mcap"));
         assert_eq!(sa["case1"].len(), 41, "case1: states for steps 0..=40");
+        if transport == "iceoryx2" {
+            let logs = std::fs::read_dir(b.join("logs")).unwrap().flatten();
+            let names: Vec<String> = logs
+                .map(|e| e.file_name().to_string_lossy().to_string())
+                .collect();
+            assert!(names.contains(&"fibres-1.log".to_string()), "{names:?}");
+            let log = std::fs::read_to_string(b.join("logs/fibres-1.log")).unwrap();
+            assert!(log.contains("fibre nodes on a thread each"), "{log}");
+        }
         assert_same_states(&sa, &sb, transport);
         if transport == "zenoh" {
             let log = std::fs::read_to_string(b.join("logs/flow.log")).unwrap();
@@ -656,6 +671,11 @@ fn sharded_groups_match_unsharded_bitwise() {
         ("shards-3-in-1", "zenoh", 1),
     ] {
         let (out, table) = run_on(name, 3, transport, processes);
+        let log = std::fs::read_to_string(out.join("logs/fibres-1.log")).unwrap();
+        assert!(
+            log.contains("fibre nodes stepped in turn on one thread"),
+            "{name}: {log}"
+        );
         let c = whole_states(&out);
         assert_eq!(a.keys().collect::<Vec<_>>(), c.keys().collect::<Vec<_>>());
         for (k, v) in &a {
