@@ -532,7 +532,7 @@ impl Served {
     fn publish_step(&mut self, step: u64) -> Result<(), BusError> {
         let t0 = Instant::now();
         self.publish_state(step)?;
-        if step % self.metrics_every == 0 || step == self.steps {
+        if step.is_multiple_of(self.metrics_every) || step == self.steps {
             self.publish_metrics(step)?;
         }
         self.timing.2 += t0.elapsed().as_secs_f64();
