@@ -245,16 +245,21 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             );
             report_drops("recorder", &s.drops);
         }
-        node => run_fibre_nodes(spec, &[node.to_string()], bus)?,
+        node => run_fibre_nodes(spec, &[node.to_string()], &pieces, bus)?,
     }
     Ok(())
 }
 
-/// Runs fibre nodes of the launch file on this thread, stepping them in turn
-/// (`fiberflow_fiber::serve::serve_many`), until the run ends.
-fn run_fibre_nodes(spec: &NodeSpec, names: &[String], bus: BusHandle) -> Result<()> {
+/// Runs fibre nodes of the launch file (`pieces`: its fibre nodes) until the run ends
+/// (`fiberflow_fiber::serve::serve_many`: small groups stepped in turn on this thread,
+/// large ones a thread each).
+fn run_fibre_nodes(
+    spec: &NodeSpec,
+    names: &[String],
+    pieces: &[fiberflow_messages::pieces::Piece],
+    bus: BusHandle,
+) -> Result<()> {
     let lf = &spec.launch;
-    let pieces = lf.pieces()?;
     let mut nodes = Vec::new();
     for node in names {
         let Some(p) = pieces.iter().find(|p| &p.node() == node) else {
@@ -291,15 +296,9 @@ fn run_fibre_nodes(spec: &NodeSpec, names: &[String], bus: BusHandle) -> Result<
     Ok(())
 }
 
-/// Whether `name` is one of the launch file's fibre nodes.
-fn is_fibre_node(spec: &NodeSpec, name: &str) -> bool {
-    spec.launch
-        .pieces()
-        .is_ok_and(|ps| ps.iter().any(|p| p.node() == name))
-}
-
-/// Runs the spec's node and its co-nodes until the run ends, each on a thread of its
-/// own, all on `bus`. The first failure returns at once, naming its node: the process then
+/// Runs the spec's node and its co-nodes until the run ends, all on `bus`: fibre nodes
+/// only through `serve_many` (small groups in turn on this thread), others each on a
+/// thread of its own. The first failure returns at once, naming its node: the process then
 /// exits and takes its other nodes with it, as separate processes would be stopped by the
 /// launcher, instead of leaving them to wait out the step timeout.
 fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
@@ -309,10 +308,13 @@ fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<(
     let names: Vec<String> = std::iter::once(spec.node.clone())
         .chain(spec.co_nodes.iter().cloned())
         .collect();
-    // fibre nodes only (the launcher's `fibres-i` processes): one thread steps them all
-    if names.iter().all(|n| is_fibre_node(spec, n)) {
-        return run_fibre_nodes(spec, &names, bus)
-            .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
+    // fibre nodes only (the launcher's `fibres-i` processes): `serve_many` runs them all
+    // (the pieces are built once: each build places every fibre of every group)
+    if let Ok(pieces) = spec.launch.pieces() {
+        if names.iter().all(|n| pieces.iter().any(|p| &p.node() == n)) {
+            return run_fibre_nodes(spec, &names, &pieces, bus)
+                .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
+        }
     }
     let (done_tx, done_rx) = std::sync::mpsc::channel();
     for name in &names {

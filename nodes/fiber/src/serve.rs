@@ -1,7 +1,7 @@
 //! The fibre node's loop: announce readiness, then per step publish the state at t_k,
-//! wait for the flow samples of step k, and integrate to t_{k+1}. Several fibre nodes of
-//! one process ([`serve_many`]) step in turn on one thread: at paper size each thread of
-//! its own cost the process more in task switches than the fibres' physics.
+//! wait for the flow samples of step k, and integrate to t_{k+1}. Several small fibre
+//! nodes of one process ([`serve_many`]) step in turn on one thread: at paper size a
+//! thread each cost the process more in task switches than the fibres' physics.
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
@@ -69,11 +69,12 @@ pub fn serve(
     Ok(drops.pop().map(|(_, d)| d).unwrap_or_default())
 }
 
-/// Runs several fibre nodes (each a group's shard) on this thread to the end of the run,
-/// stepping them in turn: every node publishes its state of step k before any waits for
-/// its samples of step k, so the flow node, which answers once it holds every state, is
-/// never kept waiting by the order. One thread is woken once per step instead of one
-/// per node. Returns each node's name and drop counts.
+/// Runs several fibre nodes (each a group's shard) to the end of the run. Small groups
+/// (below [`PARALLEL_MIN_SEGMENTS`] segments) are stepped in turn on this thread: every
+/// node publishes its state of step k before any waits for its samples of step k, so the
+/// flow node, which answers once it holds every state, is never kept waiting by the
+/// order, and one thread is woken once per step instead of one per node. If any group is
+/// larger, each node gets a thread of its own. Returns each node's name and drop counts.
 pub fn serve_many(
     nodes: &[(&FiberNodeConfig, u32)],
     bus: BusHandle,
