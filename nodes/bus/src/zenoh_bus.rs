@@ -293,6 +293,16 @@ impl ZenohBus {
         }
         c.insert_json5("transport/shared_memory/enabled", "true")
             .map_err(terr)?;
+        // zenoh's own shared memory for messages of 3 kB and more: off. Its buffers go
+        // with the publishing process, so what a process sent just before exiting was
+        // lost when the receiver came to it late (test
+        // `a_publisher_process_that_exits_at_once_loses_nothing`); messages below
+        // SHM_MIN_BYTES now travel in the session's buffers, which its close sends on
+        c.insert_json5(
+            "transport/shared_memory/transport_optimization/enabled",
+            "false",
+        )
+        .map_err(terr)?;
         let session = zenoh::open(c).wait().map_err(terr)?;
         Ok(Self {
             session,
@@ -493,5 +503,99 @@ mod tests {
             assert!(p[..] == m.bytes()[..], "bytes of a {}-byte message", m.n);
             assert_eq!(p.is_shared(), shared, "{}-byte message", m.n);
         }
+    }
+
+    /// A process that publishes and then exits at once (`replay --speed 0` does) loses
+    /// nothing in flight: messages of a few kB travel in the session's own buffers, which
+    /// its close sends on, not in zenoh's implicit shared memory, whose buffers go with
+    /// the publishing process (`e2e replay_republishes_the_recording` lost the last of
+    /// them on a loaded host). The publisher is this test binary run again as a child.
+    #[test]
+    fn a_publisher_process_that_exits_at_once_loses_nothing() {
+        const TO: &str = "FIBERFLOW_TEST_PUBLISH_TO";
+        const N: usize = 400;
+        // every other one above zenoh's 3 kB threshold and below ours, the others above
+        // ours (this process's own shared memory)
+        let len = |i: usize| {
+            if i % 2 == 0 {
+                40_000
+            } else {
+                3 * SHM_MIN_BYTES
+            }
+        };
+        if let Ok(endpoint) = std::env::var(TO) {
+            let b = ZenohBus::open(&ZenohSettings {
+                connect: vec![endpoint],
+                ..ZenohSettings::default()
+            })
+            .unwrap();
+            let missing = b
+                .await_subscribers(&["z/few-kb".to_string()], Duration::from_secs(20))
+                .unwrap();
+            assert!(missing.is_empty());
+            for i in 0..N {
+                b.publish_message(
+                    "z/few-kb",
+                    &Counting {
+                        first: 3,
+                        n: len(i),
+                    },
+                )
+                .unwrap();
+            }
+            return;
+        }
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let a = ZenohBus::open(&ZenohSettings {
+            listen: vec![endpoint.clone()],
+            ..ZenohSettings::default()
+        })
+        .unwrap();
+        // a receive path slow to take them in (as on a loaded host): the publisher has
+        // exited while most are still on their way
+        let (tx, rx) = channel();
+        let _sub = a
+            .session
+            .declare_subscriber("z/few-kb")
+            .callback(move |sample| {
+                std::thread::sleep(Duration::from_millis(3));
+                let _ = tx.send(sample.payload().to_bytes().into_owned());
+            })
+            .wait()
+            .unwrap();
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "zenoh_bus::tests::a_publisher_process_that_exits_at_once_loses_nothing",
+                "--test-threads=1",
+            ])
+            .env(TO, &endpoint)
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let mut got = 0;
+        while got < N {
+            let Ok(p) = rx.recv_timeout(Duration::from_secs(10)) else {
+                break;
+            };
+            assert!(
+                p[..]
+                    == Counting {
+                        first: 3,
+                        n: len(got)
+                    }
+                    .bytes()[..]
+            );
+            got += 1;
+        }
+        assert!(
+            child.wait().unwrap().success(),
+            "the publishing process failed"
+        );
+        assert_eq!(got, N, "messages received of those sent");
     }
 }
