@@ -10,15 +10,21 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Instant;
 
+/// One message, or several published together ([`Bus::publish_together`]).
+enum Item {
+    One(String, Arc<dyn Outgoing>),
+    Together(Vec<(String, Arc<dyn Outgoing>)>),
+}
+
 /// Publishes in order on a background thread.
 pub struct Outbox {
-    tx: Option<SyncSender<(String, Arc<dyn Outgoing>)>>,
+    tx: Option<SyncSender<Item>>,
     thread: Option<JoinHandle<Result<f64, BusError>>>,
 }
 
 impl Outbox {
-    /// An outbox on `bus` holding at most `depth` messages not yet published (`send` waits
-    /// when it is full).
+    /// An outbox on `bus` holding at most `depth` hand-overs not yet published (`send` and
+    /// `send_together` wait when it is full).
     pub fn new(bus: BusHandle, depth: usize) -> Result<Self, BusError> {
         let (tx, rx) = sync_channel(depth.max(1));
         let thread = std::thread::Builder::new()
@@ -36,8 +42,26 @@ impl Outbox {
     /// transport's error if an earlier publish failed (the outbox then publishes nothing
     /// more).
     pub fn send(&mut self, topic: String, payload: Arc<dyn Outgoing>) -> Result<(), BusError> {
+        self.hand_over(Item::One(topic, payload))
+    }
+
+    /// Hands several messages over in one go; they go out in order inside
+    /// [`Bus::publish_together`], so each subscribing process is woken once for all of them
+    /// (a step's samples for the fibre nodes of one process), and this thread wakes the
+    /// outbox's once.
+    pub fn send_together(
+        &mut self,
+        messages: Vec<(String, Arc<dyn Outgoing>)>,
+    ) -> Result<(), BusError> {
+        if messages.is_empty() {
+            return Ok(());
+        }
+        self.hand_over(Item::Together(messages))
+    }
+
+    fn hand_over(&mut self, item: Item) -> Result<(), BusError> {
         let sent = match &self.tx {
-            Some(tx) => tx.send((topic, payload)).is_ok(),
+            Some(tx) => tx.send(item).is_ok(),
             None => false,
         };
         if sent {
@@ -76,14 +100,19 @@ impl Drop for Outbox {
     }
 }
 
-fn publish_loop(
-    bus: &BusHandle,
-    rx: &Receiver<(String, Arc<dyn Outgoing>)>,
-) -> Result<f64, BusError> {
+fn publish_loop(bus: &BusHandle, rx: &Receiver<Item>) -> Result<f64, BusError> {
     let mut busy_s = 0.0;
-    while let Ok((topic, payload)) = rx.recv() {
+    while let Ok(item) = rx.recv() {
         let t0 = Instant::now();
-        bus.publish_message(&topic, payload.as_ref())?;
+        match item {
+            Item::One(topic, payload) => bus.publish_message(&topic, payload.as_ref())?,
+            Item::Together(messages) => bus.publish_together(&mut || {
+                for (topic, payload) in &messages {
+                    bus.publish_message(topic, payload.as_ref())?;
+                }
+                Ok(())
+            })?,
+        }
         busy_s += t0.elapsed().as_secs_f64();
     }
     Ok(busy_s)
@@ -96,17 +125,31 @@ mod tests {
     use crate::Bus;
     use std::time::Duration;
 
-    /// Messages go out in the order handed over, all of them by `finish`.
+    /// Messages go out in the order handed over, one by one or several together, all of
+    /// them by `finish`.
     #[test]
     fn publishes_everything_in_order() {
         let bus: BusHandle = Arc::new(InprocBus::new());
         let sub = bus.subscribe("t/**").unwrap();
         let mut out = Outbox::new(bus.clone(), 4).unwrap();
-        for i in 0..100u32 {
+        let msg = |i: u32| -> (String, Arc<dyn Outgoing>) {
             let topic = if i % 2 == 0 { "t/a" } else { "t/b" };
-            out.send(topic.into(), Arc::new(i.to_le_bytes().to_vec()))
-                .unwrap();
+            (topic.into(), Arc::new(i.to_le_bytes().to_vec()))
+        };
+        // one by one and in hand-overs of several, mixed
+        let mut i = 0;
+        while i < 100 {
+            if i % 7 == 3 {
+                let n = (100 - i).min(5);
+                out.send_together((i..i + n).map(msg).collect()).unwrap();
+                i += n;
+            } else {
+                let (t, p) = msg(i);
+                out.send(t, p).unwrap();
+                i += 1;
+            }
         }
+        out.send_together(Vec::new()).unwrap();
         assert!(out.finish().unwrap() >= 0.0);
         let got: Vec<u32> = (0..100)
             .map(|_| {

@@ -453,6 +453,9 @@ pub fn serve(
             .collect();
         let samples = field.sample_pieces(&pieces, spare);
         timing.sampling_s += t0.elapsed().as_secs_f64();
+        // handed over together: the fibre nodes sharing a process are woken once for all
+        let mut step_samples: Vec<(String, Arc<dyn fiberflow_bus::Outgoing>)> =
+            Vec::with_capacity(states.len());
         for (((group, first_fiber), s), (vel, grad)) in states.into_iter().zip(samples) {
             let t0 = Instant::now();
             let msg = FlowSamples {
@@ -473,13 +476,14 @@ pub fn serve(
                 .map(|p| p.samples_topic(&t))
                 .unwrap_or_else(|| t.flow_samples(&group));
             let msg = Arc::new(Encode(msg));
-            let t1 = Instant::now();
-            timing.encoding_s += (t1 - t0).as_secs_f64();
-            out.send(topic.clone(), msg.clone())?;
+            timing.encoding_s += t0.elapsed().as_secs_f64();
+            step_samples.push((topic.clone(), msg.clone()));
             served.insert((group.clone(), first_fiber), (k, topic, msg));
-            timing.publishing_s += t1.elapsed().as_secs_f64();
             spare_states.push(s);
         }
+        let t0 = Instant::now();
+        out.send_together(step_samples)?;
+        timing.publishing_s += t0.elapsed().as_secs_f64();
         if let Field::Dns(d) = &field {
             let solver = &d.solver;
             if cfg.slices_every > 0 && (k.is_multiple_of(cfg.slices_every) || k == run.steps) {
