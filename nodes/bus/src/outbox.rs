@@ -133,7 +133,7 @@ mod tests {
         let sub = bus.subscribe("t/**").unwrap();
         let mut out = Outbox::new(bus.clone(), 4).unwrap();
         let msg = |i: u32| -> (String, Arc<dyn Outgoing>) {
-            let topic = if i % 2 == 0 { "t/a" } else { "t/b" };
+            let topic = if i.is_multiple_of(2) { "t/a" } else { "t/b" };
             (topic.into(), Arc::new(i.to_le_bytes().to_vec()))
         };
         // one by one and in hand-overs of several, mixed
