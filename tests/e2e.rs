@@ -177,15 +177,7 @@ fn spawn_launch(file: &std::path::Path, out: &std::path::Path) -> (std::process:
 /// Waits until the recorder has opened `run.mcap` in `out` (the run is underway), so a
 /// test that interrupts the run does not depend on how fast the processes started.
 fn wait_for_recording(out: &std::path::Path, secs: u64) {
-    let path = out.join("run.mcap");
-    let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_secs(secs) {
-        if std::fs::metadata(&path).is_ok_and(|m| m.len() > 0) {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    panic!("{} was not created within {secs} s", path.display());
+    wait_for_recording_bytes(out, 1, secs);
 }
 
 /// Waits until the recorder has written `bytes` to `out/run.mcap` (the run is stepping).

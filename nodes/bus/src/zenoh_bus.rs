@@ -440,27 +440,38 @@ mod tests {
         assert!(!has_ipc_lock(&status("garbage")));
     }
 
+    /// A session listening on a free loopback port, with the endpoint to connect to it.
+    fn listening_session() -> (ZenohBus, String) {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let bus = ZenohBus::open(&ZenohSettings {
+            listen: vec![endpoint.clone()],
+            ..ZenohSettings::default()
+        })
+        .unwrap();
+        (bus, endpoint)
+    }
+
+    /// A session connected to `endpoint`.
+    fn connected_session(endpoint: String) -> ZenohBus {
+        ZenohBus::open(&ZenohSettings {
+            connect: vec![endpoint],
+            ..ZenohSettings::default()
+        })
+        .unwrap()
+    }
+
     /// Two sessions on this host, as two processes of a run would be: a large message
     /// crosses in the publisher's shared memory with every byte intact, a small one is
     /// copied, one that fits no pool gets a new pool, and one beyond the limit is copied;
     /// a process that may not lock memory copies them all.
     #[test]
     fn large_messages_cross_in_shared_memory() {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .unwrap()
-            .port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
-        let a = ZenohBus::open(&ZenohSettings {
-            listen: vec![endpoint.clone()],
-            ..ZenohSettings::default()
-        })
-        .unwrap();
-        let b = ZenohBus::open(&ZenohSettings {
-            connect: vec![endpoint],
-            ..ZenohSettings::default()
-        })
-        .unwrap();
+        let (a, endpoint) = listening_session();
+        let b = connected_session(endpoint);
         // pools of at least 1 MiB, and room for 1 MiB and a 4 MiB + 4 one
         let mib = 1 << 20;
         *b.shm.lock().unwrap() = Shm::new(mib, mib + shm_pool_bytes(mib + 1, mib));
@@ -519,39 +530,22 @@ mod tests {
         // above zenoh's 3 kB threshold, below ours. (Messages in this bus's own shared
         // memory are still lost this way now and then: a process's last words in them
         // rely on the nodes' linger before they exit.)
-        let len = |_: usize| 40_000;
+        let m = Counting {
+            first: 3,
+            n: 40_000,
+        };
         if let Ok(endpoint) = std::env::var(TO) {
-            let b = ZenohBus::open(&ZenohSettings {
-                connect: vec![endpoint],
-                ..ZenohSettings::default()
-            })
-            .unwrap();
+            let b = connected_session(endpoint);
             let missing = b
                 .await_subscribers(&["z/few-kb".to_string()], Duration::from_secs(20))
                 .unwrap();
             assert!(missing.is_empty());
-            for i in 0..N {
-                b.publish_message(
-                    "z/few-kb",
-                    &Counting {
-                        first: 3,
-                        n: len(i),
-                    },
-                )
-                .unwrap();
+            for _ in 0..N {
+                b.publish_message("z/few-kb", &m).unwrap();
             }
             return;
         }
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .unwrap()
-            .port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
-        let a = ZenohBus::open(&ZenohSettings {
-            listen: vec![endpoint.clone()],
-            ..ZenohSettings::default()
-        })
-        .unwrap();
+        let (a, endpoint) = listening_session();
         // a receive path slow to take them in (as on a loaded host): the publisher has
         // exited while most are still on their way
         let (tx, rx) = channel();
@@ -580,22 +574,14 @@ mod tests {
             let Ok((p, shared)) = rx.recv_timeout(Duration::from_secs(10)) else {
                 break;
             };
-            let want = Counting {
-                first: 3,
-                n: len(got),
-            };
             assert!(
-                p[..] == want.bytes()[..],
+                p[..] == m.bytes()[..],
                 "message {got}: {} bytes, {} expected",
                 p.len(),
-                want.n
+                m.n
             );
             // zenoh's own shared memory is off
-            assert!(
-                !shared,
-                "message {got} of {} bytes in shared memory",
-                want.n
-            );
+            assert!(!shared, "message {got} of {} bytes in shared memory", m.n);
             got += 1;
         }
         assert!(
