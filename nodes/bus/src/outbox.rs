@@ -192,4 +192,54 @@ mod tests {
         };
         assert!(err.to_string().contains("link down"), "{err}");
     }
+
+    /// Records, for each message published, the `publish_together` call it went out in
+    /// (0: none).
+    #[derive(Default)]
+    struct Grouping {
+        calls: std::sync::Mutex<(u32, Option<u32>, Vec<u32>)>,
+    }
+    impl Bus for Grouping {
+        fn publish(&self, _: &str, _: &[u8]) -> Result<(), BusError> {
+            let mut c = self.calls.lock().unwrap();
+            let inside = c.1.unwrap_or(0);
+            c.2.push(inside);
+            Ok(())
+        }
+        fn subscribe(&self, _: &str) -> Result<crate::Subscription, BusError> {
+            Err(BusError::Transport("not here".into()))
+        }
+        fn name(&self) -> &'static str {
+            "grouping"
+        }
+        fn publish_together(
+            &self,
+            publish: &mut dyn FnMut() -> Result<(), BusError>,
+        ) -> Result<(), BusError> {
+            {
+                let mut c = self.calls.lock().unwrap();
+                c.0 += 1;
+                c.1 = Some(c.0);
+            }
+            let r = publish();
+            self.calls.lock().unwrap().1 = None;
+            r
+        }
+    }
+
+    /// Messages handed over together go out inside one `publish_together` (one wake-up
+    /// of each subscribing process), those sent one by one outside any.
+    #[test]
+    fn messages_handed_over_together_are_published_together() {
+        let bus = Arc::new(Grouping::default());
+        let mut out = Outbox::new(bus.clone(), 4).unwrap();
+        let m = || -> (String, Arc<dyn Outgoing>) { ("t".into(), Arc::new(vec![1u8])) };
+        out.send_together(vec![m(), m(), m()]).unwrap();
+        let (t, p) = m();
+        out.send(t, p).unwrap();
+        out.send_together(vec![m(), m()]).unwrap();
+        out.finish().unwrap();
+        let c = bus.calls.lock().unwrap();
+        assert_eq!(c.2, vec![1, 1, 1, 0, 2, 2]);
+    }
 }
