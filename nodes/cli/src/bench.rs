@@ -36,6 +36,9 @@ pub struct BenchOptions {
     pub two_launchers_file: PathBuf,
     /// A launch-file key whose values are compared, run by run (`--compare`).
     pub compare: Option<Compare>,
+    /// Run each transport's configurations of a round at once, in turns of this many
+    /// milliseconds (`--slice-ms`; see [`crate::slicing`]).
+    pub slice_ms: Option<u64>,
 }
 
 /// `--compare KEY=V1,V2,…`: every fibre configuration runs once per value, in turn within
@@ -384,99 +387,87 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
     let numbered: Vec<(usize, &Config)> = configs.iter().enumerate().collect();
     for r in 0..o.repeats {
-        for &(i, c) in round_order(&numbered, r) {
-            let (n, transport) = (&c.fibres, &c.transport);
-            let two = transport == TWO_LAUNCHERS;
-            let out = o.out.join(if two {
-                format!("{n}-two-launchers-{i}-{r}")
-            } else {
-                format!("{n}-{transport}-{i}-{r}")
-            });
-            let file = if two {
-                &o.two_launchers_file
-            } else if *n == 0 {
-                &o.flow_only_file
-            } else {
-                &o.fibres_file
-            };
-            let mut sets = vec![
-                format!("run.steps={steps}"),
-                "run.analyze=false".into(),
-                "run.checkpoint_every_plus=0".into(),
-            ];
-            if *n > 0 {
-                for g in 1..=6 {
-                    sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
+        let order = round_order(&numbered, r);
+        match o.slice_ms {
+            None => {
+                for &(i, c) in order {
+                    bar.set_message(format!("{} fibres, {}", c.fibres, c.label));
+                    let cpu0 = fiberflow_bus::usage::children_cpu_s();
+                    let run = start_run(o, &exe, steps, c, i, r)?;
+                    let mut failed = None;
+                    for mut child in run.launchers {
+                        let st = child.wait().context("waiting for fiberflow launch")?;
+                        if !st.success() {
+                            failed = Some(st);
+                        }
+                    }
+                    let wall = run.t0.elapsed().as_secs_f64();
+                    // each launcher waits for its nodes, so their CPU is in its children's
+                    // usage
+                    let cpu = fiberflow_bus::usage::children_cpu_s() - cpu0;
+                    if let Some(st) = failed {
+                        bail!(
+                            "{} fibres over {} failed ({st}); logs in {}",
+                            c.fibres,
+                            c.label,
+                            run.out.display()
+                        );
+                    }
+                    let mut f = read_figures(&run.dirs, wall, c.transport == "inproc")?;
+                    f.cpu_s = cpu;
+                    results
+                        .entry((c.fibres, c.label.clone()))
+                        .or_default()
+                        .push(f);
+                    bar.inc(1);
                 }
             }
-            if o.record {
-                sets.extend(
-                    [
-                        "recorder.enabled=true",
-                        "recorder.states_every=10",
-                        "recorder.samples=false",
-                    ]
-                    .map(String::from),
-                );
-            } else {
-                sets.push("recorder.enabled=false".into());
-            }
-            // (launcher arguments, its output folder): one launcher, or head and worker
-            let launchers: Vec<(Vec<String>, PathBuf)> = if two {
-                ["head", "worker"]
-                    .iter()
-                    .map(|h| {
-                        let dir = out.join(h);
-                        (vec!["--host".into(), h.to_string()], dir)
-                    })
-                    .collect()
-            } else {
-                vec![(vec!["--transport".into(), transport.clone()], out.clone())]
-            };
-            bar.set_message(format!("{n} fibres, {}", c.label));
-            let cpu0 = fiberflow_bus::usage::children_cpu_s();
-            let t0 = Instant::now();
-            let mut children = Vec::new();
-            for (args, dir) in &launchers {
-                let mut c = launcher(&exe, file, dir, args, &sets, c.setting.as_deref());
-                // the launcher's own messages, and with `inproc` every node's timing
-                // line, go to its standard error: kept beside the nodes' logs (not named
-                // *.log, which a fresh launch clears)
-                let logs = dir.join("logs");
-                std::fs::create_dir_all(&logs)
-                    .with_context(|| format!("creating {}", logs.display()))?;
-                let stderr_path = logs.join("launcher.stderr");
-                let stderr = std::fs::File::create(&stderr_path)
-                    .with_context(|| format!("creating {}", stderr_path.display()))?;
-                let child = c
-                    .stdout(std::process::Stdio::null())
-                    .stderr(stderr)
-                    .spawn()
-                    .context("running fiberflow launch")?;
-                children.push(child);
-            }
-            let mut failed = None;
-            for mut child in children {
-                let st = child.wait().context("waiting for fiberflow launch")?;
-                if !st.success() {
-                    failed = Some(st);
+            Some(ms) => {
+                // each transport's runs (its flow alone and what is compared with it) at
+                // once, in turns
+                for block in order.chunk_by(|a, b| a.1.baseline == b.1.baseline) {
+                    bar.set_message(format!(
+                        "{}: {} runs in turns",
+                        block[0].1.baseline,
+                        block.len()
+                    ));
+                    let mut started = Vec::new();
+                    for &(i, c) in block {
+                        started.push((c, start_run(o, &exe, steps, c, *i, r)?));
+                    }
+                    let mut sliced: Vec<crate::slicing::SlicedRun> = Vec::new();
+                    let mut meta = Vec::new();
+                    for (c, run) in started {
+                        sliced.push(crate::slicing::SlicedRun::new(run.launchers));
+                        meta.push((c, run.out, run.dirs));
+                    }
+                    crate::slicing::run_in_turns(
+                        &mut sliced,
+                        std::time::Duration::from_millis(ms),
+                    )?;
+                    if let Some(((c, out, _), s)) =
+                        meta.iter().zip(&sliced).find(|(_, s)| s.failed.is_some())
+                    {
+                        bail!(
+                            "{} fibres over {} failed ({:?}); logs in {}",
+                            c.fibres,
+                            c.label,
+                            s.failed,
+                            out.display()
+                        );
+                    }
+                    for ((c, _, dirs), s) in meta.iter().zip(&sliced) {
+                        let mut f = read_figures(dirs, f64::NAN, c.transport == "inproc")?;
+                        f.cpu_s = s.cpu_s;
+                        apply_clean_steps(&mut f, dirs, &s.pauses, steps)?;
+                        results
+                            .entry((c.fibres, c.label.clone()))
+                            .or_default()
+                            .push(f);
+                        bar.inc(1);
+                    }
                 }
             }
-            let wall = t0.elapsed().as_secs_f64();
-            // each launcher waits for its nodes, so their CPU is in its children's usage
-            let cpu = fiberflow_bus::usage::children_cpu_s() - cpu0;
-            if let Some(st) = failed {
-                bail!(
-                    "{n} fibres over {} failed ({st}); logs in {}",
-                    c.label,
-                    out.display()
-                );
-            }
-            let dirs: Vec<PathBuf> = launchers.into_iter().map(|(_, d)| d).collect();
-            let mut f = read_figures(&dirs, wall, transport == "inproc")?;
-            f.cpu_s = cpu;
-            results.entry((*n, c.label.clone())).or_default().push(f);
-            bar.inc(1);
         }
     }
     bar.finish_and_clear();
@@ -485,6 +476,132 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     let path = o.out.join("bench-scale.md");
     std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
     println!("written to {}", path.display());
+    Ok(())
+}
+
+/// A run under way: its folder, its launchers' folders and the launchers.
+struct Started {
+    out: PathBuf,
+    dirs: Vec<PathBuf>,
+    launchers: Vec<std::process::Child>,
+    t0: Instant,
+}
+
+/// Starts configuration `c` (number `i`) of round `r`: one launcher, or head and worker.
+fn start_run(
+    o: &BenchOptions,
+    exe: &Path,
+    steps: u64,
+    c: &Config,
+    i: usize,
+    r: usize,
+) -> Result<Started> {
+    let (n, transport) = (&c.fibres, &c.transport);
+    let two = transport == TWO_LAUNCHERS;
+    let out = o.out.join(if two {
+        format!("{n}-two-launchers-{i}-{r}")
+    } else {
+        format!("{n}-{transport}-{i}-{r}")
+    });
+    let file = if two {
+        &o.two_launchers_file
+    } else if *n == 0 {
+        &o.flow_only_file
+    } else {
+        &o.fibres_file
+    };
+    let mut sets = vec![
+        format!("run.steps={steps}"),
+        "run.analyze=false".into(),
+        "run.checkpoint_every_plus=0".into(),
+    ];
+    if *n > 0 {
+        for g in 1..=6 {
+            sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
+        }
+    }
+    if o.record {
+        sets.extend(
+            [
+                "recorder.enabled=true",
+                "recorder.states_every=10",
+                "recorder.samples=false",
+            ]
+            .map(String::from),
+        );
+    } else {
+        sets.push("recorder.enabled=false".into());
+    }
+    // (launcher arguments, its output folder): one launcher, or head and worker
+    let launchers: Vec<(Vec<String>, PathBuf)> = if two {
+        ["head", "worker"]
+            .iter()
+            .map(|h| {
+                let dir = out.join(h);
+                (vec!["--host".into(), h.to_string()], dir)
+            })
+            .collect()
+    } else {
+        vec![(vec!["--transport".into(), transport.clone()], out.clone())]
+    };
+    let t0 = Instant::now();
+    let mut children = Vec::new();
+    for (args, dir) in &launchers {
+        let mut cmd = launcher(exe, file, dir, args, &sets, c.setting.as_deref());
+        // the launcher's own messages, and with `inproc` every node's timing line, go to
+        // its standard error: kept beside the nodes' logs (not named *.log, which a fresh
+        // launch clears)
+        let logs = dir.join("logs");
+        std::fs::create_dir_all(&logs).with_context(|| format!("creating {}", logs.display()))?;
+        let stderr_path = logs.join("launcher.stderr");
+        let stderr = std::fs::File::create(&stderr_path)
+            .with_context(|| format!("creating {}", stderr_path.display()))?;
+        let child = cmd
+            .stdout(std::process::Stdio::null())
+            .stderr(stderr)
+            .spawn()
+            .context("running fiberflow launch")?;
+        children.push(child);
+    }
+    Ok(Started {
+        out,
+        dirs: launchers.into_iter().map(|(_, d)| d).collect(),
+        launchers: children,
+        t0,
+    })
+}
+
+/// A time-sliced run's flow-node stages from its per-step times, over the steps no pause
+/// touched (scaled to `steps`, as the whole-run figures are); the stages that only the
+/// nodes' end-of-run walls give (pauses inflate them) and the process wall become NaN.
+fn apply_clean_steps(
+    f: &mut Figures,
+    dirs: &[PathBuf],
+    pauses: &[(u128, u128)],
+    steps: u64,
+) -> Result<()> {
+    let Some(path) = dirs
+        .iter()
+        .map(|d| d.join("logs").join("flow-steps.csv"))
+        .find(|p| p.exists())
+    else {
+        bail!("no logs/flow-steps.csv in {dirs:?}: the flow node wrote no per-step times");
+    };
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    // a signal reaches a process within microseconds; 1 ms either side is ample
+    let c = crate::slicing::clean_steps(&text, pauses, 1_000_000)
+        .with_context(|| path.display().to_string())?;
+    let n = steps as f64;
+    f.loop_s = c.wall_s * n;
+    f.field_step_s = c.field_step_s * n;
+    f.sampling_s = c.sampling_s * n;
+    f.waiting_s = c.waiting_s * n;
+    f.flow_publish_s = c.publishing_s * n;
+    f.fibre_step_s = f64::NAN;
+    f.group_publish_s = f64::NAN;
+    f.recording_s = f64::NAN;
+    f.process_s = f64::NAN;
     Ok(())
 }
 
@@ -552,9 +669,12 @@ fn median_min_max(r: Vec<f64>) -> (f64, f64, f64) {
 }
 
 /// Milliseconds as the table prints a stage: two decimals below 1 ms, one below 10 ms,
-/// whole above (so that the paper-size stages do not all read 0).
+/// whole above (so that the paper-size stages do not all read 0); "—" for a stage not
+/// measured.
 fn stage_ms(x: f64) -> String {
-    if x < 1.0 {
+    if x.is_nan() {
+        "—".into()
+    } else if x < 1.0 {
         format!("{x:.2}")
     } else if x < 10.0 {
         format!("{x:.1}")
@@ -594,7 +714,7 @@ fn table(
                 .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
         let _ = writeln!(
             md,
-            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.1} ({:.1}–{:.1}) | {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {:.0} ({:.2}) |",
+            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.1} ({:.1}–{:.1}) | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.0} ({:.2}) |",
             ci.lo,
             ci.hi,
             100.0 * s_med,
@@ -607,7 +727,10 @@ fn table(
             stage_ms(per(v, |f| f.fibre_step_s)),
             stage_ms(per(v, |f| f.group_publish_s)),
             stage_ms(per(v, |f| f.recording_s)),
-            median(v.iter().map(|f| f.process_s).collect()),
+            match median(v.iter().map(|f| f.process_s).collect()) {
+                x if x.is_nan() => "—".to_string(),
+                x => format!("{x:.1}"),
+            },
             median(v.iter().map(|f| f.cpu_s).collect()),
             per(v, |f| f.nodes_cpu_s),
             median(v.iter().map(|f| f.nodes_cpu_s / f.loop_s).collect()),
@@ -754,6 +877,7 @@ mod tests {
             two_launchers: vec![],
             two_launchers_file: "two.toml".into(),
             compare: compare.map(|c| c.parse().unwrap()),
+            slice_ms: None,
         }
     }
 

@@ -313,12 +313,13 @@ fn signal_group(pgid: i32, sig: i32) {
 /// checkpoints and its node logs (`run.mcap` itself is rewritten by the recorder). The
 /// logs go because a node appends to its log (a restarted node's lines follow those of
 /// the one that died), so a fresh run would otherwise carry an unrelated run's lines,
-/// and `bench-scale`, which sums every timing line, would count both.
+/// and `bench-scale`, which sums every timing line, would count both (the flow node's
+/// per-step times go too: they describe the run that wrote them).
 fn clear_previous_run(out_dir: &Path) -> Result<()> {
     if let Ok(logs) = std::fs::read_dir(out_dir.join("logs")) {
         for e in logs.flatten() {
             let p = e.path();
-            if p.extension().is_some_and(|x| x == "log") {
+            if p.extension().is_some_and(|x| x == "log") || p.ends_with("flow-steps.csv") {
                 std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
             }
         }

@@ -9,6 +9,7 @@ mod nodes;
 mod progress;
 mod recording;
 mod scheduling;
+mod slicing;
 mod spinup_cmd;
 
 use anyhow::{Context, Result};
@@ -91,6 +92,13 @@ enum Cmd {
         /// launcher and its nodes: env:NAME=V1,V2,… The flow-only runs take the first value.
         #[arg(long, value_name = "KEY=V1,V2")]
         compare: Option<bench::Compare>,
+        /// Run each transport's configurations of a round at once, in turns of this many
+        /// milliseconds (the others stopped meanwhile), and take each run's step wall
+        /// from the steps no pause touched: every configuration sees the same host, so a
+        /// difference of 1–3% shows where whole runs scatter by ±10%. Stage walls of the
+        /// fibre nodes and the recorder, which pauses inflate, are not reported then.
+        #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(50..=10_000))]
+        slice_ms: Option<u64>,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -234,6 +242,14 @@ fn main() -> Result<()> {
         // colour on a terminal only: node logs are files
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
+    // the shared pool's threads named, so per-thread CPU (the flow node's timing line,
+    // `top -H`, perf) tells the DNS and sampling work from the bus's threads
+    if let Err(e) = rayon::ThreadPoolBuilder::new()
+        .thread_name(|i| format!("compute-{i}"))
+        .build_global()
+    {
+        tracing::debug!(error = %e, "the thread pool was already built");
+    }
     let cli = Cli::parse();
     // commands that print behave like other command-line tools when piped into `head`:
     // exit quietly on EPIPE. Not the launcher and its nodes: a peer closing a network
@@ -293,6 +309,7 @@ fn main() -> Result<()> {
             two_launchers_file,
             out,
             compare,
+            slice_ms,
         } => bench::run(&bench::BenchOptions {
             fibres_file,
             flow_only_file,
@@ -305,6 +322,7 @@ fn main() -> Result<()> {
             record: !no_record,
             out,
             compare,
+            slice_ms,
         }),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),

@@ -166,6 +166,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 checkpoint_every: lf.run.checkpoint_every_steps(),
                 checkpoint_root: spec.checkpoint_root(),
                 pieces,
+                step_times: Some(spec.out_dir.join("logs").join("flow-steps.csv")),
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it

@@ -8,6 +8,7 @@ pub mod error;
 pub mod sampling;
 pub mod serve;
 pub mod spinup;
+pub mod step_times;
 
 pub use config::{FlowNodeConfig, FlowSource};
 pub use error::FlowError;

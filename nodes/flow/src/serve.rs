@@ -5,6 +5,7 @@
 use crate::config::{FlowNodeConfig, FlowSource};
 use crate::error::FlowError;
 use crate::sampling::{Field, PieceSamples};
+use crate::step_times::{Stages, StepTimes};
 use fiberflow_bus::{BusHandle, DropCounter, Encode, Inbox, Outbox};
 use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
@@ -40,10 +41,13 @@ pub struct RunInfo {
     /// Every fibre node's share of its group (one piece per unsharded group): the flow
     /// node waits for a state of each at every step, samples each on its own.
     pub pieces: Vec<Piece>,
+    /// Where every step's wall and stages go as CSV at the end of the run (None: kept
+    /// nowhere).
+    pub step_times: Option<PathBuf>,
 }
 
 /// Wall seconds per stage of the coupling loop (logged at the end of a run).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone, Copy)]
 struct Timing {
     waiting_s: f64,
     sampling_s: f64,
@@ -53,6 +57,19 @@ struct Timing {
     /// Handing messages to the outbox (publishing itself overlaps the field step).
     publishing_s: f64,
     field_step_s: f64,
+}
+
+impl Timing {
+    /// The sums a per-step row is taken from (building and handing over messages count
+    /// as publishing).
+    fn stages(&self) -> Stages {
+        Stages {
+            field_step_s: self.field_step_s,
+            sampling_s: self.sampling_s,
+            waiting_s: self.waiting_s,
+            publishing_s: self.encoding_s + self.publishing_s,
+        }
+    }
 }
 
 /// Messages the outbox may hold unpublished: a step's samples, slices, profiles and status.
@@ -371,6 +388,7 @@ pub fn serve(
     }
     let mut timing = Timing::default();
     let cpu_from = fiberflow_bus::usage::process_cpu_s();
+    let threads_from = fiberflow_bus::usage::threads_cpu_s();
     // the loop's messages go out on the outbox's thread while the field steps on
     let mut out = Outbox::new(bus.clone(), outbox_depth(run))?;
     // the loop's whole wall, stages and what lies between them (statistics, status),
@@ -379,7 +397,9 @@ pub fn serve(
     // the wait for the first step's states is the fibre nodes starting up (once per run,
     // tens of ms): start-up, logged apart from the loop's per-step stages
     let mut start_wait_s = 0.0;
+    let mut step_times = StepTimes::new((run.steps - run.start_step) as usize + 1);
     for k in run.start_step..=run.steps {
+        step_times.begin(k, timing.stages());
         // gather every group's state at step k
         let wait_from = Instant::now();
         while pending.len() < run.pieces.len() {
@@ -591,6 +611,7 @@ pub fn serve(
             on_status(&status);
         }
     }
+    step_times.end(timing.stages());
     let loop_s = loop_from.elapsed().as_secs_f64() - start_wait_s;
     let background_publishing_s = out.finish()?;
     tracing::info!(
@@ -604,8 +625,15 @@ pub fn serve(
         loop_s = format!("{loop_s:.3}"),
         start_wait_s = format!("{start_wait_s:.3}"),
         cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),
+        threads_cpu_s = fiberflow_bus::usage::threads_cpu_since(&threads_from),
         "where the flow node's time went"
     );
+    if let Some(path) = &run.step_times {
+        // diagnostics: a run whose results are all out does not fail over them
+        if let Err(e) = step_times.write(path) {
+            tracing::warn!(error = %e, "the per-step times were not written");
+        }
+    }
     heartbeat(&bus, &t, lifecycle::DONE, run.steps, st_in.drops.total())?;
     if run.expected_nodes.iter().any(|n| n == "recorder") {
         await_recorder_finishing(&bus, &t, &mut hb_in, run, st_in.drops.total())?;
@@ -681,6 +709,7 @@ mod fuzz {
                 group_fibers: 1,
                 segments: 7,
             }],
+            step_times: None,
         };
         let mut r = Rng::new(5);
         let mut taken = 0;
