@@ -456,7 +456,10 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                             out.display()
                         );
                     }
-                    for ((c, _, dirs), s) in meta.iter().zip(&sliced) {
+                    for ((c, out, dirs), s) in meta.iter().zip(&sliced) {
+                        let path = out.join("pauses.csv");
+                        std::fs::write(&path, crate::slicing::pauses_csv(&s.pauses))
+                            .with_context(|| format!("writing {}", path.display()))?;
                         let mut f = read_figures(dirs, f64::NAN, c.transport == "inproc")?;
                         f.cpu_s = s.cpu_s;
                         apply_clean_steps(&mut f, dirs, &s.pauses, steps)?;
@@ -510,28 +513,7 @@ fn start_run(
     } else {
         &o.fibres_file
     };
-    let mut sets = vec![
-        format!("run.steps={steps}"),
-        "run.analyze=false".into(),
-        "run.checkpoint_every_plus=0".into(),
-    ];
-    if *n > 0 {
-        for g in 1..=6 {
-            sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
-        }
-    }
-    if o.record {
-        sets.extend(
-            [
-                "recorder.enabled=true",
-                "recorder.states_every=10",
-                "recorder.samples=false",
-            ]
-            .map(String::from),
-        );
-    } else {
-        sets.push("recorder.enabled=false".into());
-    }
+    let sets = run_sets(o.record, steps, c, i, r);
     // (launcher arguments, its output folder): one launcher, or head and worker
     let launchers: Vec<(Vec<String>, PathBuf)> = if two {
         ["head", "worker"]
@@ -569,6 +551,47 @@ fn start_run(
         launchers: children,
         t0,
     })
+}
+
+/// The `--set`s of configuration `c` (number `i`) in round `r`.
+fn run_sets(record: bool, steps: u64, c: &Config, i: usize, r: usize) -> Vec<String> {
+    let n = c.fibres;
+    // a run id of its own: runs alive at once (`--slice-ms`) on one host must not share
+    // topics (over iceoryx2 a topic is a service of the host, found by name)
+    let id: String = format!("bench-{n}-{}-{i}-{r}", c.transport)
+        .chars()
+        .map(|ch| {
+            if ch.is_ascii_alphanumeric() || ch == '-' {
+                ch
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let mut sets = vec![
+        format!("run.id={id}"),
+        format!("run.steps={steps}"),
+        "run.analyze=false".into(),
+        "run.checkpoint_every_plus=0".into(),
+    ];
+    if n > 0 {
+        for g in 1..=6 {
+            sets.push(format!("fibers.case{g}.placement.per_layer={}", n / 30));
+        }
+    }
+    if record {
+        sets.extend(
+            [
+                "recorder.enabled=true",
+                "recorder.states_every=10",
+                "recorder.samples=false",
+            ]
+            .map(String::from),
+        );
+    } else {
+        sets.push("recorder.enabled=false".into());
+    }
+    sets
 }
 
 /// A time-sliced run's flow-node stages from its per-step times, over the steps no pause
@@ -668,7 +691,7 @@ fn median_min_max(r: Vec<f64>) -> (f64, f64, f64) {
     (median(r), lo, hi)
 }
 
-/// Milliseconds as the table prints a stage: two decimals below 1 ms, one below 10 ms,
+/// Milliseconds as the table prints a stage: two decimals below 1 ms, one below 100 ms,
 /// whole above (so that the paper-size stages do not all read 0); "—" for a stage not
 /// measured.
 fn stage_ms(x: f64) -> String {
@@ -676,7 +699,7 @@ fn stage_ms(x: f64) -> String {
         "—".into()
     } else if x < 1.0 {
         format!("{x:.2}")
-    } else if x < 10.0 {
+    } else if x < 100.0 {
         format!("{x:.1}")
     } else {
         format!("{x:.0}")
@@ -754,6 +777,30 @@ mod tests {
             .collect()
     }
 
+    /// Every run of a benchmark has a run id of its own (runs in turns are alive at
+    /// once), and a valid one.
+    #[test]
+    fn runs_have_run_ids_of_their_own() {
+        let o = options(&[0, 300], &["iceoryx2", "zenoh"], Some("env:X=1,2"));
+        let mut o = o;
+        o.two_launchers = vec![600];
+        let configs = configurations(&o);
+        let mut ids = std::collections::BTreeSet::new();
+        for r in 0..2 {
+            for (i, c) in configs.iter().enumerate() {
+                let sets = run_sets(false, 20, c, i, r);
+                let id = sets[0].strip_prefix("run.id=").unwrap().to_string();
+                assert!(
+                    id.chars()
+                        .all(|ch| ch.is_ascii_alphanumeric() || ch == '-' || ch == '_'),
+                    "{id}"
+                );
+                assert!(ids.insert(id.clone()), "{id} twice");
+            }
+        }
+        assert_eq!(ids.len(), 2 * configs.len());
+    }
+
     /// Ratios pair each run with the flow-only run of its own round.
     #[test]
     fn ratios_pair_runs_of_the_same_round() {
@@ -806,8 +853,20 @@ mod tests {
             "as many columns as the header"
         );
         assert_eq!(
-            (stage_ms(0.423), stage_ms(4.23), stage_ms(42.3)),
-            ("0.42".into(), "4.2".into(), "42".into())
+            (
+                stage_ms(0.423),
+                stage_ms(4.23),
+                stage_ms(42.34),
+                stage_ms(142.3),
+                stage_ms(f64::NAN)
+            ),
+            (
+                "0.42".into(),
+                "4.2".into(),
+                "42.3".into(),
+                "142".into(),
+                "—".into()
+            )
         );
     }
 

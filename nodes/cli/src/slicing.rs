@@ -165,6 +165,16 @@ pub fn run_in_turns(runs: &mut [SlicedRun], slice: Duration) -> Result<()> {
     }
 }
 
+/// The pauses of a run as CSV (`stopped_unix_nanos,continued_unix_nanos`), kept beside
+/// its logs so that its per-step times can be filtered again.
+pub fn pauses_csv(pauses: &[(u128, u128)]) -> String {
+    let mut s = String::from("stopped_unix_nanos,continued_unix_nanos\n");
+    for (a, b) in pauses {
+        s.push_str(&format!("{a},{b}\n"));
+    }
+    s
+}
+
 /// A run's per-step figures over the steps no pause touched, seconds per step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CleanSteps {
