@@ -167,6 +167,24 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             fiberflow_messages::segments::segment_name(base.segment)
         );
     }
+    // over iceoryx2 the run's topics are services of this host, found by name: a second
+    // live run with this id would mix with it, so it waits (`run_lock`)
+    let _run_lock = if transport == "iceoryx2" {
+        let id = lf.run.id.clone();
+        Some(crate::run_lock::RunLock::acquire_in(
+            &crate::run_lock::default_dir(),
+            &id,
+            &stop,
+            || {
+                println!(
+                    "waiting: a run with the id {id:?} is live on this host over iceoryx2 \
+                     (its topics are the host's; set run.id to run both at once)"
+                )
+            },
+        )?)
+    } else {
+        None
+    };
     println!(
         "run {} ({} steps, dt+ = {}), transport {transport}, output {}",
         lf.run.id,

@@ -8,6 +8,7 @@ mod launchfile;
 mod nodes;
 mod progress;
 mod recording;
+mod run_lock;
 mod scheduling;
 mod slicing;
 mod spinup_cmd;

@@ -1,0 +1,119 @@
+//! One live iceoryx2 run per run id on a host. Over iceoryx2 a run's topics are services
+//! of the host, found by name (`fiberflow/<run id>/…`): a second run with the same id
+//! would read the first one's states and samples (two such runs at once in the scale
+//! benchmark did: "state of step 2 while serving step 1", and one stalled). A launch
+//! therefore holds a lock named for its run id while it runs; a second launch with that
+//! id waits for it, saying so, as `cargo` waits for a build directory. The operating
+//! system drops the lock when the holder exits, however it exits.
+
+use anyhow::{bail, Context, Result};
+use std::fs::File;
+use std::os::fd::AsRawFd;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+/// Held while a run is live; dropping it (or exiting) releases the run id.
+#[derive(Debug)]
+pub struct RunLock {
+    _file: File,
+}
+
+/// Where the locks live: beside iceoryx2's own files, in the temporary directory.
+pub fn default_dir() -> PathBuf {
+    std::env::temp_dir().join("fiberflow").join("runs")
+}
+
+/// Tries once to take the lock on `file`: true if taken, false if another holds it.
+fn try_lock(file: &File) -> std::io::Result<bool> {
+    // SAFETY: flock on a descriptor this process owns; it changes no memory
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    if rc == 0 {
+        return Ok(true);
+    }
+    let e = std::io::Error::last_os_error();
+    if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+        Ok(false)
+    } else {
+        Err(e)
+    }
+}
+
+impl RunLock {
+    /// Takes the lock of `run_id` in `dir`; if another process holds it, calls `waiting`
+    /// once and polls until it is free, or until `stop` is set (then an error).
+    pub fn acquire_in(
+        dir: &Path,
+        run_id: &str,
+        stop: &AtomicBool,
+        waiting: impl FnOnce(),
+    ) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let path = dir.join(format!("{run_id}.lock"));
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        let locked = |f: &File| try_lock(f).with_context(|| format!("locking {}", path.display()));
+        if !locked(&file)? {
+            waiting();
+            while !locked(&file)? {
+                if stop.load(Ordering::SeqCst) {
+                    bail!("stopped while waiting for the run id {run_id:?} to be free");
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+        Ok(Self { _file: file })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    /// A second taker of the same id waits (and says so) until the first lets go; another
+    /// id is not held up; a stop ends the wait with an error.
+    #[test]
+    fn a_second_run_with_the_same_id_waits_for_the_first() {
+        let dir = std::env::temp_dir().join(format!("ff-run-lock-{}", std::process::id()));
+        let no_stop = AtomicBool::new(false);
+        let first = RunLock::acquire_in(&dir, "quick", &no_stop, || panic!("free")).unwrap();
+        // another id: at once
+        let other = RunLock::acquire_in(&dir, "paper", &no_stop, || panic!("free")).unwrap();
+        // the same id from another thread: it waits until `first` is dropped
+        let (said_tx, said_rx) = std::sync::mpsc::channel();
+        let d = dir.clone();
+        let second = std::thread::spawn(move || {
+            let stop = AtomicBool::new(false);
+            RunLock::acquire_in(&d, "quick", &stop, move || said_tx.send(()).unwrap()).map(|_| ())
+        });
+        said_rx
+            .recv_timeout(Duration::from_secs(10))
+            .expect("the second taker says it waits");
+        std::thread::sleep(Duration::from_millis(300));
+        assert!(
+            !second.is_finished(),
+            "it waits while the first holds the id"
+        );
+        drop(first);
+        second.join().unwrap().unwrap();
+        assert!(dir.join("quick.lock").exists());
+        // a stop while waiting: an error naming the run id
+        let held = RunLock::acquire_in(&dir, "paper2", &no_stop, || {}).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        let d = dir.clone();
+        let waiter =
+            std::thread::spawn(move || RunLock::acquire_in(&d, "paper2", &s, || {}).map(|_| ()));
+        std::thread::sleep(Duration::from_millis(200));
+        stop.store(true, Ordering::SeqCst);
+        let e = waiter.join().unwrap().unwrap_err().to_string();
+        assert!(e.contains("paper2"), "{e}");
+        drop((held, other));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
