@@ -448,11 +448,11 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     if let Some(((c, out, _), s)) =
                         meta.iter().zip(&sliced).find(|(_, s)| s.failed.is_some())
                     {
+                        let st = s.failed.map(|st| st.to_string()).unwrap_or_default();
                         bail!(
-                            "{} fibres over {} failed ({:?}); logs in {}",
+                            "{} fibres over {} failed ({st}); logs in {}",
                             c.fibres,
                             c.label,
-                            s.failed,
                             out.display()
                         );
                     }

@@ -799,10 +799,15 @@ mod tests {
         std::fs::create_dir_all(dir.join("logs")).unwrap();
         std::fs::write(dir.join("logs/flow.log"), "old timing line\n").unwrap();
         std::fs::write(dir.join("logs/notes.txt"), "mine").unwrap();
+        std::fs::write(dir.join("logs/flow-steps.csv"), "old steps\n").unwrap();
         let ck = fiberflow_messages::checkpoints::root(&dir);
         std::fs::create_dir_all(ck.join("step-10")).unwrap();
         clear_previous_run(&dir).unwrap();
         assert!(!dir.join("logs/flow.log").exists(), "old log left");
+        assert!(
+            !dir.join("logs/flow-steps.csv").exists(),
+            "old per-step times left"
+        );
         assert!(!ck.exists(), "old checkpoints left");
         assert!(
             dir.join("logs/notes.txt").exists(),

@@ -103,6 +103,15 @@ impl SlicedRun {
         }
     }
 
+    /// Kills what is left of the run (stopped or not) and reaps its launchers.
+    fn kill(&mut self) {
+        for c in self.launchers.iter_mut().flatten() {
+            signal_trees(std::iter::once(&*c), libc::SIGKILL);
+            let _ = c.wait();
+        }
+        self.launchers.clear();
+    }
+
     /// Reaps launchers that have exited; their CPU goes to this run.
     fn reap(&mut self) -> Result<()> {
         for slot in &mut self.launchers {
@@ -117,6 +126,14 @@ impl SlicedRun {
             }
         }
         Ok(())
+    }
+}
+
+/// A run given up on (an error or a panic in the benchmark) leaves no process stopped
+/// forever behind it.
+impl Drop for SlicedRun {
+    fn drop(&mut self) {
+        self.kill();
     }
 }
 
@@ -141,12 +158,7 @@ pub fn run_in_turns(runs: &mut [SlicedRun], slice: Duration) -> Result<()> {
             std::thread::sleep(Duration::from_millis(2));
         }
         if runs.iter().any(|r| r.failed.is_some()) {
-            for r in runs.iter_mut() {
-                for c in r.launchers.iter_mut().flatten() {
-                    signal_trees(std::iter::once(&*c), libc::SIGKILL);
-                    let _ = c.wait();
-                }
-            }
+            runs.iter_mut().for_each(SlicedRun::kill);
             return Ok(());
         }
         let Some(next) = (1..=runs.len())
@@ -287,6 +299,22 @@ mod tests {
         assert!(clean_steps(&bad, &[], 0).is_err());
         let only_first = format!("{}\n0,1,2,3,4,5,6\n", fiberflow_flow::step_times::HEADER);
         assert!(clean_steps(&only_first, &[], 0).is_err());
+    }
+
+    /// A run dropped while stopped (the benchmark gave up on it) is killed, not left
+    /// stopped behind.
+    #[test]
+    fn a_dropped_run_leaves_no_process_behind() {
+        let child = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .unwrap();
+        let pid = child.id();
+        let mut run = SlicedRun::new(vec![child]);
+        run.stop();
+        drop(run);
+        // reaped by the drop: the pid no longer names this process
+        assert!(!std::path::Path::new(&format!("/proc/{pid}")).exists());
     }
 
     /// Two processes in turns: while one runs the other is stopped (its clock of work

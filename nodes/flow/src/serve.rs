@@ -47,7 +47,7 @@ pub struct RunInfo {
 }
 
 /// Wall seconds per stage of the coupling loop (logged at the end of a run).
-#[derive(Debug, Default, Clone, Copy)]
+#[derive(Debug, Default)]
 struct Timing {
     waiting_s: f64,
     sampling_s: f64,
