@@ -3,6 +3,7 @@
 mod analyze;
 mod bench;
 mod coupled;
+mod huge_pages;
 mod launch;
 mod launchfile;
 mod nodes;
@@ -16,6 +17,9 @@ mod spinup_cmd;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
+
+#[global_allocator]
+static ALLOC: huge_pages::HugePageAlloc = huge_pages::HugePageAlloc;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -219,6 +223,7 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
+    huge_pages::configure_from_env();
     // Every coupling step allocates and frees message buffers of several MB. glibc serves
     // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
     // its heap after each free; keep them in the heap instead, so a step reuses the last

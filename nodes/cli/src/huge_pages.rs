@@ -1,0 +1,110 @@
+//! The process's allocator: the system's, asking the kernel for transparent huge pages
+//! (2 MiB) on every allocation of 4 MiB and more. The DNS's fields, the sampler's tables
+//! and the fibre groups' arrays are tens of MB read in strides over planes; with 4 KiB
+//! pages nearly every stride is a TLB miss. Where the host's THP mode is `madvise` (the
+//! common default) nothing is huge unless asked for. Results do not change: only where
+//! the memory sits does. `FIBERFLOW_HUGE_PAGES=0` turns the request off.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Allocations from this size on are advised.
+const MIN_BYTES: usize = 4 << 20;
+const HUGE_PAGE_BYTES: usize = 2 << 20;
+
+static ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Reads `FIBERFLOW_HUGE_PAGES` (`0` turns the advice off); call first thing in `main`.
+pub fn configure_from_env() {
+    if std::env::var("FIBERFLOW_HUGE_PAGES").is_ok_and(|v| v.trim() == "0") {
+        ENABLED.store(false, Ordering::Relaxed);
+    }
+}
+
+/// The system allocator with `MADV_HUGEPAGE` on large blocks.
+pub struct HugePageAlloc;
+
+/// Advises the whole 2 MiB pages inside `[p, p + len)`.
+fn advise(p: *mut u8, len: usize) {
+    if p.is_null() || len < MIN_BYTES || !ENABLED.load(Ordering::Relaxed) {
+        return;
+    }
+    let start = (p as usize).next_multiple_of(HUGE_PAGE_BYTES);
+    let end = (p as usize + len) & !(HUGE_PAGE_BYTES - 1);
+    if end > start {
+        // SAFETY: the range lies inside a block this process just obtained; MADV_HUGEPAGE
+        // changes how it is backed, never its contents, and a refusal is harmless.
+        unsafe {
+            libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_HUGEPAGE);
+        }
+    }
+}
+
+// SAFETY: every call forwards to `System` with the caller's arguments; `advise` only adds
+// a hint on memory `System` returned.
+unsafe impl GlobalAlloc for HugePageAlloc {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: forwarded as given.
+        let p = unsafe { System.alloc(layout) };
+        advise(p, layout.size());
+        p
+    }
+
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        // SAFETY: forwarded as given.
+        let p = unsafe { System.alloc_zeroed(layout) };
+        advise(p, layout.size());
+        p
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded as given.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: forwarded as given.
+        let p = unsafe { System.realloc(ptr, layout, new_size) };
+        advise(p, new_size);
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// The kernel's flags (`VmFlags` of /proc/self/smaps) of the mapping holding `addr`.
+    fn vm_flags_at(addr: usize) -> Vec<String> {
+        let smaps = std::fs::read_to_string("/proc/self/smaps").expect("smaps");
+        let mut inside = false;
+        for line in smaps.lines() {
+            let first = line.split_whitespace().next().unwrap_or("");
+            if let Some((lo, hi)) = first.split_once('-') {
+                if let (Ok(lo), Ok(hi)) =
+                    (usize::from_str_radix(lo, 16), usize::from_str_radix(hi, 16))
+                {
+                    inside = (lo..hi).contains(&addr);
+                    continue;
+                }
+            }
+            if inside {
+                if let Some(flags) = line.strip_prefix("VmFlags:") {
+                    return flags.split_whitespace().map(str::to_string).collect();
+                }
+            }
+        }
+        panic!("no mapping holds {addr:#x}");
+    }
+
+    /// A 16 MB vector (through the global allocator) lies in memory advised for huge pages
+    /// (`hg` in its mapping's flags, which only `madvise` sets).
+    #[test]
+    fn large_blocks_are_advised_for_huge_pages() {
+        let big = vec![1.0f64; 2 << 20];
+        let middle = big.as_ptr() as usize + big.len() * 4;
+        assert!(
+            vm_flags_at(middle).iter().any(|f| f == "hg"),
+            "{:?}",
+            vm_flags_at(middle)
+        );
+    }
+}
