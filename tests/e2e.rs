@@ -510,6 +510,27 @@ fn replay_republishes_the_recording() {
         !text.contains("/points"),
         "derived point clouds must not be replayed"
     );
+    // with nobody to replay to, the replay is an error that says so (it tries a second
+    // session first), not a silent success
+    let o = Command::new(fiberflow())
+        .arg("replay")
+        .arg(&out)
+        .args([
+            "--speed",
+            "0",
+            "--listen",
+            "tcp/127.0.0.1:0",
+            "--wait-s",
+            "1",
+        ])
+        .output()
+        .expect("replay");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "a replay to nobody succeeded: {err}");
+    assert!(
+        err.contains("trying a new session") && err.contains("no peer of the run reached"),
+        "{err}"
+    );
 }
 
 /// Writes certificates (launch/make-certs.sh) and a two-host version of the analytic-shear

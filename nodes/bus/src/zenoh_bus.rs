@@ -312,6 +312,12 @@ impl ZenohBus {
         })
     }
 
+    /// How many zenoh peers and routers this session is connected to now.
+    pub fn connections(&self) -> usize {
+        let info = self.session.info();
+        info.peers_zid().wait().count() + info.routers_zid().wait().count()
+    }
+
     /// Waits until every topic has at least one subscriber this session knows of (zenoh
     /// drops a put for which it knows none, so a tool that publishes right after opening
     /// loses what it sends before the peers' declarations arrive); returns the topics

@@ -137,6 +137,10 @@ enum Cmd {
         /// zenoh endpoint to listen on (default: an ephemeral loopback port).
         #[arg(long)]
         listen: Vec<String>,
+        /// Seconds to wait for the run's subscribers before replaying (a session that
+        /// reaches no peer in that time is tried once more, then it is an error).
+        #[arg(long, default_value_t = 30.0)]
+        wait_s: f64,
     },
     /// Print what arrives on the bus (zenoh) under a topic pattern.
     Echo {
@@ -219,6 +223,10 @@ enum Cmd {
         /// (inconsistent arrays, NaN, unknown names, impossible steps) instead of bytes.
         #[arg(long)]
         structured: bool,
+        /// Seconds to wait for the run's subscribers before injecting (a session that
+        /// reaches no peer in that time is tried once more, then it is an error).
+        #[arg(long, default_value_t = 30.0)]
+        wait_s: f64,
     },
 }
 
@@ -337,7 +345,8 @@ fn main() -> Result<()> {
             speed,
             connect,
             listen,
-        } => recording::replay_cmd(&mcap, speed, connect, listen),
+            wait_s,
+        } => recording::replay_cmd(&mcap, speed, connect, listen, wait_s),
         Cmd::Echo {
             pattern,
             connect,
@@ -421,6 +430,7 @@ fn main() -> Result<()> {
             count,
             seed,
             structured,
-        } => recording::inject_cmd(&run, connect, &topic, count, seed, structured),
+            wait_s,
+        } => recording::inject_cmd(&run, connect, &topic, count, seed, structured, wait_s),
     }
 }

@@ -88,18 +88,64 @@ fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
     ZenohBus::open(&s).context("opening zenoh session")
 }
 
+/// A zenoh session on which every topic of `topics` has a subscriber, or as many as have
+/// one after `wait` (the others go on without: a topic may have none in this run). A
+/// session that reached no peer at all by then is opened once more (on a loaded host a
+/// first connection attempt has stalled for good), and if that one reaches none either it
+/// is an error naming the endpoints: sending into nothing would only look like success.
+fn session_with_subscribers(
+    connect: &[String],
+    listen: &[String],
+    topics: &[String],
+    wait: Duration,
+    doing: &str,
+) -> Result<ZenohBus> {
+    for attempt in 1..=2 {
+        let bus = zenoh(connect.to_vec(), listen.to_vec())?;
+        let unheard = bus.await_subscribers(topics, wait)?;
+        if unheard.is_empty() {
+            return Ok(bus);
+        }
+        let peers = bus.connections();
+        if peers > 0 {
+            tracing::warn!(
+                topics = %unheard.join(", "),
+                peers,
+                "no subscriber after {:.0} s; {doing} anyway",
+                wait.as_secs_f64()
+            );
+            return Ok(bus);
+        }
+        if attempt == 1 {
+            tracing::warn!(
+                connect = ?connect,
+                listen = ?listen,
+                "no peer reached within {:.0} s; trying a new session",
+                wait.as_secs_f64()
+            );
+        }
+    }
+    bail!(
+        "no peer of the run reached (connect {connect:?}, listen {listen:?}) by two sessions, each given {:.0} s once open: is the run still going, and is the endpoint the one in its endpoint.txt?",
+        wait.as_secs_f64()
+    )
+}
+
 pub fn replay_cmd(
     path: &Path,
     speed: f64,
     connect: Vec<String>,
     listen: Vec<String>,
+    wait_s: f64,
 ) -> Result<()> {
     if !(speed >= 0.0 && speed.is_finite()) {
         bail!("--speed must be >= 0 (got {speed})");
     }
     let segs = fiberflow_messages::segments::segment_paths(path)
         .with_context(|| format!("reading {}", path.display()))?;
-    let bus = zenoh(connect, listen)?;
+    if !(wait_s > 0.0 && wait_s.is_finite()) {
+        bail!("--wait-s must be > 0 (got {wait_s})");
+    }
     // zenoh drops a put whose subscribers it does not know yet: wait until every recorded
     // topic has one (as `inject` does), then a little for the others' declarations
     let mut topics: Vec<String> = Vec::new();
@@ -112,10 +158,13 @@ pub fn replay_cmd(
             }
         }
     }
-    let unheard = bus.await_subscribers(&topics, Duration::from_secs(30))?;
-    if !unheard.is_empty() {
-        tracing::warn!(topics = %unheard.join(", "), "no subscriber after 30 s; replaying anyway");
-    }
+    let bus = session_with_subscribers(
+        &connect,
+        &listen,
+        &topics,
+        Duration::from_secs_f64(wait_s),
+        "replaying",
+    )?;
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
@@ -156,18 +205,24 @@ pub fn inject_cmd(
     count: u64,
     seed: u64,
     structured: bool,
+    wait_s: f64,
 ) -> Result<()> {
-    let bus = zenoh(connect, vec![])?;
+    if !(wait_s > 0.0 && wait_s.is_finite()) {
+        bail!("--wait-s must be > 0 (got {wait_s})");
+    }
     let mut rng = fiberflow_messages::fuzz::Rng::new(seed);
     let full: Vec<String> = topics
         .iter()
         .map(|t| format!("fiberflow/{run}/{t}"))
         .collect();
     // what is sent before the run's subscriptions are known here would go nowhere
-    let unheard = bus.await_subscribers(&full, Duration::from_secs(30))?;
-    if !unheard.is_empty() {
-        tracing::warn!(topics = %unheard.join(", "), "no subscriber after 30 s; injecting anyway");
-    }
+    let bus = session_with_subscribers(
+        &connect,
+        &[],
+        &full,
+        Duration::from_secs_f64(wait_s),
+        "injecting",
+    )?;
     // one topic's first subscriber may be known before the others' (every node's
     // declarations arrive over its own link)
     std::thread::sleep(Duration::from_millis(500));
