@@ -3,7 +3,7 @@
 //! and the fibre groups' arrays are tens of MB read in strides over planes; with 4 KiB
 //! pages nearly every stride is a TLB miss. Where the host's THP mode is `madvise` (the
 //! common default) nothing is huge unless asked for. Results do not change: only where
-//! the memory sits does. `FIBERFLOW_HUGE_PAGES=0` turns the request off.
+//! the memory sits does. `FIBERFLOW_HUGE_PAGES=0` (or `off`, `false`) turns it off.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -14,10 +14,30 @@ const HUGE_PAGE_BYTES: usize = 2 << 20;
 
 static ENABLED: AtomicBool = AtomicBool::new(true);
 
-/// Reads `FIBERFLOW_HUGE_PAGES` (`0` turns the advice off); call first thing in `main`.
-pub fn configure_from_env() {
-    if std::env::var("FIBERFLOW_HUGE_PAGES").is_ok_and(|v| v.trim() == "0") {
-        ENABLED.store(false, Ordering::Relaxed);
+/// The environment variable that turns the advice on or off.
+pub const ENV: &str = "FIBERFLOW_HUGE_PAGES";
+
+/// A setting of [`ENV`]: `1`, `on`, `true` or `0`, `off`, `false` (any case).
+pub fn parse_setting(v: &str) -> Result<bool, String> {
+    match v.trim().to_ascii_lowercase().as_str() {
+        "1" | "on" | "true" => Ok(true),
+        "0" | "off" | "false" => Ok(false),
+        _ => Err(format!(
+            "{ENV}={v:?} is not a setting (1, on, true or 0, off, false); huge pages stay on"
+        )),
+    }
+}
+
+/// Reads [`ENV`] (unset: on); call first thing in `main`, before large allocations.
+/// Returns what to warn about once logging is set up.
+pub fn configure_from_env() -> Option<String> {
+    let v = std::env::var(ENV).ok()?;
+    match parse_setting(&v) {
+        Ok(on) => {
+            ENABLED.store(on, Ordering::Relaxed);
+            None
+        }
+        Err(why) => Some(why),
     }
 }
 
@@ -93,6 +113,22 @@ mod tests {
             }
         }
         panic!("no mapping holds {addr:#x}");
+    }
+
+    /// The variable's settings, and a clear refusal of anything else.
+    #[test]
+    fn settings_parse_and_nonsense_is_named() {
+        for on in ["1", "on", "TRUE", " true "] {
+            assert_eq!(super::parse_setting(on), Ok(true), "{on}");
+        }
+        for off in ["0", "off", "False"] {
+            assert_eq!(super::parse_setting(off), Ok(false), "{off}");
+        }
+        let e = super::parse_setting("maybe").unwrap_err();
+        assert!(
+            e.contains("FIBERFLOW_HUGE_PAGES") && e.contains("\"maybe\""),
+            "{e}"
+        );
     }
 
     /// A 16 MB vector (through the global allocator) lies in memory advised for huge pages

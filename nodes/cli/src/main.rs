@@ -231,7 +231,7 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
-    huge_pages::configure_from_env();
+    let huge_pages_warning = huge_pages::configure_from_env();
     // Every coupling step allocates and frees message buffers of several MB. glibc serves
     // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
     // its heap after each free; keep them in the heap instead, so a step reuses the last
@@ -256,6 +256,9 @@ fn main() -> Result<()> {
         // colour on a terminal only: node logs are files
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
+    if let Some(why) = huge_pages_warning {
+        tracing::warn!("{why}");
+    }
     // the shared pool's threads named, so per-thread CPU (the flow node's timing line,
     // `top -H`, perf) tells the DNS and sampling work from the bus's threads
     if let Err(e) = rayon::ThreadPoolBuilder::new()
