@@ -89,17 +89,21 @@ fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
 }
 
 /// A zenoh session on which every topic of `topics` has a subscriber, or as many as have
-/// one after `wait` (the others go on without: a topic may have none in this run). A
-/// session that reached no peer at all by then is opened once more (on a loaded host a
+/// one after `wait_s` seconds (the others go on without: a topic may have none in this
+/// run). A session that reached no peer at all by then is opened once more (on a loaded host a
 /// first connection attempt has stalled for good), and if that one reaches none either it
 /// is an error naming the endpoints: sending into nothing would only look like success.
 fn session_with_subscribers(
     connect: &[String],
     listen: &[String],
     topics: &[String],
-    wait: Duration,
+    wait_s: f64,
     doing: &str,
 ) -> Result<ZenohBus> {
+    if !(wait_s > 0.0 && wait_s.is_finite()) {
+        bail!("--wait-s must be > 0 (got {wait_s})");
+    }
+    let wait = Duration::from_secs_f64(wait_s);
     for attempt in 1..=2 {
         let bus = zenoh(connect.to_vec(), listen.to_vec())?;
         let unheard = bus.await_subscribers(topics, wait)?;
@@ -143,9 +147,6 @@ pub fn replay_cmd(
     }
     let segs = fiberflow_messages::segments::segment_paths(path)
         .with_context(|| format!("reading {}", path.display()))?;
-    if !(wait_s > 0.0 && wait_s.is_finite()) {
-        bail!("--wait-s must be > 0 (got {wait_s})");
-    }
     // zenoh drops a put whose subscribers it does not know yet: wait until every recorded
     // topic has one (as `inject` does), then a little for the others' declarations
     let mut topics: Vec<String> = Vec::new();
@@ -158,13 +159,7 @@ pub fn replay_cmd(
             }
         }
     }
-    let bus = session_with_subscribers(
-        &connect,
-        &listen,
-        &topics,
-        Duration::from_secs_f64(wait_s),
-        "replaying",
-    )?;
+    let bus = session_with_subscribers(&connect, &listen, &topics, wait_s, "replaying")?;
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
@@ -207,22 +202,13 @@ pub fn inject_cmd(
     structured: bool,
     wait_s: f64,
 ) -> Result<()> {
-    if !(wait_s > 0.0 && wait_s.is_finite()) {
-        bail!("--wait-s must be > 0 (got {wait_s})");
-    }
     let mut rng = fiberflow_messages::fuzz::Rng::new(seed);
     let full: Vec<String> = topics
         .iter()
         .map(|t| format!("fiberflow/{run}/{t}"))
         .collect();
     // what is sent before the run's subscriptions are known here would go nowhere
-    let bus = session_with_subscribers(
-        &connect,
-        &[],
-        &full,
-        Duration::from_secs_f64(wait_s),
-        "injecting",
-    )?;
+    let bus = session_with_subscribers(&connect, &[], &full, wait_s, "injecting")?;
     // one topic's first subscriber may be known before the others' (every node's
     // declarations arrive over its own link)
     std::thread::sleep(Duration::from_millis(500));
