@@ -474,7 +474,11 @@ pub fn run(o: &BenchOptions) -> Result<()> {
         }
     }
     bar.finish_and_clear();
-    let table = table(&results, &baselines, steps);
+    let mut table = table(&results, &baselines, steps);
+    if let Some(c) = &o.compare {
+        table.push('\n');
+        table.push_str(&compared_table(&results, &configs, c));
+    }
     println!("{table}");
     let path = o.out.join("bench-scale.md");
     std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
@@ -684,6 +688,57 @@ fn paired_serial_share(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f6
     median_min_max(r)
 }
 
+/// The compared values side by side: for every fibre configuration and value after the
+/// first, its step wall over that of the first value's run of the same round (the two ran
+/// next to each other, or at once in turns): median, min, max, the 95% bootstrap interval
+/// of the median, and in how many rounds it was the faster. Finer than the two rows'
+/// ratios to the flow alone, whose own scatter both carry.
+fn compared_table(
+    results: &BTreeMap<(u64, String), Vec<Figures>>,
+    configs: &[Config],
+    compare: &Compare,
+) -> String {
+    use std::fmt::Write as _;
+    let first = format!("{}={}", compare.key, compare.values[0]);
+    let mut md = format!(
+        "| fibres | transport | over {first}, round by round: median (min–max) | 95% interval of that median (bootstrap over rounds) | rounds in which it was the faster |\n|---|---|---|---|---|\n"
+    );
+    for c in configs.iter().filter(|c| c.fibres > 0) {
+        let Some(setting) = c.setting.as_deref().filter(|s| *s != first) else {
+            continue;
+        };
+        let Some(reference) = configs.iter().find(|r| {
+            r.fibres == c.fibres
+                && r.transport == c.transport
+                && r.setting.as_deref() == Some(first.as_str())
+        }) else {
+            continue;
+        };
+        let (Some(runs), Some(refs)) = (
+            results.get(&(c.fibres, c.label.clone())),
+            results.get(&(reference.fibres, reference.label.clone())),
+        ) else {
+            continue;
+        };
+        let (m, lo, hi, ci) = paired_ratios(runs, refs);
+        let faster = runs
+            .iter()
+            .zip(refs)
+            .filter(|(a, b)| a.loop_s < b.loop_s)
+            .count();
+        let _ = writeln!(
+            md,
+            "| {} | {}, {setting} | {m:.3} ({lo:.3}–{hi:.3}) | {:.3}–{:.3} | {faster} of {} |",
+            c.fibres,
+            c.transport,
+            ci.lo,
+            ci.hi,
+            runs.len().min(refs.len()),
+        );
+    }
+    md
+}
+
 /// Median, smallest and largest of `r`.
 fn median_min_max(r: Vec<f64>) -> (f64, f64, f64) {
     let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
@@ -890,6 +945,61 @@ mod tests {
         };
         let (few, many) = (spread(11), spread(110));
         assert!(many < 0.6 * few, "{few} {many}");
+    }
+
+    /// `--compare`: each compared value's runs over the first value's runs of the same
+    /// rounds, per fibre count and transport, with the count of rounds it won; the flow
+    /// alone and the first value get no row.
+    #[test]
+    fn compared_values_pair_round_by_round_with_the_first() {
+        let o = options(
+            &[0, 300],
+            &["iceoryx2", "zenoh"],
+            Some("run.fibre_scheduling=idle,normal"),
+        );
+        let configs = configurations(&o);
+        let mut results = BTreeMap::new();
+        for c in &configs {
+            // four rounds: normal over idle 0.98, 0.99, 1.01, 0.97 over iceoryx2, and
+            // 1.02 every round over zenoh
+            let walls: Vec<f64> = (0..4)
+                .map(|r| {
+                    let base = 30.0 + r as f64;
+                    match (c.fibres, c.transport.as_str(), c.setting.as_deref()) {
+                        (300, "iceoryx2", Some("run.fibre_scheduling=normal")) => {
+                            base * [0.98, 0.99, 1.01, 0.97][r]
+                        }
+                        (300, "zenoh", Some("run.fibre_scheduling=normal")) => base * 1.02,
+                        _ => base,
+                    }
+                })
+                .collect();
+            results.insert((c.fibres, c.label.clone()), runs(&walls));
+        }
+        let md = compared_table(&results, &configs, o.compare.as_ref().unwrap());
+        let rows: Vec<&str> = md.lines().skip(2).collect();
+        assert_eq!(rows.len(), 2, "{md}");
+        assert!(md
+            .lines()
+            .next()
+            .unwrap()
+            .contains("over run.fibre_scheduling=idle"));
+        assert!(
+            rows[0].starts_with(
+                "| 300 | iceoryx2, run.fibre_scheduling=normal | 0.985 (0.970–1.010) |"
+            ),
+            "{}",
+            rows[0]
+        );
+        assert!(rows[0].ends_with("| 3 of 4 |"), "{}", rows[0]);
+        assert!(
+            rows[1].starts_with(
+                "| 300 | zenoh, run.fibre_scheduling=normal | 1.020 (1.020–1.020) | 1.020–1.020 |"
+            ),
+            "{}",
+            rows[1]
+        );
+        assert!(rows[1].ends_with("| 0 of 4 |"), "{}", rows[1]);
     }
 
     /// Without `--steps` every run takes the launch files' shared `run.steps` (150 in the
