@@ -5,6 +5,8 @@ pub mod analytic;
 pub mod checkpoint;
 pub mod config;
 pub mod error;
+mod lockstep;
+mod outgoing;
 pub mod sampling;
 pub mod serve;
 pub mod spinup;
