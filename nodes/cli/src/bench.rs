@@ -60,6 +60,21 @@ impl std::str::FromStr for Compare {
         if key.is_empty() || key == "env:" || values.iter().any(String::is_empty) {
             return Err(format!("{s:?}: the key and every value must be non-empty"));
         }
+        // runs are told apart by their value: a repeated one would pool two
+        // configurations' runs into one row
+        if let Some((i, v)) = values
+            .iter()
+            .enumerate()
+            .find(|(i, v)| values[..*i].contains(v))
+        {
+            return Err(format!(
+                "{s:?}: value {v:?} is given twice (values {} and {}); for a control that \
+                 changes nothing, compare an environment variable nothing reads \
+                 (e.g. env:FF_CONTROL=1,2)",
+                values.iter().position(|x| x == v).map_or(0, |p| p + 1),
+                i + 1
+            ));
+        }
         Ok(Self {
             key: key.to_string(),
             values,
@@ -1095,9 +1110,15 @@ mod tests {
             "=idle",
             "run.fibre_scheduling=idle,",
             "env:=1,2",
+            "run.fibre_scheduling=idle,normal,idle",
         ] {
             assert!(bad.parse::<Compare>().is_err(), "{bad}");
         }
+        let twice = "env:X=1,2,1".parse::<Compare>().unwrap_err();
+        assert!(
+            twice.contains("\"1\" is given twice (values 1 and 3)") && twice.contains("env:"),
+            "{twice}"
+        );
         // an environment variable instead of a launch key
         let env: Vec<Option<String>> = configurations(&options(
             &[0, 300],
