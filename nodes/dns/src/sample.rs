@@ -51,13 +51,26 @@ impl Layout {
         i + self.px * j + self.plane * k
     }
 
+    /// `f` at node (i, j, k), read without a bounds check (≈ 12% of a sample's time,
+    /// bench `sample_4e5_points_by_cell/direct_one_point`). Every caller passes i ≤ nx + 1,
+    /// j ≤ ny + 1 and k ≤ nz + 1 (bracket nodes, each read at most one node beyond, into
+    /// the halos), and [`Sampler::corners`] checks that `f` holds the whole padded box.
+    #[inline(always)]
+    fn get(self, f: &[f64], i: usize, j: usize, k: usize) -> f64 {
+        let at = self.at(i, j, k);
+        debug_assert!(i < self.px && j < self.ny + 2 && at < f.len());
+        // SAFETY: i < px, j < py = ny + 2 and k < pz give at < px · py · pz, the padded
+        // length every field array has (checked where the Layout is made)
+        unsafe { *f.get_unchecked(at) }
+    }
+
     /// A cell-centre quantity on the centre node list (wall nodes hold the no-slip 0).
     #[inline(always)]
     fn centre_val(self, f: &[f64], i: usize, jn: usize, k: usize) -> f64 {
         if jn == 0 || jn == self.ny + 1 {
             0.0
         } else {
-            f[self.at(i, jn, k)]
+            self.get(f, i, jn, k)
         }
     }
 
@@ -65,11 +78,11 @@ impl Layout {
     #[inline(always)]
     fn y_mid_deriv(self, f: &[f64], inv_dyc: &[f64], i: usize, jn: usize, k: usize) -> f64 {
         if jn == 0 {
-            f[self.at(i, 1, k)] * self.inv_lo
+            self.get(f, i, 1, k) * self.inv_lo
         } else if jn == self.ny {
-            -f[self.at(i, self.ny, k)] * self.inv_hi
+            -self.get(f, i, self.ny, k) * self.inv_hi
         } else {
-            (f[self.at(i, jn + 1, k)] - f[self.at(i, jn, k)]) * inv_dyc[jn]
+            (self.get(f, i, jn + 1, k) - self.get(f, i, jn, k)) * inv_dyc[jn]
         }
     }
 }
@@ -116,22 +129,22 @@ impl Corners<'_> {
         let (idx, idz) = (self.idx, self.idz);
         match Q {
             0 => lay.centre_val(u, i, j, k),
-            1 => v[lay.at(i, j, k)],
+            1 => lay.get(v, i, j, k),
             2 => lay.centre_val(w, i, j, k),
             // ∂u/∂x, ∂u/∂y, ∂u/∂z
             3 => (lay.centre_val(u, i, j, k) - lay.centre_val(u, i - 1, j, k)) * idx,
             4 => lay.y_mid_deriv(u, self.idyc, i, j, k),
             5 => (lay.centre_val(u, i, j, k + 1) - lay.centre_val(u, i, j, k)) * idz,
             // ∂v/∂x, ∂v/∂y, ∂v/∂z
-            6 => (v[lay.at(i + 1, j, k)] - v[lay.at(i, j, k)]) * idx,
+            6 => (lay.get(v, i + 1, j, k) - lay.get(v, i, j, k)) * idx,
             7 => {
                 if j == 0 || j == lay.ny + 1 {
                     0.0
                 } else {
-                    (v[lay.at(i, j, k)] - v[lay.at(i, j - 1, k)]) * self.idyf[j]
+                    (lay.get(v, i, j, k) - lay.get(v, i, j - 1, k)) * self.idyf[j]
                 }
             }
-            8 => (v[lay.at(i, j, k + 1)] - v[lay.at(i, j, k)]) * idz,
+            8 => (lay.get(v, i, j, k + 1) - lay.get(v, i, j, k)) * idz,
             // ∂w/∂x, ∂w/∂y, ∂w/∂z
             9 => (lay.centre_val(w, i + 1, j, k) - lay.centre_val(w, i, j, k)) * idx,
             10 => lay.y_mid_deriv(w, self.idyc, i, j, k),
@@ -379,6 +392,12 @@ impl Sampler {
     #[inline(always)]
     fn corners<'a>(&'a self, g: &Grid, vel: &'a Velocity) -> Corners<'a> {
         let ny = g.ny;
+        // the unchecked reads of `Layout::get` rely on it: a field of another grid is a
+        // caller's bug, stopped here as a bounds check would have stopped it
+        assert!(
+            [vel.u.len(), vel.v.len(), vel.w.len()] == [g.padded_len(); 3],
+            "sampled field does not fit the sampler's grid"
+        );
         Corners {
             u: &vel.u,
             v: &vel.v,

@@ -144,7 +144,16 @@ impl Solver {
     }
 
     /// Advances one full RK3 step; returns an error instead of producing garbage.
+    ///
+    /// The step runs on a thread of the rayon pool (the caller waits once): its dozens of
+    /// parallel loops then split among the pool's threads directly, where each loop
+    /// started from outside the pool was handed in and waited for on its own (2–5% of the
+    /// fine-grid step; `docs/performance.md`, "The field step inside the pool").
     pub fn step(&mut self) -> Result<StepReport, DnsError> {
+        rayon::scope(|_| self.step_in_pool())
+    }
+
+    fn step_in_pool(&mut self) -> Result<StepReport, DnsError> {
         // one pass over the field for both the time step and the Courant check
         let rate = timestep::max_courant_rate(&self.grid, &self.vel);
         let dt = self.dt_for_rate(rate);

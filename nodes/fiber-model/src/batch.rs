@@ -128,7 +128,7 @@ impl LaneConsts {
 
 /// Per-segment working arrays of a block, reused from block to block (grown when a longer
 /// fibre comes, never shrunk; every entry read in a step was written earlier in it).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 pub struct Scratch {
     pa: Vec<Axi>,
     qa: Vec<Axi>,

@@ -61,6 +61,9 @@ pub struct FibreGroup {
     blocks: Vec<Block>,
     state: Vec<LaneSeg>,
     consts: Consts,
+    /// The calling thread's working memory of [`Self::step`], kept between steps: a step
+    /// allocates nothing (test `tests/no_allocation.rs`).
+    work: Work,
 }
 
 impl FibreGroup {
@@ -132,6 +135,7 @@ impl FibreGroup {
             blocks,
             state,
             consts,
+            work: Work::default(),
         }
     }
 
@@ -224,12 +228,24 @@ impl FibreGroup {
     /// Shape and orientation metrics of every fibre, in order (in parallel from
     /// [`PARALLEL_MIN_SEGMENTS`] on).
     pub fn metrics(&self) -> Vec<FibreMetrics> {
+        let mut out = Vec::new();
+        self.metrics_into(&mut out);
+        out
+    }
+
+    /// [`Self::metrics`] into `out` (its allocation reused from step to step).
+    pub fn metrics_into(&self, out: &mut Vec<FibreMetrics>) {
         // read in the lane storage: centres and axes only, no segment copied out
         let one = |k: usize| metrics_from(self.centres_and_axes(k), self.props(k));
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
-            return (0..self.len()).map(one).collect();
+            out.clear();
+            out.extend((0..self.len()).map(one));
+        } else {
+            (0..self.len())
+                .into_par_iter()
+                .map(one)
+                .collect_into_vec(out);
         }
-        (0..self.len()).into_par_iter().map(one).collect()
     }
 
     /// Fibre `k`'s segment centres and axes, first to last, read in the lane storage.
@@ -324,9 +340,10 @@ impl FibreGroup {
         let fluid = fluid.into();
         self.check(fluid)?;
         let (ctx, parts) = self.split(fluid, dt, true);
-        parts
-            .into_par_iter()
-            .try_for_each_init(Work::default, |work, (b, seg)| ctx.step_block(b, seg, work))
+        // each pool thread keeps its working memory from step to step
+        parts.into_par_iter().try_for_each(|(b, seg)| {
+            POOL_WORK.with(|work| ctx.step_block(b, seg, &mut work.borrow_mut()))
+        })
     }
 
     /// [`Self::step`] on the current thread only (for single-thread benchmarks).
@@ -351,12 +368,19 @@ impl FibreGroup {
     /// Every block on the current thread, in lanes where allowed if `use_lanes`.
     fn step_here(&mut self, fluid: Fluid<'_>, dt: f64, use_lanes: bool) -> Result<(), FibreError> {
         self.check(fluid)?;
-        let (ctx, parts) = self.split(fluid, dt, use_lanes);
-        let mut work = Work::default();
-        for (b, seg) in parts {
-            ctx.step_block(b, seg, &mut work)?;
+        let mut work = std::mem::take(&mut self.work);
+        let (ctx, mut rest) = self.context(fluid, dt, use_lanes);
+        let mut stepped = Ok(());
+        for &b in ctx.blocks {
+            let (seg, tail) = std::mem::take(&mut rest).split_at_mut(b.len);
+            rest = tail;
+            stepped = ctx.step_block(b, seg, &mut work);
+            if stepped.is_err() {
+                break;
+            }
         }
-        Ok(())
+        self.work = work;
+        stepped
     }
 
     /// What every block's step reads, and each block's storage, split so that blocks
@@ -367,29 +391,40 @@ impl FibreGroup {
         dt: f64,
         use_lanes: bool,
     ) -> (Ctx<'a>, Vec<(Block, &'a mut [LaneSeg])>) {
-        let (consts, stride): (&[LaneConsts], usize) = match &self.consts {
-            Consts::Uniform(c) => (std::slice::from_ref(c), 0),
-            Consts::PerSegment(v) => (v, 1),
-        };
-        let mut parts = Vec::with_capacity(self.blocks.len());
-        let mut rest: &mut [LaneSeg] = &mut self.state;
-        for blk in &self.blocks {
+        let (ctx, mut rest) = self.context(fluid, dt, use_lanes);
+        let mut parts = Vec::with_capacity(ctx.blocks.len());
+        for blk in ctx.blocks {
             let (head, tail) = std::mem::take(&mut rest).split_at_mut(blk.len);
             parts.push((*blk, head));
             rest = tail;
         }
+        (ctx, parts)
+    }
+
+    /// What every block's step reads, and the storage of all blocks (block after block).
+    fn context<'a>(
+        &'a mut self,
+        fluid: Fluid<'a>,
+        dt: f64,
+        use_lanes: bool,
+    ) -> (Ctx<'a>, &'a mut [LaneSeg]) {
+        let (consts, stride): (&[LaneConsts], usize) = match &self.consts {
+            Consts::Uniform(c) => (std::slice::from_ref(c), 0),
+            Consts::PerSegment(v) => (v, 1),
+        };
         let ctx = Ctx {
             params: &self.params,
             props: &self.props,
             density: &self.density,
             offsets: &self.offsets,
+            blocks: &self.blocks,
             consts,
             stride,
             fluid,
             dt,
             use_lanes,
         };
-        (ctx, parts)
+        (ctx, &mut self.state)
     }
 }
 
@@ -415,8 +450,13 @@ fn same_props(a: &SegmentProps, b: &SegmentProps) -> bool {
     bits(a) == bits(b)
 }
 
+thread_local! {
+    /// A pool thread's working memory of the parallel step.
+    static POOL_WORK: std::cell::RefCell<Work> = std::cell::RefCell::new(Work::default());
+}
+
 /// Reused working memory of one thread's block steps.
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone)]
 struct Work {
     lanes: batch::Scratch,
     one: Option<Fibre>,
@@ -430,6 +470,7 @@ struct Ctx<'a> {
     props: &'a [SegmentProps],
     density: &'a [f64],
     offsets: &'a [usize],
+    blocks: &'a [Block],
     consts: &'a [LaneConsts],
     stride: usize,
     fluid: Fluid<'a>,

@@ -7,6 +7,7 @@ use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
 use fiberflow_fiber_model::group::{FibreGroup, PARALLEL_MIN_SEGMENTS};
+use fiberflow_fiber_model::metrics::FibreMetrics;
 use fiberflow_fiber_model::step::Fluid;
 use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::checkpoints;
@@ -221,6 +222,10 @@ struct Served {
     /// per step at scale) keep their allocations.
     state_msg: Encode<FiberGroupState>,
     state_topic: String,
+    /// Refilled every step like the state (the per-fibre metrics and their message).
+    fibre_metrics: Vec<FibreMetrics>,
+    metrics_msg: Encode<FiberGroupMetrics>,
+    metrics_topic: String,
     full_states_every: u64,
     checkpoint_every: u64,
     checkpoint_root: Option<PathBuf>,
@@ -313,8 +318,25 @@ impl Served {
             velocity: Vec::new(),
             angular_velocity: Vec::new(),
         });
+        let metrics_msg = Encode(FiberGroupMetrics {
+            schema_version: SCHEMA_VERSION,
+            group: name.clone(),
+            step: 0,
+            t_plus: 0.0,
+            first_fiber: piece.first_fiber,
+            group_fibers: piece.group_fibers,
+            centre_of_mass: Vec::new(),
+            z1: Vec::new(),
+            sigma2: Vec::new(),
+            end_to_end: Vec::new(),
+            mean_abs_z1: 0.0,
+            mean_sigma2: 0.0,
+        });
         Ok(Self {
             state_topic: t.fiber_state(&name),
+            metrics_topic: t.fiber_metrics(&name),
+            fibre_metrics: Vec::new(),
+            metrics_msg,
             node,
             name,
             t,
@@ -404,28 +426,26 @@ impl Served {
         self.bus.publish_message(&self.state_topic, &self.state_msg)
     }
 
-    fn publish_metrics(&self, step: u64) -> Result<(), BusError> {
-        let ms = self.group.metrics();
+    fn publish_metrics(&mut self, step: u64) -> Result<(), BusError> {
+        self.group.metrics_into(&mut self.fibre_metrics);
+        let ms = &self.fibre_metrics;
         let n = ms.len().max(1) as f64;
-        let m = FiberGroupMetrics {
-            schema_version: SCHEMA_VERSION,
-            group: self.name.clone(),
-            step,
-            t_plus: step as f64 * self.dt,
-            first_fiber: self.piece.first_fiber,
-            group_fibers: self.piece.group_fibers,
-            centre_of_mass: ms
-                .iter()
-                .flat_map(|m| m.centre_of_mass.iter().copied())
-                .collect(),
-            z1: ms.iter().map(|m| m.z1).collect(),
-            sigma2: ms.iter().map(|m| m.sigma2).collect(),
-            end_to_end: ms.iter().map(|m| m.end_to_end).collect(),
-            mean_abs_z1: ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n,
-            mean_sigma2: ms.iter().map(|m| m.sigma2).sum::<f64>() / n,
-        };
+        let m = &mut self.metrics_msg.0;
+        m.step = step;
+        m.t_plus = step as f64 * self.dt;
+        m.centre_of_mass.clear();
+        m.centre_of_mass
+            .extend(ms.iter().flat_map(|m| m.centre_of_mass.iter().copied()));
+        m.z1.clear();
+        m.z1.extend(ms.iter().map(|m| m.z1));
+        m.sigma2.clear();
+        m.sigma2.extend(ms.iter().map(|m| m.sigma2));
+        m.end_to_end.clear();
+        m.end_to_end.extend(ms.iter().map(|m| m.end_to_end));
+        m.mean_abs_z1 = ms.iter().map(|m| m.z1.abs()).sum::<f64>() / n;
+        m.mean_sigma2 = ms.iter().map(|m| m.sigma2).sum::<f64>() / n;
         self.bus
-            .publish_message(&self.t.fiber_metrics(&self.name), &Encode(m))
+            .publish_message(&self.metrics_topic, &self.metrics_msg)
     }
 
     /// Waits for the samples of step `k` (sending the state again when they are late) and
