@@ -394,8 +394,9 @@ impl Sampler {
         let ny = g.ny;
         // the unchecked reads of `Layout::get` rely on it: a field of another grid is a
         // caller's bug, stopped here as a bounds check would have stopped it
+        let len = g.padded_len();
         assert!(
-            [vel.u.len(), vel.v.len(), vel.w.len()] == [g.padded_len(); 3],
+            vel.u.len() == len && vel.v.len() == len && vel.w.len() == len,
             "sampled field does not fit the sampler's grid"
         );
         Corners {

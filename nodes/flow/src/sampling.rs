@@ -184,38 +184,19 @@ pub fn sample_fibres(
             (c, v, g) = (c1, v1, g1);
         }
     }
-    sort_and_sample(&mut fibres, &cell, &sample);
-    out
-}
-
-/// One fibre's sort key, centres, velocities and gradients.
-type FibreSlots<'a> = (u64, &'a [f64], &'a mut [f64], &'a mut [f64]);
-
-/// Below this many fibres the cell keys are computed and sorted on the calling thread
-/// (a few µs at paper size; handing them to the pool cost a wake-up of its threads).
-const SERIAL_SORT_MAX_FIBRES: usize = 4096;
-
-fn sort_and_sample(
-    fibres: &mut [FibreSlots<'_>],
-    cell: &(impl Fn(&[f64]) -> u64 + Sync),
-    sample: &(impl Fn(&[f64], &mut [f64], &mut [f64]) + Sync),
-) {
-    let key = |f: &mut FibreSlots<'_>| f.0 = if f.1.len() >= 3 { cell(&f.1[..3]) } else { 0 };
-    // the keys and the sort in parallel at scale (serial, they held one core idle for ≈ 3
-    // ms per step at 6 × 10⁴ fibres); the order of equal keys does not matter: every point
+    // the keys and the sort in parallel too (serial, they held one core idle for ≈ 3 ms
+    // per step at 6 × 10⁴ fibres); the order of equal keys does not matter: every point
     // is sampled on its own into its own slot
-    if fibres.len() <= SERIAL_SORT_MAX_FIBRES {
-        fibres.iter_mut().for_each(key);
-        fibres.sort_unstable_by_key(|f| f.0);
-    } else {
-        fibres.par_iter_mut().with_min_len(4096).for_each(key);
-        fibres.par_sort_unstable_by_key(|f| f.0);
-    }
+    fibres
+        .par_iter_mut()
+        .with_min_len(4096)
+        .for_each(|f| f.0 = if f.1.len() >= 3 { cell(&f.1[..3]) } else { 0 });
+    fibres.par_sort_unstable_by_key(|f| f.0);
     // in cell order a fibre's arrays lie anywhere in the states and samples (tens of MB at
     // scale): the arrays of the fibre two ahead are fetched into cache while this one is
     // sampled (a third of the sampling time went to waiting for the centres)
     let per_task = fibres_per_task(fibres.len());
-    let sample_chunk = |chunk: &mut [FibreSlots<'_>]| {
+    fibres.par_chunks_mut(per_task).for_each(|chunk| {
         for i in 0..chunk.len() {
             if let Some((_, c, v, g)) = chunk.get(i + 2) {
                 prefetch(c);
@@ -225,8 +206,8 @@ fn sort_and_sample(
             let (_, c, v, g) = &mut chunk[i];
             sample(c, v, g);
         }
-    };
-    fibres.par_chunks_mut(per_task).for_each(sample_chunk);
+    });
+    out
 }
 
 /// Fibres per parallel task of the sampling loop: 64 at scale; fewer when the fibres are
