@@ -4,7 +4,7 @@
 use crate::config::{DnsConfig, Forcing};
 use crate::correct;
 use crate::error::DnsError;
-use crate::field::{bulk_mean, copy_z_halo, fill_plane_halo, update_halo, Component, Velocity};
+use crate::field::{bulk_mean, copy_z_halos, fill_plane_halo, update_halo, Component, Velocity};
 use crate::grid::Grid;
 use crate::implicit::YTridiag;
 use crate::init;
@@ -286,9 +286,7 @@ impl Solver {
                     }
                 },
             );
-        for f in [&mut next.u, &mut next.v, &mut next.w] {
-            copy_z_halo(g, f);
-        }
+        copy_z_halos(g, [&mut next.u, &mut next.v, &mut next.w]);
         std::mem::swap(&mut self.vel, &mut self.vel_next);
         std::mem::swap(&mut self.rhs_new, &mut self.rhs_old);
         self.project(alpha * dt);
