@@ -61,8 +61,9 @@ pub struct FibreGroup {
     blocks: Vec<Block>,
     state: Vec<LaneSeg>,
     consts: Consts,
-    /// The calling thread's working memory of [`Self::step`], kept between steps: a step
-    /// allocates nothing (test `tests/no_allocation.rs`).
+    /// The calling thread's working memory of [`Self::step`], kept between steps: a group
+    /// below [`PARALLEL_MIN_SEGMENTS`] allocates nothing in a step after its first (test
+    /// `tests/no_allocation.rs`).
     work: Work,
 }
 
