@@ -64,22 +64,31 @@ impl Layout {
         unsafe { *f.get_unchecked(at) }
     }
 
-    /// A cell-centre quantity on the centre node list (wall nodes hold the no-slip 0).
+    /// A cell-centre quantity on the centre node list (wall nodes hold the no-slip 0;
+    /// `WALLS = false` when the caller knows `jn` is no wall node).
     #[inline(always)]
-    fn centre_val(self, f: &[f64], i: usize, jn: usize, k: usize) -> f64 {
-        if jn == 0 || jn == self.ny + 1 {
+    fn centre_val<const WALLS: bool>(self, f: &[f64], i: usize, jn: usize, k: usize) -> f64 {
+        if WALLS && (jn == 0 || jn == self.ny + 1) {
             0.0
         } else {
             self.get(f, i, jn, k)
         }
     }
 
-    /// ∂f/∂y of a centre quantity on the mid node list (one-sided to the wall's 0).
+    /// ∂f/∂y of a centre quantity on the mid node list (one-sided to the wall's 0;
+    /// `WALLS = false` when the caller knows `jn` is no wall node).
     #[inline(always)]
-    fn y_mid_deriv(self, f: &[f64], inv_dyc: &[f64], i: usize, jn: usize, k: usize) -> f64 {
-        if jn == 0 {
+    fn y_mid_deriv<const WALLS: bool>(
+        self,
+        f: &[f64],
+        inv_dyc: &[f64],
+        i: usize,
+        jn: usize,
+        k: usize,
+    ) -> f64 {
+        if WALLS && jn == 0 {
             self.get(f, i, 1, k) * self.inv_lo
-        } else if jn == self.ny {
+        } else if WALLS && jn == self.ny {
             -self.get(f, i, self.ny, k) * self.inv_hi
         } else {
             (self.get(f, i, jn + 1, k) - self.get(f, i, jn, k)) * inv_dyc[jn]
@@ -125,20 +134,33 @@ impl Corners<'_> {
     /// Quantity `Q` (0..3 velocity, 3..12 gradient) at node (i, j, k).
     #[inline(always)]
     fn value<const Q: usize>(&self, i: usize, j: usize, k: usize) -> f64 {
+        self.value_near::<Q, true>(i, j, k)
+    }
+
+    /// [`Self::value`]; with `WALLS = false` only for nodes whose y stencil touches no
+    /// wall node (the wall cases' tests skipped: the same value).
+    #[inline(always)]
+    fn value_near<const Q: usize, const WALLS: bool>(&self, i: usize, j: usize, k: usize) -> f64 {
         let (lay, u, v, w) = (self.lay, self.u, self.v, self.w);
         let (idx, idz) = (self.idx, self.idz);
         match Q {
-            0 => lay.centre_val(u, i, j, k),
+            0 => lay.centre_val::<WALLS>(u, i, j, k),
             1 => lay.get(v, i, j, k),
-            2 => lay.centre_val(w, i, j, k),
+            2 => lay.centre_val::<WALLS>(w, i, j, k),
             // ∂u/∂x, ∂u/∂y, ∂u/∂z
-            3 => (lay.centre_val(u, i, j, k) - lay.centre_val(u, i - 1, j, k)) * idx,
-            4 => lay.y_mid_deriv(u, self.idyc, i, j, k),
-            5 => (lay.centre_val(u, i, j, k + 1) - lay.centre_val(u, i, j, k)) * idz,
+            3 => {
+                (lay.centre_val::<WALLS>(u, i, j, k) - lay.centre_val::<WALLS>(u, i - 1, j, k))
+                    * idx
+            }
+            4 => lay.y_mid_deriv::<WALLS>(u, self.idyc, i, j, k),
+            5 => {
+                (lay.centre_val::<WALLS>(u, i, j, k + 1) - lay.centre_val::<WALLS>(u, i, j, k))
+                    * idz
+            }
             // ∂v/∂x, ∂v/∂y, ∂v/∂z
             6 => (lay.get(v, i + 1, j, k) - lay.get(v, i, j, k)) * idx,
             7 => {
-                if j == 0 || j == lay.ny + 1 {
+                if WALLS && (j == 0 || j == lay.ny + 1) {
                     0.0
                 } else {
                     (lay.get(v, i, j, k) - lay.get(v, i, j - 1, k)) * self.idyf[j]
@@ -146,9 +168,15 @@ impl Corners<'_> {
             }
             8 => (lay.get(v, i, j, k + 1) - lay.get(v, i, j, k)) * idz,
             // ∂w/∂x, ∂w/∂y, ∂w/∂z
-            9 => (lay.centre_val(w, i + 1, j, k) - lay.centre_val(w, i, j, k)) * idx,
-            10 => lay.y_mid_deriv(w, self.idyc, i, j, k),
-            _ => (lay.centre_val(w, i, j, k) - lay.centre_val(w, i, j, k - 1)) * idz,
+            9 => {
+                (lay.centre_val::<WALLS>(w, i + 1, j, k) - lay.centre_val::<WALLS>(w, i, j, k))
+                    * idx
+            }
+            10 => lay.y_mid_deriv::<WALLS>(w, self.idyc, i, j, k),
+            _ => {
+                (lay.centre_val::<WALLS>(w, i, j, k) - lay.centre_val::<WALLS>(w, i, j, k - 1))
+                    * idz
+            }
         }
     }
 }
@@ -362,15 +390,27 @@ impl Sampler {
 
     #[inline]
     fn sample_trilinear(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
-        let c = self.corners(g, vel);
         let b = self.brackets(g, p);
+        // away from the walls (most points) no corner's y stencil reaches a wall node:
+        // centre rows j, j + 1 within 1..=ny, mid rows within 1..ny, face rows above 0
+        let (jc, jf, jm) = (b.y[0].0, b.y[1].0, b.y[2].0);
+        if jc >= 1 && jc < g.ny && jm >= 1 && jm + 2 <= g.ny && jf >= 1 {
+            self.trilinear_at::<false>(g, vel, &b)
+        } else {
+            self.trilinear_at::<true>(g, vel, &b)
+        }
+    }
+
+    #[inline(always)]
+    fn trilinear_at<const WALLS: bool>(&self, g: &Grid, vel: &Velocity, b: &Brackets) -> Sample {
+        let c = self.corners(g, vel);
         let mut s = Sample::default();
         // each quantity from its own staggered nodes (`LOCATION`), one corner expression
         // per quantity (`Corners::value`), every call monomorphic so that all of it inlines
         macro_rules! q {
             ($q:literal) => {{
                 let (hx, vy, hz) = LOCATION[$q];
-                self.interp(&b, hx, vy, hz, |i, j, k| c.value::<$q>(i, j, k))
+                self.interp(b, hx, vy, hz, |i, j, k| c.value_near::<$q, WALLS>(i, j, k))
             }};
         }
         s.vel = [q!(0), q!(1), q!(2)];
