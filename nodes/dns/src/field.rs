@@ -33,7 +33,7 @@ impl Velocity {
     }
 
     /// Refreshes all halos (periodic x, z; walls in y): the three fields' planes in one
-    /// parallel pass, then their z copies in another (bench `halos/update_halos_fine_192x64x64`).
+    /// parallel pass, then their z copies in another.
     pub fn update_halos(&mut self, grid: &Grid) {
         interior_planes(grid, &mut self.u, Component::Tangential)
             .chain(interior_planes(grid, &mut self.v, Component::Normal))
@@ -93,27 +93,18 @@ pub fn fill_plane_halo(grid: &Grid, p: &mut [f64], comp: Component) {
 }
 
 /// z periodicity of several fields: each field's first and last interior planes copied
-/// into the opposite halo, every copy split in pieces over the thread pool (the copies ran
-/// on one thread while the other waited: `update_halos` 43–62 µs against 57–70 µs,
-/// bench `halos/update_halos_fine_192x64x64`, the two alternated three times).
+/// into the opposite halo, the copies spread over the thread pool (they ran on one thread
+/// while the other waited).
 pub fn copy_z_halos<const N: usize>(grid: &Grid, fields: [&mut [f64]; N]) {
     let (plane, nz) = (grid.plane(), grid.nz);
-    let piece = plane.div_ceil(4).max(1);
-    let mut copies: Vec<(&mut [f64], &[f64])> = Vec::with_capacity(8 * N);
-    for f in fields {
+    fields.into_par_iter().for_each(|f| {
         let (first, rest) = f.split_at_mut(plane);
         let (mid, last) = rest.split_at_mut(nz * plane);
-        let mid: &[f64] = mid;
-        for (dst, src) in [
-            (first, &mid[(nz - 1) * plane..nz * plane]),
-            (&mut last[..plane], &mid[..plane]),
-        ] {
-            copies.extend(dst.chunks_mut(piece).zip(src.chunks(piece)));
-        }
-    }
-    copies
-        .into_par_iter()
-        .for_each(|(dst, src)| dst.copy_from_slice(src));
+        rayon::join(
+            || first.copy_from_slice(&mid[(nz - 1) * plane..]),
+            || last[..plane].copy_from_slice(&mid[..plane]),
+        );
+    });
 }
 
 /// Sum over interior cells of `f(i,j,k) * dyf[j]` divided by the channel volume: the bulk

@@ -149,7 +149,7 @@ impl Solver {
     /// parallel loops then split among the pool's threads directly, where each loop
     /// started from outside the pool was handed in and waited for on its own (the
     /// fine-grid field step 1–5% shorter, measured in turns: `docs/performance.md`,
-    /// "Paper size, 2026-12-03: the field step inside the pool").
+    /// "Paper size, 2026-12-03").
     pub fn step(&mut self) -> Result<StepReport, DnsError> {
         rayon::scope(|_| self.step_in_pool())
     }
