@@ -475,6 +475,19 @@ enum Ended {
     },
 }
 
+/// The `ZENOH_RUNTIME` a node process is started with: zenoh's thread pools on one worker
+/// ([`fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME`]) for zenoh on one host, unless the launcher's own environment names a runtime (`user`), which the
+/// node then inherits; none for iceoryx2, in-process runs and `[network]` launches (their
+/// links carry TLS between hosts, where one thread would encrypt everything).
+pub fn node_zenoh_runtime(
+    transport: &str,
+    multi_host: bool,
+    user: Option<&std::ffi::OsStr>,
+) -> Option<&'static str> {
+    (transport == "zenoh" && !multi_host && user.is_none())
+        .then_some(fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME)
+}
+
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<Ended> {
     let zenoh = base.transport == "zenoh";
     let rendezvous = if let (Some(net), Some(h)) = (&base.launch.network, &base.host) {
@@ -536,6 +549,13 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
             .stdout(logf.try_clone()?)
             .stderr(logf)
             .process_group(pgid);
+        if let Some(rt) = node_zenoh_runtime(
+            &base.transport,
+            base.launch.network.is_some(),
+            std::env::var_os("ZENOH_RUNTIME").as_deref(),
+        ) {
+            cmd.env("ZENOH_RUNTIME", rt);
+        }
         // SAFETY: prctl is async-signal-safe; it only sets this child's parent-death signal
         unsafe {
             cmd.pre_exec(|| {
@@ -681,6 +701,22 @@ mod tests {
     use super::*;
     use fiberflow_bus::lossy::LossyBus;
     use std::collections::BTreeMap;
+
+    /// Node processes of a one-host zenoh launch get zenoh's one-thread runtime; a user's
+    /// own `ZENOH_RUNTIME`, iceoryx2, in-process runs and multi-host launches keep theirs.
+    #[test]
+    fn one_host_zenoh_nodes_run_zenoh_on_one_thread() {
+        use fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME;
+        let user = std::ffi::OsStr::new("(rx: (worker_threads: 4))");
+        assert_eq!(
+            node_zenoh_runtime("zenoh", false, None),
+            Some(ONE_THREAD_RUNTIME)
+        );
+        assert_eq!(node_zenoh_runtime("zenoh", false, Some(user)), None);
+        assert_eq!(node_zenoh_runtime("zenoh", true, None), None);
+        assert_eq!(node_zenoh_runtime("iceoryx2", false, None), None);
+        assert_eq!(node_zenoh_runtime("inproc", false, None), None);
+    }
 
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder
     /// included); returns every recorded state by (topic, step).
