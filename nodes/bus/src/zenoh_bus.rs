@@ -33,8 +33,6 @@ pub const SHM_MAX_BYTES: usize = 2 << 30;
 /// The smallest shared-memory pool.
 pub const SHM_MIN_POOL_BYTES: usize = 32 << 20;
 
-/// The size of a pool added for a message of `bytes` that found no room: four such
-
 /// zenoh's runtime (`ZENOH_RUNTIME`, zenoh's RON syntax) with its five thread pools — `rx`
 /// (two workers), `tx`, `acc`, `net`, `app` — handed over to the one worker of `acc`.
 /// A link's socket waits in the poller of the pool that opened it while the receive and
@@ -46,6 +44,8 @@ pub const SHM_MIN_POOL_BYTES: usize = 32 << 20;
 /// `one_thread_runtime_carries_messages_on_one_thread`.
 pub const ONE_THREAD_RUNTIME: &str =
     "(rx: (handover: acc), tx: (handover: acc), net: (handover: acc), app: (handover: acc))";
+
+/// The size of a pool added for a message of `bytes` that found no room: four such
 /// messages, at least `min_bytes`.
 pub fn shm_pool_bytes(bytes: usize, min_bytes: usize) -> usize {
     (4 * bytes).max(min_bytes)

@@ -476,9 +476,10 @@ enum Ended {
 }
 
 /// The `ZENOH_RUNTIME` a node process is started with: zenoh's thread pools on one worker
-/// ([`fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME`]) for zenoh on one host, unless the launcher's own environment names a runtime (`user`), which the
-/// node then inherits; none for iceoryx2, in-process runs and `[network]` launches (their
-/// links carry TLS between hosts, where one thread would encrypt everything).
+/// ([`fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME`]) for zenoh on one host, unless the
+/// launcher's own environment names a runtime (`user`), which the node then inherits;
+/// none for iceoryx2, in-process runs and `[network]` launches (their links carry TLS
+/// between hosts, where one thread would encrypt everything).
 pub fn node_zenoh_runtime(
     transport: &str,
     multi_host: bool,
