@@ -615,10 +615,7 @@ mod tests {
         const TO: &str = "FIBERFLOW_TEST_PUBLISH_TO";
         const N: usize = 400;
         // above zenoh's 3 kB threshold, below ours; and in this bus's shared memory
-        let few_kb = Counting {
-            first: 3,
-            n: 4_000,
-        };
+        let few_kb = Counting { first: 3, n: 4_000 };
         let large = Counting {
             first: 7,
             n: 40_000,
