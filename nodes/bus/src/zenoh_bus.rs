@@ -621,7 +621,7 @@ mod tests {
             n: 40_000,
         };
         assert!(few_kb.n < SHM_MIN_BYTES && large.n >= SHM_MIN_BYTES);
-        let sent = |i: usize| if i % 2 == 0 { &large } else { &few_kb };
+        let sent = |i: usize| if i.is_multiple_of(2) { &large } else { &few_kb };
         if let Ok(endpoint) = std::env::var(TO) {
             let b = connected_session(endpoint);
             let missing = b
