@@ -90,8 +90,10 @@ impl Shm {
     }
 
     /// Lets go of the sent messages every receiver has taken and let go of (this
-    /// process's hold is the only one left), and of any zenoh's watchdog has invalidated
-    /// (a receiver that died). A closing bus waits until none is held: a message's buffer,
+    /// process's hold is the only one left), and of any zenoh no longer counts as valid.
+    /// One sent to a receiver that died stays held (its count is never given back, so the
+    /// pool could not reuse it before either), and a closing bus gives up on it after
+    /// [`CLOSE_WAIT_FOR_RECEIVERS`]. A closing bus waits until none is held: a message's buffer,
     /// and the metadata that makes it readable, live in this process, so one that exited
     /// before its receivers had read what it sent lost it (test
     /// `a_publisher_process_that_exits_at_once_loses_nothing`; waiting for the pools'
