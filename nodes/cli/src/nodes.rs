@@ -302,7 +302,7 @@ fn run_fibre_nodes(
 /// thread of its own. The first failure returns at once, naming its node: the process then
 /// exits and takes its other nodes with it, as separate processes would be stopped by the
 /// launcher, instead of leaving them to wait out the step timeout.
-fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
+pub(crate) fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
     if spec.co_nodes.is_empty() {
         return run_node(spec, bus, stop).with_context(|| format!("node {} failed", spec.node));
     }

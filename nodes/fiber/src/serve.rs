@@ -74,7 +74,9 @@ pub fn serve(
 /// (below [`PARALLEL_MIN_SEGMENTS`] segments) are stepped in turn on this thread: every
 /// node publishes its state of step k before any waits for its samples of step k, so the
 /// flow node, which answers once it holds every state, is never kept waiting by the
-/// order, and one thread is woken once per step instead of one per node. If any group is
+/// order, and one thread is woken once per step instead of one per node (a node whose
+/// samples are late sends the states of the nodes after it again with its own, since the
+/// flow node answers none before it holds them all). If any group is
 /// larger, each node gets a thread of its own. Returns each node's name and drop counts.
 pub fn serve_many(
     nodes: &[(&FiberNodeConfig, u32)],
@@ -141,8 +143,25 @@ pub fn serve_many(
     }
     let steps = served.iter().map(|s| s.steps).max().unwrap_or(0);
     for k in ck.start_step..steps {
-        for s in served.iter_mut().filter(|s| k < s.steps) {
-            s.step(k, step_timeout, timeout_s)?;
+        for i in 0..served.len() {
+            let (head, later) = served.split_at_mut(i + 1);
+            let s = &mut head[i];
+            if k >= s.steps {
+                continue;
+            }
+            // the nodes after this one wait for the same step's samples, which the flow
+            // node sends once it holds every state: when this node's samples are late,
+            // their states go out again with its own (one of them may be the state lost;
+            // they send nothing while this thread waits here)
+            let mut resend_later = || -> Result<usize, BusError> {
+                let mut sent = 0;
+                for o in later.iter_mut().filter(|o| k < o.steps) {
+                    o.publish_state(k)?;
+                    sent += 1;
+                }
+                Ok(sent)
+            };
+            s.step(k, step_timeout, timeout_s, &mut resend_later)?;
         }
         // the new states together: one wake-up of each subscribing process per step,
         // not one per node
@@ -176,7 +195,7 @@ fn serve_on_threads(
             .spawn(move || {
                 let run = || -> Result<(String, DropCounter), FiberNodeError> {
                     for k in start..s.steps {
-                        s.step(k, step_timeout, timeout_s)?;
+                        s.step(k, step_timeout, timeout_s, &mut || Ok(0))?;
                         s.publish_step(k + 1)?;
                         s.checkpoint(k + 1)?;
                     }
@@ -448,13 +467,16 @@ impl Served {
             .publish_message(&self.metrics_topic, &self.metrics_msg)
     }
 
-    /// Waits for the samples of step `k` (sending the state again when they are late) and
-    /// integrates to t_{k+1}; [`Served::publish_step`] then sends the new state.
+    /// Waits for the samples of step `k` (sending the state again when they are late,
+    /// and the states `resend_others` sends: those of the nodes stepped after this one on
+    /// its thread; it returns how many) and integrates to t_{k+1};
+    /// [`Served::publish_step`] then sends the new state.
     fn step(
         &mut self,
         k: u64,
         step_timeout: Duration,
         timeout_s: f64,
+        resend_others: &mut dyn FnMut() -> Result<usize, BusError>,
     ) -> Result<(), FiberNodeError> {
         let resend_cap = (step_timeout / 4).max(RESEND_AFTER_MIN);
         let wait_from = Instant::now();
@@ -476,14 +498,16 @@ impl Served {
             if now >= resend_at {
                 // our state or the samples were lost in transit: send the state again and
                 // say we wait (the flow node resends samples it already served)
+                self.publish_state(k)?;
+                let others = resend_others()?;
+                self.hb(lifecycle::WAITING, k)?;
                 tracing::info!(
                     node = %self.node,
                     step = k,
                     waited_s = format!("{:.1}", wait_from.elapsed().as_secs_f64()),
+                    also_resent = others,
                     "no samples yet: sending the state again"
                 );
-                self.publish_state(k)?;
-                self.hb(lifecycle::WAITING, k)?;
                 resent = true;
                 resend_after = (2 * resend_after).min(resend_cap);
                 resend_at = now + resend_after;
