@@ -109,7 +109,9 @@ fn orchestrate() -> Result<(), Box<dyn std::error::Error>> {
         _ => return Err("usage: stopped_shared_memory both|receiver [CYCLES]".into()),
     };
     let cycles: u32 = args.get(2).map(|c| c.parse()).transpose()?.unwrap_or(10);
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let exe = std::env::current_exe()?;
     let receiver = Command::new(&exe)

@@ -958,25 +958,12 @@ mod tests {
     /// second loss is repaired too and the run ends with a lossless run's states.
     #[test]
     fn a_repaired_loss_does_not_delay_the_next_resend() {
-        let dir = std::env::temp_dir().join(format!("ff-lossy2-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let clean = run_on(
-            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
-            &dir.join("clean"),
-        );
-        let lossy = Arc::new(LossyBus::new(
-            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+        let lost = repaired_run(
+            "lossy2",
             &[("/flow/samples/case1", 5), ("/flow/samples/case1", 12)],
-        ));
-        let bytes = run_launch_with(
-            lossy.clone(),
-            &dir.join("lossy"),
             &["run.step_timeout_s=12"],
         );
-        assert_eq!(lossy.lost().len(), 2, "{:?}", lossy.lost());
-        let lost = recorded_states(&bytes);
-        assert!(clean == lost, "states differ after the resends");
-        std::fs::remove_dir_all(&dir).ok();
+        assert_eq!(lost.len(), 2, "{lost:?}");
     }
 
     /// The two fibre nodes stepped in turn on one thread (`run.fibre_processes = 1`, as
@@ -988,29 +975,12 @@ mod tests {
     /// timeout, as a paper-size benchmark over zenoh once did.)
     #[test]
     fn a_lost_state_of_a_node_stepped_later_on_its_thread_is_sent_again() {
-        let dir = std::env::temp_dir().join(format!("ff-lossy-turn-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let clean = run_on(
-            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
-            &dir.join("clean"),
-        );
-        let lossy = Arc::new(LossyBus::new(
-            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+        let lost = repaired_run(
+            "lossy-turn",
             &[("/fibers/stiff/state", 10)],
-        ));
-        let bytes = run_launch_with(
-            lossy.clone(),
-            &dir.join("lossy"),
             &["run.fibre_processes=1", "run.step_timeout_s=12"],
         );
-        assert_eq!(
-            lossy.lost(),
-            ["fiberflow/analytic-shear/fibers/stiff/state"]
-        );
-        let lost = recorded_states(&bytes);
-        assert_eq!(clean.len(), 2 * 31, "two groups, steps 0..=30");
-        assert!(clean == lost, "states differ after the resend");
-        std::fs::remove_dir_all(&dir).ok();
+        assert_eq!(lost, ["fiberflow/analytic-shear/fibers/stiff/state"]);
     }
 
     /// A transport that loses a fibre node's samples (step 4 of `case1`) and a state
@@ -1019,7 +989,19 @@ mod tests {
     /// run, bit for bit, every step recorded.
     #[test]
     fn lost_samples_and_states_are_sent_again() {
-        let dir = std::env::temp_dir().join(format!("ff-lossy-{}", std::process::id()));
+        let lost = repaired_run(
+            "lossy",
+            &[("/flow/samples/case1", 5), ("/fibers/stiff/state", 10)],
+            &[],
+        );
+        assert_eq!(lost.len(), 2, "{lost:?}");
+    }
+
+    /// Runs the launch on a lossless bus and again on one that loses `losses`, with
+    /// `sets`; asserts that the lossy run recorded the lossless run's states bit for bit
+    /// (two groups, steps 0..=30), and returns the topics of what was lost.
+    fn repaired_run(tag: &str, losses: &[(&str, usize)], sets: &[&str]) -> Vec<String> {
+        let dir = std::env::temp_dir().join(format!("ff-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let clean = run_on(
             Arc::new(fiberflow_bus::inproc::InprocBus::new()),
@@ -1027,12 +1009,13 @@ mod tests {
         );
         let lossy = Arc::new(LossyBus::new(
             Arc::new(fiberflow_bus::inproc::InprocBus::new()),
-            &[("/flow/samples/case1", 5), ("/fibers/stiff/state", 10)],
+            losses,
         ));
-        let lost = run_on(lossy.clone(), &dir.join("lossy"));
-        assert_eq!(lossy.lost().len(), 2, "{:?}", lossy.lost());
+        let bytes = run_launch_with(lossy.clone(), &dir.join("lossy"), sets);
+        let repaired = recorded_states(&bytes);
         assert_eq!(clean.len(), 2 * 31, "two groups, steps 0..=30");
-        assert!(clean == lost, "states differ after the resend");
+        assert!(clean == repaired, "states differ after the resends");
         std::fs::remove_dir_all(&dir).ok();
+        lossy.lost()
     }
 }
