@@ -290,34 +290,28 @@ fn run_inproc_on(
     let mut handles = Vec::new();
     let (done_tx, done_rx) = std::sync::mpsc::channel();
     for (n, members) in processes(nodes, base.launch.run.fibre_processes) {
-        let mut spec = base.clone();
-        if let Some((first, rest)) = members.split_first() {
-            spec.node = first.clone();
-            spec.co_nodes = rest.to_vec();
-        }
+        let spec = process_spec(base, &members);
         let (bus, stop, done) = (bus.clone(), stop.clone(), done_tx.clone());
-        let name = n.clone();
         handles.push(
             std::thread::Builder::new()
                 .name(format!("node-{n}"))
                 .spawn(move || {
                     // a panic drops `done` unsent: the count below then comes up short
-                    let r = run_nodes(&spec, bus, stop);
-                    let _ = done.send((name, r));
+                    let _ = done.send(run_nodes(&spec, bus, stop));
                 })?,
         );
     }
     drop(done_tx);
     let mut failure = None;
     let mut ended = 0;
-    while let Ok((n, r)) = done_rx.recv() {
+    while let Ok(r) = done_rx.recv() {
         ended += 1;
         if let Err(e) = r {
             // the first failure stops the others that watch for it (the recorder closes
-            // its file), as the launcher stops a failed run's processes
+            // its file), as the launcher stops a failed run's processes; the error names
+            // its node
             stop.store(true, Ordering::SeqCst);
             failure = failure.or(Some(format!("{e:#}")));
-            tracing::debug!(node = %n, "node failed");
         }
     }
     if ended < handles.len() {
@@ -535,12 +529,7 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
     for (n, members) in processes(nodes, base.launch.run.fibre_processes) {
-        let mut spec = base.clone();
-        // the process runs its first node and the others beside it
-        if let Some((first, rest)) = members.split_first() {
-            spec.node = first.clone();
-            spec.co_nodes = rest.to_vec();
-        }
+        let mut spec = process_spec(base, &members);
         if !zenoh {
             // shared memory: nothing to configure
         } else if n == "flow" {
@@ -622,6 +611,17 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         let _ = p.join();
     }
     result
+}
+
+/// The spec of a process (or in-process thread) that runs its first node and the others
+/// beside it.
+fn process_spec(base: &NodeSpec, members: &[String]) -> NodeSpec {
+    let mut spec = base.clone();
+    if let Some((first, rest)) = members.split_first() {
+        spec.node = first.clone();
+        spec.co_nodes = rest.to_vec();
+    }
+    spec
 }
 
 /// The node processes of one launcher, in start order: (process name, its nodes). The
