@@ -12,6 +12,10 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 pub const HEADER: &str =
     "step,start_unix_nanos,wall_nanos,field_step_nanos,sampling_nanos,waiting_nanos,publishing_nanos";
 
+/// The most rows reserved up front (7 MB): `run.steps` may be up to 10⁸, and 10⁸ rows
+/// reserved at the start would ask for 11 GB.
+pub const RESERVED_ROWS_MAX: usize = 1 << 16;
+
 /// Stage seconds summed over the run so far (a step's are the change over it).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Stages {
@@ -38,7 +42,8 @@ pub struct StepTimes {
 }
 
 impl StepTimes {
-    /// Room for `steps` rows (none is allocated while stepping).
+    /// Room for `steps` rows, up to [`RESERVED_ROWS_MAX`] (no allocation while stepping
+    /// below that; a longer run's rows grow as it steps, 112 bytes each).
     pub fn new(steps: usize) -> Self {
         let origin = Instant::now();
         let origin_unix_nanos = SystemTime::now()
@@ -49,7 +54,7 @@ impl StepTimes {
             origin,
             origin_unix_nanos,
             open: None,
-            rows: Vec::with_capacity(steps + 1),
+            rows: Vec::with_capacity(steps.saturating_add(1).min(RESERVED_ROWS_MAX)),
         }
     }
 
@@ -139,6 +144,17 @@ mod tests {
         assert_eq!(b[1], a[1] + a[2]);
         // the start is wall-clock time (after 2020)
         assert!(a[1] > 1_577_836_800_000_000_000, "{a:?}");
+    }
+
+    #[test]
+    fn the_longest_allowed_run_reserves_a_bounded_table() {
+        // run.steps may be 10^8: reserving a row per step would ask for 11 GB at the start
+        let t = StepTimes::new(100_000_000);
+        assert_eq!(t.rows.capacity(), RESERVED_ROWS_MAX);
+        let t = StepTimes::new(usize::MAX);
+        assert_eq!(t.rows.capacity(), RESERVED_ROWS_MAX);
+        // a run within the bound reserves all of its rows
+        assert!(StepTimes::new(404).rows.capacity() >= 405);
     }
 
     #[test]
