@@ -147,6 +147,11 @@ fn recording_decodes_with_independent_reader() {
     assert!(text.contains("\"case1\": 200"), "{text}");
 }
 
+/// Steps of a run that the test itself stops (Ctrl-C or a kill): the most `run.steps`
+/// allows, so the run cannot end first however fast it steps (the analytic-shear run
+/// steps at ≈ 0.3 ms).
+const UNTIL_STOPPED: u64 = 100_000_000;
+
 fn long_launch(dir: &std::path::Path, steps: u64) -> std::path::PathBuf {
     let text = std::fs::read_to_string(root().join("launch/analytic-shear.toml")).unwrap();
     let text = text
@@ -256,7 +261,7 @@ fn inconsistent_messages_are_dropped_and_counted() {
 /// state with a clean in-process run of as many steps.
 fn inject_into_a_run(name: &str, structured: bool) {
     let dir = scratch(name);
-    let file = long_launch(&dir, 100_000_000);
+    let file = long_launch(&dir, UNTIL_STOPPED);
     let dirty = dir.join("dirty");
     let (mut child, endpoint) = spawn_launch(&file, &dirty);
     // wait until the recorder has joined and the run is stepping
@@ -351,7 +356,7 @@ fn inject_into_a_run(name: &str, structured: bool) {
 fn killed_recorder_is_recoverable() {
     let _one = one_run_at_a_time();
     let dir = scratch("kill");
-    let file = long_launch(&dir, 40000);
+    let file = long_launch(&dir, UNTIL_STOPPED);
     let mut text = std::fs::read_to_string(&file).unwrap();
     text.push_str("\n[run.restart]\npolicy = \"never\"\n");
     std::fs::write(&file, text).unwrap();
@@ -410,7 +415,7 @@ fn killed_recorder_is_recoverable() {
 fn ctrl_c_stops_everything_cleanly() {
     let _one = one_run_at_a_time();
     let dir = scratch("ctrlc");
-    let file = long_launch(&dir, 40000);
+    let file = long_launch(&dir, UNTIL_STOPPED);
     let out = dir.join("run");
     let (mut child, _) = spawn_launch(&file, &out);
     wait_for_recording(&out, 60);
