@@ -51,27 +51,6 @@ fn spawn(out: &Path, transport: &str) -> std::process::Child {
         .expect("launch")
 }
 
-/// Waits until the run has a complete checkpoint (a manifest).
-fn wait_for_checkpoint(out: &Path, secs: u64) {
-    let t0 = Instant::now();
-    let root = out.join("checkpoints");
-    while t0.elapsed() < Duration::from_secs(secs) {
-        let done = std::fs::read_dir(&root)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .any(|e| e.path().join("manifest.toml").exists());
-        if done {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    panic!(
-        "no complete checkpoint in {} after {secs} s",
-        root.display()
-    );
-}
-
 /// The kills land this long at most after the first checkpoint (step 20), while the run
 /// still goes: the 100 steps after it took 1.47 s over iceoryx2 on this machine, and a
 /// kill 1.44 s after it found the run over.

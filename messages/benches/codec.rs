@@ -49,6 +49,7 @@ fn state() -> FiberGroupState {
         axis: numbers(3 * points, 0.4),
         velocity: numbers(3 * points, 0.5),
         angular_velocity: numbers(3 * points, 0.6),
+        hydro_force: vec![],
     }
 }
 

@@ -588,6 +588,7 @@ impl Bulk for FiberGroupState {
         w.seq_f64(&m.axis);
         w.seq_f64(&m.velocity);
         w.seq_f64(&m.angular_velocity);
+        w.seq_f64(&m.hydro_force);
         w.finish()
     }
 }
@@ -618,6 +619,7 @@ pub(crate) fn read_state_into(out: &mut FiberGroupState, bytes: &[u8]) -> Result
     r.seq_f64_into(&mut out.axis)?;
     r.seq_f64_into(&mut out.velocity)?;
     r.seq_f64_into(&mut out.angular_velocity)?;
+    r.seq_f64_into(&mut out.hydro_force)?;
     Ok(())
 }
 

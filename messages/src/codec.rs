@@ -235,6 +235,7 @@ mod tests {
             axis: vec![0.0, 1.0, 0.0, 0.0, 1.0, 0.0],
             velocity: vec![0.5; 6],
             angular_velocity: vec![0.0; 6],
+            hydro_force: vec![],
         }
     }
 

@@ -124,6 +124,8 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
         r.len_near(3 * nseg),
         r.len_near(3 * nseg),
     );
+    // two-way forces: absent (one-way) half the time
+    let e = if r.chance(2) { 0 } else { r.len_near(3 * nseg) };
     let (first_fiber, group_fibers) = r.piece(nf);
     FiberGroupState {
         schema_version: SCHEMA_VERSION,
@@ -150,6 +152,7 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
         axis: r.floats(b),
         velocity: r.floats(c),
         angular_velocity: r.floats(d),
+        hydro_force: r.floats(e),
     }
 }
 
@@ -185,6 +188,11 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
             max_divergence: r.float(),
             bulk_velocity: r.float(),
             re_tau: r.float(),
+            pressure_gradient: r.float(),
+            fibre_force_plus: {
+                let n = r.len_near(3);
+                r.floats(n)
+            },
         }),
         "fiberflow_msgs/msg/FlowProfiles" => {
             let n = r.below(40) as usize;

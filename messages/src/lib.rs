@@ -22,4 +22,4 @@ pub use codec::{
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;

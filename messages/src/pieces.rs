@@ -191,6 +191,7 @@ pub fn merge_states(mut pieces: Vec<FiberGroupState>) -> Option<FiberGroupState>
         s.axis.extend(p.axis);
         s.velocity.extend(p.velocity);
         s.angular_velocity.extend(p.angular_velocity);
+        s.hydro_force.extend(p.hydro_force);
     }
     s.first_fiber = 0;
     Some(s)

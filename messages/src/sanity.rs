@@ -75,8 +75,13 @@ impl Sane for FlowStatus {
                 self.cfl,
                 self.max_divergence,
                 self.bulk_velocity,
+                self.pressure_gradient,
             ],
-        )
+        )?;
+        if !(self.fibre_force_plus.is_empty() || self.fibre_force_plus.len() == 3) {
+            return Err("fibre_force_plus must hold 0 or 3 values".into());
+        }
+        finite("fibre_force_plus", &self.fibre_force_plus)
     }
 }
 
@@ -229,6 +234,11 @@ impl Sane for FiberGroupState {
                 finite(name, v)?;
             }
         }
+        // two-way coupling's forces: none (one-way) or one per segment
+        if !self.hydro_force.is_empty() {
+            len("hydro_force", self.hydro_force.len(), want)?;
+            finite("hydro_force", &self.hydro_force)?;
+        }
         finite("segment_length", &self.segment_length)?;
         finite("diameter", &self.diameter)?;
         finite("density_ratio", &self.density_ratio)
@@ -344,6 +354,7 @@ mod tests {
             axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
             velocity: vec![0.0; 6],
             angular_velocity: vec![0.0; 6],
+            hydro_force: vec![],
         }
     }
 

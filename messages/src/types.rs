@@ -30,6 +30,13 @@ pub struct FlowStatus {
     pub max_divergence: f64,
     pub bulk_velocity: f64,
     pub re_tau: f64,
+    /// Mean streamwise pressure gradient that drove the step (outer units, u_τ²/h): 1 at a
+    /// constant pressure gradient; at a constant flow rate, the gradient that held it (its
+    /// change is the change of drag).
+    pub pressure_gradient: f64,
+    /// Two-way coupling: the fibres' total force on the fluid applied in the step (x, y,
+    /// z, wall units ρ u_τ² ℓ_ν²); empty when one-way.
+    pub fibre_force_plus: Vec<f64>,
 }
 
 /// Running flow statistics (paper figs. 3–4), half channel in wall units, averaged over
@@ -121,6 +128,11 @@ pub struct FiberGroupState {
     pub axis: Vec<f64>,
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
+    /// Two-way coupling only (empty when one-way): per segment, 3 values, the
+    /// hydrodynamic force F^h the fluid exerted on it over the step that ended at `step`
+    /// (wall units, ρ_f u_τ² (ν/u_τ)²). The flow node adds −F^h to the fluid's next step.
+    /// Carried by lean states too.
+    pub hydro_force: Vec<f64>,
 }
 
 impl FiberGroupState {

@@ -314,3 +314,24 @@ pub fn assert_same_states(
         }
     }
 }
+
+/// Waits until the run has a complete checkpoint (a manifest).
+pub fn wait_for_checkpoint(out: &Path, secs: u64) {
+    let t0 = std::time::Instant::now();
+    let root = out.join("checkpoints");
+    while t0.elapsed() < std::time::Duration::from_secs(secs) {
+        let done = std::fs::read_dir(&root)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .any(|e| e.path().join("manifest.toml").exists());
+        if done {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    panic!(
+        "no complete checkpoint in {} after {secs} s",
+        root.display()
+    );
+}

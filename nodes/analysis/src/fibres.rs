@@ -868,6 +868,7 @@ mod tests {
             axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
             velocity: vec![0.0; 6],
             angular_velocity: vec![0.0; 6],
+            hydro_force: vec![],
         };
         let metrics = |k: u64| FiberGroupMetrics {
             schema_version: SCHEMA_VERSION,

@@ -192,6 +192,9 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         lf.run.dt_plus,
         out_dir.display()
     );
+    for line in crate::loading::describe(&lf, &crate::loading::loading(&lf)?) {
+        println!("{line}");
+    }
     let watcher = checkpoint_watcher(&base, pieces.clone(), digest.clone());
     let result = match transport.as_str() {
         "inproc" => run_inproc(&base, &nodes, stop),

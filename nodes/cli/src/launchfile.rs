@@ -44,6 +44,20 @@ pub struct RunSection {
     /// sessions and task switches; a node that dies takes its process's others with it).
     #[serde(default)]
     pub fibre_processes: u32,
+    /// `"one-way"` (the default, the paper's): the fibres feel the flow, the flow does not
+    /// feel them. `"two-way"`: every segment's hydrodynamic force goes back to the fluid as
+    /// a body force (docs/two-way.md); all groups of the run are then one suspension.
+    #[serde(default)]
+    pub coupling: Coupling,
+}
+
+/// `run.coupling`: whether the fluid feels the fibres.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Coupling {
+    #[default]
+    OneWay,
+    TwoWay,
 }
 
 /// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
@@ -690,8 +704,16 @@ mod tests {
             );
         }
         idle.sort();
-        assert_eq!(n, 8, "launch files with a [run] table");
-        assert_eq!(idle, ["paper-1e4.toml", "paper.toml", "scale-1e4.toml"]);
+        assert_eq!(n, 9, "launch files with a [run] table");
+        assert_eq!(
+            idle,
+            [
+                "paper-1e4.toml",
+                "paper.toml",
+                "scale-1e4.toml",
+                "two-way.toml"
+            ]
+        );
     }
 
     #[test]

@@ -6,6 +6,7 @@ mod coupled;
 mod huge_pages;
 mod launch;
 mod launchfile;
+mod loading;
 mod nodes;
 mod progress;
 mod recording;

@@ -167,6 +167,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 checkpoint_root: spec.checkpoint_root(),
                 pieces,
                 step_times: Some(spec.out_dir.join("logs").join("flow-steps.csv")),
+                two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it
@@ -282,6 +283,7 @@ fn run_fibre_nodes(
         root: spec.checkpoint_root(),
         config_digest: digest(&spec.launch_text),
         full_states_every: lf.recorder.states_every,
+        two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
     };
     let served = fiberflow_fiber::serve::serve_many(
         &nodes,

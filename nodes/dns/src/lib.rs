@@ -17,6 +17,7 @@ pub mod regrid;
 pub mod rhs;
 pub mod sample;
 pub mod slice;
+pub mod spread;
 pub mod solver;
 pub mod stats;
 pub mod timestep;

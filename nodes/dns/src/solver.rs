@@ -49,6 +49,26 @@ pub struct Solver {
     forcing: f64,
     /// Max |div u| at the last check.
     last_divergence: f64,
+    /// Two-way coupling: the fibres' body force per unit mass (outer units, staggered like
+    /// the velocity), added to every substep of the next step; `None` when one-way.
+    body_force: Option<Velocity>,
+    /// Where the fluid's x and z momentum came from, when kept (tests and budgets).
+    ledger: Option<MomentumLedger>,
+}
+
+/// The impulses the fluid received in x and z since the ledger was opened, term by term
+/// (outer units, Σ over the grid of velocity × control volume): the discrete momentum
+/// budget, exact to round-off because convection and the x/z diffusion telescope to zero
+/// over the periodic box and the projection's pressure gradient sums to zero along x and z.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MomentumLedger {
+    /// Mean pressure gradient (and, at a constant flow rate, the shifts that hold it).
+    pub driving: [f64; 2],
+    /// The body force of two-way coupling.
+    pub body: [f64; 2],
+    /// Viscous stress at the two walls (Crank–Nicolson: the mean of the substep's old and
+    /// new wall gradients).
+    pub walls: [f64; 2],
 }
 
 impl Solver {
@@ -81,6 +101,8 @@ impl Solver {
             step: 0,
             forcing: 1.0,
             last_divergence: 0.0,
+            body_force: None,
+            ledger: None,
             cfg,
         };
         s.project(1.0);
@@ -180,7 +202,14 @@ impl Solver {
             // needed: it adds to the forcing applied (so the forcing converges to the
             // mean pressure gradient that holds the flow rate, and is checkpointed as such)
             self.forcing += (bulk_velocity - bulk) / dt;
+            let before = self.ledger.map(|_| self.momentum()[0]);
             self.set_bulk_velocity(bulk_velocity);
+            if let Some(before) = before {
+                let shift = self.momentum()[0] - before;
+                if let Some(l) = self.ledger.as_mut() {
+                    l.driving[0] += shift;
+                }
+            }
             bulk = bulk_velocity;
         }
         // the divergence check is a full pass: every `check_every` steps (NaN is caught
@@ -209,6 +238,7 @@ impl Solver {
 
     fn substep(&mut self, dt: f64, gamma: f64, zeta: f64) {
         let alpha = gamma + zeta;
+        let walls_before = self.ledger.map(|_| self.wall_gradients());
         let g = &self.grid;
         let nu = self.cfg.nu();
         let implicit = self.cfg.implicit_y;
@@ -221,6 +251,7 @@ impl Solver {
         let tri_n = YTridiag::normal(g, c);
         let plane = g.plane();
         let vel = &self.vel;
+        let body = self.body_force.as_ref();
         let (px, nx, ny) = (g.px, g.nx, g.ny);
         let new = &mut self.rhs_new;
         let old = &mut self.rhs_old;
@@ -260,6 +291,25 @@ impl Solver {
                             }
                         }
                     }
+                    if let Some(force) = body {
+                        // the fibres' reaction, constant over the step (Σ α = 1 over the
+                        // three substeps, so the step's impulse is dt·a exactly)
+                        let c = alpha * dt;
+                        let at = k * plane;
+                        for (o, bf, jmax) in [
+                            (&mut *ou, &force.u, ny),
+                            (&mut *ov, &force.v, ny - 1),
+                            (&mut *ow, &force.w, ny),
+                        ] {
+                            for j in 1..=jmax {
+                                let r = j * px + 1..j * px + 1 + nx;
+                                let src = &bf[at + r.start..at + r.end];
+                                for (o, a) in o[r].iter_mut().zip(src) {
+                                    *o += c * a;
+                                }
+                            }
+                        }
+                    }
                     if implicit {
                         let s = alpha * dt * nu;
                         rhs::add_lyy_tangential(g, &vel.u, k, s, ou);
@@ -290,6 +340,50 @@ impl Solver {
         std::mem::swap(&mut self.vel, &mut self.vel_next);
         std::mem::swap(&mut self.rhs_new, &mut self.rhs_old);
         self.project(alpha * dt);
+        if let Some(before) = walls_before {
+            self.book_substep(alpha * dt, fx, before);
+        }
+    }
+
+    /// Σ over the walls' faces of ν ∂u/∂y and ν ∂w/∂y pointing into the fluid, times the
+    /// face areas: the x and z force the walls exert on the fluid (outer units; minus the
+    /// wall shear force, the drag).
+    pub fn wall_gradients(&self) -> [f64; 2] {
+        let g = &self.grid;
+        let (ny, nu) = (g.ny, self.cfg.nu());
+        let mut out = [0.0; 2];
+        for (o, f) in out.iter_mut().zip([&self.vel.u, &self.vel.w]) {
+            let mut s = 0.0;
+            for k in 1..=g.nz {
+                for i in 1..=g.nx {
+                    let top = (f[g.idx(i, ny + 1, k)] - f[g.idx(i, ny, k)]) / g.dyc[ny];
+                    let bottom = (f[g.idx(i, 1, k)] - f[g.idx(i, 0, k)]) / g.dyc[0];
+                    s += top - bottom;
+                }
+            }
+            *o = nu * s * g.dx * g.dz;
+        }
+        out
+    }
+
+    /// Books one substep of length `c = α dt` in the ledger.
+    fn book_substep(&mut self, c: f64, fx: f64, before: [f64; 2]) {
+        let g = &self.grid;
+        let volume = g.lx * 2.0 * g.lz;
+        let after = self.wall_gradients();
+        let body = self.body_force.as_ref().map_or([0.0; 2], |b| {
+            [
+                crate::spread::total(g, &b.u, 0),
+                crate::spread::total(g, &b.w, 2),
+            ]
+        });
+        if let Some(l) = self.ledger.as_mut() {
+            l.driving[0] += c * fx * volume;
+            for a in 0..2 {
+                l.body[a] += c * body[a];
+                l.walls[a] += 0.5 * c * (before[a] + after[a]);
+            }
+        }
     }
 }
 
@@ -308,6 +402,44 @@ impl Solver {
             forcing: self.forcing,
             dy_first: self.grid.dyf[1],
         }
+    }
+
+    /// Two-way coupling: spreads point forces on the fluid (`points` and `forces` in outer
+    /// units, ρ = 1; see [`crate::spread`]) into the body force every substep of the next
+    /// steps adds, until it is set again or cleared.
+    pub fn set_body_force(&mut self, points: &[[f64; 3]], forces: &[[f64; 3]]) {
+        let g = &self.grid;
+        let out = self.body_force.get_or_insert_with(|| Velocity::zeros(g));
+        crate::spread::spread(g, points, forces, out);
+    }
+
+    /// Starts (or restarts) keeping the momentum ledger.
+    pub fn open_ledger(&mut self) {
+        self.ledger = Some(MomentumLedger::default());
+    }
+
+    /// The ledger since [`Self::open_ledger`] (None: not kept).
+    pub fn ledger(&self) -> Option<MomentumLedger> {
+        self.ledger
+    }
+
+    /// Total x and z momentum of the fluid (Σ u V, Σ w V over the interior, outer units).
+    pub fn momentum(&self) -> [f64; 2] {
+        let g = &self.grid;
+        [
+            crate::spread::total(g, &self.vel.u, 0),
+            crate::spread::total(g, &self.vel.w, 2),
+        ]
+    }
+
+    /// Back to no body force (the one-way step, bit for bit).
+    pub fn clear_body_force(&mut self) {
+        self.body_force = None;
+    }
+
+    /// The body force per unit mass the next step adds (None: none).
+    pub fn body_force(&self) -> Option<&Velocity> {
+        self.body_force.as_ref()
     }
 
     /// Max |div u| found by the last periodic check (reported in every step's report).

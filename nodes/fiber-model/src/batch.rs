@@ -27,6 +27,8 @@ pub struct LaneSeg {
     pub v: V3,
     pub w: V3,
     pub n: V3,
+    /// Hydrodynamic force of the last step ([`Segment::f`]).
+    pub f: V3,
 }
 
 impl LaneSeg {
@@ -42,6 +44,7 @@ impl LaneSeg {
             v: v(|s| s.v),
             w: v(|s| s.w),
             n: v(|s| s.n),
+            f: v(|s| s.f),
         }
     }
 
@@ -54,6 +57,7 @@ impl LaneSeg {
             v: at(&self.v),
             w: at(&self.w),
             n: at(&self.n),
+            f: at(&self.f),
         }
     }
 
@@ -65,6 +69,7 @@ impl LaneSeg {
             (&mut self.v, s.v),
             (&mut self.w, s.w),
             (&mut self.n, s.n),
+            (&mut self.f, s.f),
         ] {
             for c in 0..3 {
                 dst.0[c].0[l] = src[c];
@@ -142,6 +147,10 @@ pub struct Scratch {
     y: Vec<V3>,
     v_new: Vec<V3>,
     w_new: Vec<V3>,
+    /// Translational resistance A_i and the fluid velocity at each segment (the
+    /// hydrodynamic force at the new velocity, [`crate::fibre::Segment::f`]).
+    ra: Vec<Axi>,
+    vel: Vec<V3>,
 }
 
 impl Scratch {
@@ -149,7 +158,7 @@ impl Scratch {
         if self.pa.len() >= n {
             return;
         }
-        for v in [&mut self.pa, &mut self.qa] {
+        for v in [&mut self.pa, &mut self.qa, &mut self.ra] {
             v.resize(n, Axi::default());
         }
         for v in [&mut self.pm, &mut self.wm, &mut self.dinv] {
@@ -163,6 +172,7 @@ impl Scratch {
             &mut self.y,
             &mut self.v_new,
             &mut self.w_new,
+            &mut self.vel,
         ] {
             v.resize(n, V3::default());
         }
@@ -362,6 +372,8 @@ fn kernel(
         y,
         v_new,
         w_new,
+        ra: ra_all,
+        vel: vel_all,
     } = scratch;
     let mut ok = [true; LANES];
     let dt4 = F4::splat(dt);
@@ -435,6 +447,8 @@ fn kernel(
         let zz = M3::outer(z);
         pa[i] = pinv;
         qa[i] = qinv;
+        ra_all[i] = ra;
+        vel_all[i] = vel;
         pm[i] = pinv.matrix(&zz);
         wm[i] = M3::from_fn(|a, b| zz.0[a][b] - M3::identity_at(a, b)).scale(h * h * qinv.perp);
         ps[i] = pinv.apply(z, s_t);
@@ -480,6 +494,8 @@ fn kernel(
     }
     // positions (eq. 11) and rotations (eq. 12)
     for (i, s) in seg.iter_mut().enumerate() {
+        // F^h at the new velocity, with the axis the step used (step::step)
+        s.f = ra_all[i].apply(s.z, vel_all[i] - v_new[i]);
         let (z, nn) = rotate_pair(s.z, s.n, w_new[i].scale(dt4));
         let nn = (nn - z.scale(z.dot(nn))).normalize();
         s.v = v_new[i];

@@ -4,9 +4,12 @@
 //! the velocity ṙ and angular velocity ω at n−1 (the inertial drag is linearised with the
 //! previous velocity, and the gyroscopic term uses ω_{n−1}), plus the material normal n
 //! that measures twist. Nothing else carries over between steps (no RNG, no history), so
-//! these five arrays and the step number are the whole integrator state. They are stored
-//! structure-of-arrays, 3 f64 per segment each, little-endian, after a header, and closed
-//! by an FNV-1a checksum; files are written atomically (temp file, fsync, rename).
+//! these five arrays and the step number are the whole integrator state. Two-way coupling
+//! adds a sixth: each segment's hydrodynamic force of the last step, which the state of the
+//! checkpoint's step returns to the fluid (a resumed run sends the same bits). They are
+//! stored structure-of-arrays, 3 f64 per segment each, little-endian, after a header, and
+//! closed by an FNV-1a checksum; files are written atomically (temp file, fsync, rename).
+//! Files of the first format (five arrays, `FFGRPCK1`) are read with zero forces.
 
 use crate::fibre::Segment;
 use crate::group::FibreGroup;
@@ -14,7 +17,9 @@ use nalgebra::Vector3;
 use std::io::Write;
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"FFGRPCK1";
+const MAGIC: &[u8; 8] = b"FFGRPCK2";
+/// The format before two-way coupling: no force array.
+const MAGIC_V1: &[u8; 8] = b"FFGRPCK1";
 
 /// Checkpoint errors (I/O, damage, or a checkpoint that does not fit the group).
 #[derive(Debug, thiserror::Error)]
@@ -29,6 +34,9 @@ pub enum CheckpointError {
     Invalid { path: String, reason: String },
 }
 
+/// Per-segment arrays in a file of the current format.
+const ARRAYS: usize = 6;
+
 /// The integrator state of a group at one step (flat, segment-major arrays).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GroupSnapshot {
@@ -39,6 +47,8 @@ pub struct GroupSnapshot {
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
     pub normal: Vec<f64>,
+    /// Hydrodynamic force of the last step ([`Segment::f`]).
+    pub force: Vec<f64>,
 }
 
 impl GroupSnapshot {
@@ -55,6 +65,7 @@ impl GroupSnapshot {
             velocity: Vec::with_capacity(3 * n),
             angular_velocity: Vec::with_capacity(3 * n),
             normal: Vec::with_capacity(3 * n),
+            force: Vec::with_capacity(3 * n),
         };
         for seg in (0..group.len()).flat_map(|k| group.segments(k)) {
             s.centre.extend_from_slice(seg.r.as_slice());
@@ -62,6 +73,7 @@ impl GroupSnapshot {
             s.velocity.extend_from_slice(seg.v.as_slice());
             s.angular_velocity.extend_from_slice(seg.w.as_slice());
             s.normal.extend_from_slice(seg.n.as_slice());
+            s.force.extend_from_slice(seg.f.as_slice());
         }
         s
     }
@@ -93,6 +105,7 @@ impl GroupSnapshot {
                     v: v3(&self.velocity, i),
                     w: v3(&self.angular_velocity, i),
                     n: v3(&self.normal, i),
+                    f: v3(&self.force, i),
                 };
                 group.set_segment(k, j, seg);
                 i += 1;
@@ -101,20 +114,22 @@ impl GroupSnapshot {
         Ok(())
     }
 
-    fn arrays(&self) -> [&Vec<f64>; 5] {
+    fn arrays(&self) -> [&Vec<f64>; ARRAYS] {
         [
             &self.centre,
             &self.axis,
             &self.velocity,
             &self.angular_velocity,
             &self.normal,
+            &self.force,
         ]
     }
 
-    /// Serialises to bytes (header, per-fibre counts, five arrays, checksum).
+    /// Serialises to bytes (header, per-fibre counts, six arrays, checksum).
     pub fn to_bytes(&self) -> Vec<u8> {
         let nseg = self.centre.len() / 3;
-        let mut out = Vec::with_capacity(40 + 4 * self.segments_per_fiber.len() + 120 * nseg);
+        let mut out =
+            Vec::with_capacity(40 + 4 * self.segments_per_fiber.len() + 24 * ARRAYS * nseg);
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&self.step.to_le_bytes());
         out.extend_from_slice(&(self.segments_per_fiber.len() as u64).to_le_bytes());
@@ -134,9 +149,14 @@ impl GroupSnapshot {
 
     /// Parses bytes written by [`Self::to_bytes`]; every length and the checksum are checked.
     pub fn from_bytes(b: &[u8]) -> Result<Self, String> {
-        if b.len() < 40 || &b[..8] != MAGIC {
-            return Err("wrong magic or too short".into());
+        if b.len() < 40 {
+            return Err("too short".into());
         }
+        let arrays_in_file = match &b[..8] {
+            m if m == MAGIC => ARRAYS,
+            m if m == MAGIC_V1 => ARRAYS - 1,
+            _ => return Err("wrong magic".into()),
+        };
         let (body, tail) = b.split_at(b.len() - 8);
         let sum = u64::from_le_bytes(tail.try_into().map_err(|_| "short checksum")?);
         if fnv1a(body) != sum {
@@ -152,7 +172,10 @@ impl GroupSnapshot {
         let nseg = usize::try_from(word(24)).map_err(|_| "segment count overflows")?;
         let expect = nfib
             .checked_mul(4)
-            .and_then(|c| nseg.checked_mul(120).and_then(|s| s.checked_add(c)))
+            .and_then(|c| {
+                nseg.checked_mul(24 * arrays_in_file)
+                    .and_then(|s| s.checked_add(c))
+            })
             .and_then(|x| x.checked_add(32))
             .ok_or("sizes overflow")?;
         if body.len() != expect {
@@ -172,8 +195,8 @@ impl GroupSnapshot {
         if segments_per_fiber.iter().map(|&n| n as u64).sum::<u64>() != nseg as u64 {
             return Err("per-fibre segment counts do not add up".into());
         }
-        let mut arrays: Vec<Vec<f64>> = Vec::with_capacity(5);
-        for _ in 0..5 {
+        let mut arrays: Vec<Vec<f64>> = Vec::with_capacity(ARRAYS);
+        for _ in 0..arrays_in_file {
             let a: Vec<f64> = body[o..o + 24 * nseg]
                 .chunks_exact(8)
                 .map(|c| {
@@ -195,6 +218,11 @@ impl GroupSnapshot {
             velocity: next(),
             angular_velocity: next(),
             normal: next(),
+            force: if arrays_in_file == ARRAYS {
+                next()
+            } else {
+                vec![0.0; 3 * nseg]
+            },
         })
     }
 

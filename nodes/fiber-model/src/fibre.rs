@@ -18,6 +18,10 @@ pub struct Segment {
     pub w: Vector3<f64>,
     /// Material normal n_i ⊥ ẑ_i, carried with the segment's rotation; it measures twist.
     pub n: Vector3<f64>,
+    /// Hydrodynamic force of the last step, F^h_i = A_i·(v(r_i) − ṙ_i) at the new velocity
+    /// (eq. 4, viscous and inertial drag as the step used them; gravity not included):
+    /// what two-way coupling returns to the fluid, reversed. Zero before the first step.
+    pub f: Vector3<f64>,
 }
 
 /// Fixed properties of one segment.
@@ -121,6 +125,7 @@ impl Fibre {
                 v: Vector3::zeros(),
                 w: Vector3::zeros(),
                 n: normal,
+                f: Vector3::zeros(),
             });
             s += l;
         }

@@ -283,6 +283,17 @@ impl FibreGroup {
         }
     }
 
+    /// Appends every segment's hydrodynamic force of the last step ([`Segment::f`], 3
+    /// values each, in the order of [`Self::extend_state`]): two-way coupling's feedback.
+    pub fn extend_forces(&self, force: &mut Vec<f64>) {
+        for k in 0..self.len() {
+            let (segs, l) = self.lanes_of(k);
+            for s in segs {
+                force.extend_from_slice(&s.f.lane(l));
+            }
+        }
+    }
+
     /// Segment centres in flat order (where the flow must be sampled).
     pub fn segment_centres(&self) -> Vec<nalgebra::Vector3<f64>> {
         (0..self.len())

@@ -231,6 +231,7 @@ fn step_inner(
     let mut qb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let mut zqb: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let mut res: smallvec_like::Buf<Option<AxisymmetricResistance>> = smallvec_like::Buf::new(n);
+    let mut ra: smallvec_like::Buf<Axisymmetric> = smallvec_like::Buf::new(n);
     let mut gyro: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(n);
     let id = Matrix3::<f64>::identity();
     for i in 0..n {
@@ -298,6 +299,7 @@ fn step_inner(
         let zz = s.z * s.z.transpose();
         pa[i] = pinv;
         qa[i] = qinv;
+        ra[i] = r.a;
         pm[i] = pinv.matrix(&s.z);
         w[i] = (h * h * qinv.perp) * (zz - id);
         ps[i] = pinv.apply(&s.z, &s_t);
@@ -360,6 +362,7 @@ fn step_inner(
                 .push(r.c.apply(&s.z, &(fluid[i].rotation() - w_new)) + r.h_g);
             l.gyroscopic.push(gyro[i]);
         }
+        s.f = ra[i].apply(&s.z, &(fluid[i].vel - v_new));
         s.v = v_new;
         s.w = w_new;
     }

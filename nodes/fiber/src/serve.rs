@@ -37,7 +37,7 @@ pub enum FiberNodeError {
 }
 
 /// Where a group starts, where it saves coupled checkpoints, which run it belongs to, and
-/// at which steps its state goes out complete.
+/// what its states carry (complete at which steps; the forces of two-way coupling).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Checkpointing {
     /// First coupling step: 0, or the step of the checkpoint the run resumes from.
@@ -53,6 +53,9 @@ pub struct Checkpointing {
     /// Complete states every this many steps and at the last (the recorder's
     /// `states_every`; 0 and 1 = every step); lean states (centres only) at the others.
     pub full_states_every: u64,
+    /// Two-way coupling (`run.coupling = "two-way"`): every state, lean or complete,
+    /// carries each segment's hydrodynamic force of the last step for the flow node.
+    pub two_way: bool,
 }
 
 /// Runs shard `shard` of a group (0 for an unsharded group) to the end of the run;
@@ -246,6 +249,7 @@ struct Served {
     metrics_msg: Encode<FiberGroupMetrics>,
     metrics_topic: String,
     full_states_every: u64,
+    two_way: bool,
     checkpoint_every: u64,
     checkpoint_root: Option<PathBuf>,
     dt: f64,
@@ -336,6 +340,7 @@ impl Served {
             axis: Vec::new(),
             velocity: Vec::new(),
             angular_velocity: Vec::new(),
+            hydro_force: Vec::new(),
         });
         let metrics_msg = Encode(FiberGroupMetrics {
             schema_version: SCHEMA_VERSION,
@@ -370,6 +375,7 @@ impl Served {
             ann_in,
             state_msg,
             full_states_every: ck.full_states_every,
+            two_way: ck.two_way,
             checkpoint_every: ck.every,
             checkpoint_root: ck.root.clone(),
             dt: 0.0,
@@ -442,6 +448,10 @@ impl Served {
             &mut st.velocity,
             &mut st.angular_velocity,
         );
+        st.hydro_force.clear();
+        if self.two_way {
+            self.group.extend_forces(&mut st.hydro_force);
+        }
         self.bus.publish_message(&self.state_topic, &self.state_msg)
     }
 

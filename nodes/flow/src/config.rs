@@ -62,6 +62,20 @@ pub struct FlowNodeConfig {
     /// row of cell centres is taken).
     #[serde(default = "default_streaks_y_plus")]
     pub streaks_y_plus: f64,
+    /// Two-way coupling: remove each fibre's own disturbance from its samples
+    /// (`"quasi-steady"`, the default; `crate::self_induced`) or leave it (`"none"`).
+    #[serde(default)]
+    pub self_induced: SelfInduced,
+}
+
+/// `flow.self_induced`: how the samples of a two-way run treat each fibre's own
+/// disturbance of the flow.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SelfInduced {
+    #[default]
+    QuasiSteady,
+    None,
 }
 
 fn default_dt() -> f64 {
@@ -154,6 +168,7 @@ mod tests {
             interpolation: Interpolation::Trilinear,
             slices_every: 10,
             streaks_y_plus: 15.0,
+            self_induced: SelfInduced::QuasiSteady,
         }
     }
 

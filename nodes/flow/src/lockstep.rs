@@ -247,6 +247,7 @@ mod fuzz {
                 segments: 7,
             }],
             step_times: None,
+            two_way: false,
         };
         let mut r = Rng::new(5);
         let mut taken = 0;

@@ -15,6 +15,7 @@ use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FlowSamples, FlowStatus, Heartbeat, RunAnnouncement, SCHEMA_VERSION,
 };
+use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -45,6 +46,8 @@ pub struct RunInfo {
     /// Where every step's wall and stages go as CSV at the end of the run (None: kept
     /// nowhere).
     pub step_times: Option<PathBuf>,
+    /// Two-way coupling: the fibres' forces of every state go back to the fluid.
+    pub two_way: bool,
 }
 
 /// Wall seconds per stage of the coupling loop (logged at the end of a run).
@@ -58,6 +61,8 @@ struct Timing {
     /// Handing messages to the outbox (publishing itself overlaps the field step).
     publishing_s: f64,
     field_step_s: f64,
+    /// Two-way coupling: gathering the fibres' forces and spreading them on the grid.
+    feedback_s: f64,
 }
 
 impl Timing {
@@ -205,6 +210,19 @@ pub fn serve(
     // tens of ms): start-up, logged apart from the loop's per-step stages
     let mut start_wait_s = 0.0;
     let mut step_times = StepTimes::new((run.steps - run.start_step) as usize + 1);
+    let mut feedback = crate::feedback::Feedback::default();
+    let self_widths = match (&field, run.two_way, cfg.self_induced) {
+        (Field::Dns(d), true, crate::config::SelfInduced::QuasiSteady) => Some(
+            crate::self_induced::Widths::new(&d.solver.grid, d.solver.cfg.re_tau),
+        ),
+        _ => None,
+    };
+    if run.two_way {
+        tracing::info!(
+            self_induced = ?cfg.self_induced,
+            "two-way coupling: the fibres' forces act on the fluid"
+        );
+    }
     for k in run.start_step..=run.steps {
         step_times.begin(k, timing.stages());
         // gather every group's state at step k
@@ -232,8 +250,34 @@ pub fn serve(
             .filter_map(|(_, _, msg)| Arc::try_unwrap(msg).ok())
             .map(|Encode(m)| (m.velocity, m.velocity_gradient))
             .collect();
-        let samples = field.sample_pieces(&pieces, spare);
+        let mut samples = field.sample_pieces(&pieces, spare);
         timing.sampling_s += t0.elapsed().as_secs_f64();
+        // two-way: the forces the states carry act on the fluid over its next step
+        if let (true, Field::Dns(d)) = (run.two_way, &mut field) {
+            let t0 = Instant::now();
+            crate::feedback::gather(&step_states, d.solver.cfg.re_tau, &mut feedback)?;
+            d.solver
+                .set_body_force(&feedback.points, &feedback.forces);
+            if let Some(w) = &self_widths {
+                let re_tau = d.solver.cfg.re_tau;
+                let states: Vec<&fiberflow_messages::FiberGroupState> =
+                    step_states.values().collect();
+                samples
+                    .par_iter_mut()
+                    .zip(states.par_iter())
+                    .for_each(|((vel, _), s)| {
+                        crate::self_induced::correct(
+                            w,
+                            re_tau,
+                            &s.segments_per_fiber,
+                            &s.centre,
+                            &s.hydro_force,
+                            vel,
+                        )
+                    });
+            }
+            timing.feedback_s += t0.elapsed().as_secs_f64();
+        }
         // handed over together: the fibre nodes sharing a process are woken once for all
         let mut step_samples: Vec<(String, Arc<dyn fiberflow_bus::Outgoing>)> =
             Vec::with_capacity(step_states.len());
@@ -309,6 +353,8 @@ pub fn serve(
                 max_divergence: 0.0,
                 bulk_velocity: 0.0,
                 re_tau: 0.0,
+                pressure_gradient: 0.0,
+                fibre_force_plus: vec![],
             },
             Field::Dns(d) => {
                 let solver = &mut d.solver;
@@ -343,6 +389,12 @@ pub fn serve(
                     } else {
                         f64::NAN
                     },
+                    pressure_gradient: r.forcing,
+                    fibre_force_plus: if run.two_way {
+                        feedback.total_plus.to_vec()
+                    } else {
+                        vec![]
+                    },
                 }
             }
         };
@@ -362,6 +414,7 @@ pub fn serve(
         encoding_and_publishing_s = format!("{:.3}", timing.encoding_s + timing.publishing_s),
         encoding_s = format!("{:.3}", timing.encoding_s),
         field_step_s = format!("{:.3}", timing.field_step_s),
+        feedback_s = format!("{:.3}", timing.feedback_s),
         loop_s = format!("{loop_s:.3}"),
         start_wait_s = format!("{start_wait_s:.3}"),
         cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - cpu_from),

@@ -929,6 +929,7 @@ mod tests {
             axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
             velocity: vec![0.0; 6],
             angular_velocity: vec![0.0; 6],
+            hydro_force: vec![],
         }
     }
 
@@ -1064,6 +1065,8 @@ mod tests {
                     max_divergence: 0.0,
                     bulk_velocity: 15.0,
                     re_tau: 150.0,
+                    pressure_gradient: 1.0,
+                    fibre_force_plus: vec![],
                 };
                 bus.publish(&t.flow_status(), &encode(&st)).unwrap();
             }

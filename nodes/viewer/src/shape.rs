@@ -127,6 +127,7 @@ mod tests {
             axis: axes.iter().flatten().copied().collect(),
             velocity: vec![0.0; 3 * n],
             angular_velocity: vec![0.0; 3 * n],
+            hydro_force: vec![],
         }
     }
 

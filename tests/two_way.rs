@@ -1,0 +1,183 @@
+//! Two-way coupling end to end (docs/two-way.md): real processes over the three transports,
+//! sharded and unsharded, and a node killed with SIGKILL mid-run; every recorded fibre state
+//! must be bitwise that of the in-process run, and the fibres' forces must really reach the
+//! fluid (the states differ from a one-way run's).
+
+use fiberflow_e2e::*;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+
+/// The quick launch, shortened and two-way: 120 steps (30 t+), a checkpoint every 5 t+.
+fn sets(coupling: &str, shards: u32) -> Vec<String> {
+    vec![
+        "run.steps=120".into(),
+        "run.checkpoint_every_plus=5".into(),
+        "run.analyze=false".into(),
+        "run.step_timeout_s=60".into(),
+        format!("run.coupling=\"{coupling}\""),
+        format!("fibers.case1.shards={shards}"),
+        format!("fibers.case4.shards={shards}"),
+    ]
+}
+
+fn cmd(out: &Path, transport: &str, sets: &[String]) -> Command {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(root().join("launch/quick.toml"))
+        .args(["--transport", transport, "--out"])
+        .arg(out);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    c
+}
+
+fn run(out: &Path, transport: &str, sets: &[String]) -> String {
+    let o = cmd(out, transport, sets).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{transport}: {stderr}");
+    assert!(!stderr.contains("WARN"), "{transport}: {stderr}");
+    let w = warnings_in_logs(out);
+    assert!(w.is_empty(), "{transport}: warnings in node logs: {w:#?}");
+    String::from_utf8_lossy(&o.stdout).to_string()
+}
+
+/// Whole-group states by (group, step), slices of sharded groups merged.
+fn whole(out: &Path) -> BTreeMap<(String, u64), fiberflow_messages::FiberGroupState> {
+    let (raw, _) = states_by_step_merged(out);
+    raw
+}
+
+fn states_by_step_merged(
+    out: &Path,
+) -> (
+    BTreeMap<(String, u64), fiberflow_messages::FiberGroupState>,
+    usize,
+) {
+    let mut slices: BTreeMap<(String, u64), Vec<fiberflow_messages::FiberGroupState>> =
+        BTreeMap::new();
+    let segs = fiberflow_messages::segments::segment_paths(out).unwrap();
+    for seg in &segs {
+        let bytes = std::fs::read(seg).unwrap();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            if !m.channel.topic.ends_with("/state") {
+                continue;
+            }
+            let s: fiberflow_messages::FiberGroupState =
+                fiberflow_messages::decode(&m.data).unwrap();
+            slices.entry((s.group.clone(), s.step)).or_default().push(s);
+        }
+    }
+    let merged = slices
+        .into_iter()
+        .map(|(k, mut v)| {
+            v.sort_by_key(|s| s.first_fiber);
+            v.dedup_by_key(|s| s.first_fiber);
+            (k, fiberflow_messages::pieces::merge_states(v).unwrap())
+        })
+        .collect();
+    (merged, segs.len())
+}
+
+fn assert_same(
+    a: &BTreeMap<(String, u64), fiberflow_messages::FiberGroupState>,
+    b: &BTreeMap<(String, u64), fiberflow_messages::FiberGroupState>,
+    what: &str,
+) {
+    assert_eq!(
+        a.keys().collect::<Vec<_>>(),
+        b.keys().collect::<Vec<_>>(),
+        "{what}: other states"
+    );
+    for (k, x) in a {
+        let y = &b[k];
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (name, p, q) in [
+            ("centre", &x.centre, &y.centre),
+            ("axis", &x.axis, &y.axis),
+            ("velocity", &x.velocity, &y.velocity),
+            ("angular_velocity", &x.angular_velocity, &y.angular_velocity),
+            ("hydro_force", &x.hydro_force, &y.hydro_force),
+        ] {
+            assert!(bits(p) == bits(q), "{what}: {k:?} {name} differs");
+        }
+    }
+}
+
+#[test]
+fn two_way_is_bitwise_over_transports_shards_and_a_kill() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("two-way");
+    let a_out = dir.join("inproc");
+    let said = run(&a_out, "inproc", &sets("two-way", 1));
+    assert!(
+        said.contains("coupling two-way") && said.contains("one suspension"),
+        "the launcher must say the groups are one suspension: {said}"
+    );
+    let a = whole(&a_out);
+    assert_eq!(a.len(), 6 * 121, "six groups, steps 0..=120");
+    // every recorded state carries one force per segment: zero before the first step
+    // (fibres start at rest), then the drag of each step
+    for ((g, step), s) in &a {
+        assert_eq!(s.hydro_force.len(), s.centre.len(), "{g} {step}");
+        let any = s.hydro_force.iter().any(|f| *f != 0.0);
+        assert_eq!(any, *step > 0, "{g} step {step}: forces {any}");
+    }
+    // the fluid feels them: the flow status carries their sum, and the fibres' states
+    // differ from the one-way run's from step 2 on (step 1 was sampled from the same field)
+    let one_way_out = dir.join("one-way");
+    let said = run(&one_way_out, "inproc", &sets("one-way", 1));
+    assert!(said.contains("coupling one-way"), "{said}");
+    let b = whole(&one_way_out);
+    for g in 1..=6 {
+        let g = format!("case{g}");
+        assert!(a[&(g.clone(), 1)].centre == b[&(g.clone(), 1)].centre);
+        assert!(a[&(g.clone(), 120)].centre != b[&(g.clone(), 120)].centre, "{g}");
+        assert!(b[&(g.clone(), 120)].hydro_force.is_empty(), "one-way states carry no forces");
+    }
+    for (name, transport, shards) in [
+        ("zenoh", "zenoh", 1),
+        ("iceoryx2-sharded", "iceoryx2", 3),
+        ("inproc-sharded", "inproc", 3),
+    ] {
+        let out = dir.join(name);
+        run(&out, transport, &sets("two-way", shards));
+        assert_same(&a, &whole(&out), name);
+    }
+    // kill -9 of the flow node after the first checkpoint: rolled back, resumed, and every
+    // state bitwise that of the uninterrupted run
+    let out = dir.join("kill-flow");
+    std::fs::create_dir_all(&out).unwrap();
+    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
+    let mut child = cmd(&out, "iceoryx2", &sets("two-way", 1))
+        .stdout(std::process::Stdio::null())
+        .stderr(se)
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&out, 90);
+    let spec = out.join("config/flow.toml").display().to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(pids.len(), 1, "flow node not found (run over already?)");
+    unsafe { libc::kill(pids[0], libc::SIGKILL) };
+    assert!(child.wait().unwrap().success());
+    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
+    assert!(err.contains("restarting every node from step"), "{err}");
+    let (resumed, segments) = states_by_step_merged(&out);
+    assert!(segments >= 2, "a restart records into a new segment");
+    assert_same(&a, &resumed, "kill -9 flow, restarted");
+    // the flow status of a two-way run carries the fibres' total force
+    let bytes = std::fs::read(a_out.join("run.mcap")).unwrap();
+    let mut statuses = 0;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if m.channel.topic.ends_with("/flow/status") {
+            let st: fiberflow_messages::FlowStatus = fiberflow_messages::decode(&m.data).unwrap();
+            assert_eq!(st.fibre_force_plus.len(), 3);
+            statuses += 1;
+        }
+    }
+    assert!(statuses > 0);
+    std::fs::remove_dir_all(&dir).ok();
+}
