@@ -134,8 +134,14 @@ fn two_way_is_bitwise_over_transports_shards_and_a_kill() {
     for g in 1..=6 {
         let g = format!("case{g}");
         assert!(a[&(g.clone(), 1)].centre == b[&(g.clone(), 1)].centre);
-        assert!(a[&(g.clone(), 120)].centre != b[&(g.clone(), 120)].centre, "{g}");
-        assert!(b[&(g.clone(), 120)].hydro_force.is_empty(), "one-way states carry no forces");
+        assert!(
+            a[&(g.clone(), 120)].centre != b[&(g.clone(), 120)].centre,
+            "{g}"
+        );
+        assert!(
+            b[&(g.clone(), 120)].hydro_force.is_empty(),
+            "one-way states carry no forces"
+        );
     }
     for (name, transport, shards) in [
         ("zenoh", "zenoh", 1),

@@ -120,22 +120,27 @@ placement = {{ kind = "layers", per_layer = {per_layer} }}
         let l = loading(&lf).unwrap();
         assert_eq!(l.fibres, 10_000);
         let (l_plus, d_plus, ratio) = lf.fibers[0].resolved();
-        let want = 10_000.0
-            * 7.0
-            * ratio
-            * std::f64::consts::PI
-            * 0.25
-            * d_plus.powi(2)
-            * l_plus
+        let want = 10_000.0 * 7.0 * ratio * std::f64::consts::PI * 0.25 * d_plus.powi(2) * l_plus
             / (std::f64::consts::TAU * 150.0 * 300.0 * std::f64::consts::PI * 150.0);
-        assert!((l.mass_loading() / want - 1.0).abs() < 1e-12, "{} vs {want}", l.mass_loading());
-        assert!((l.mass_loading() - 0.077).abs() < 0.002, "{}", l.mass_loading());
+        assert!(
+            (l.mass_loading() / want - 1.0).abs() < 1e-12,
+            "{} vs {want}",
+            l.mass_loading()
+        );
+        assert!(
+            (l.mass_loading() - 0.077).abs() < 0.002,
+            "{}",
+            l.mass_loading()
+        );
         // one-way below the limit says nothing more; above it, it warns naming the key
         assert_eq!(describe(&lf, &l).len(), 1);
         let heavy = launch("", 20_000);
         let lh = loading(&heavy).unwrap();
         let d = describe(&heavy, &lh);
-        assert!(d[1].contains("run.coupling") && d[1].contains("warning"), "{d:?}");
+        assert!(
+            d[1].contains("run.coupling") && d[1].contains("warning"),
+            "{d:?}"
+        );
         let two = launch("coupling = \"two-way\"", 20_000);
         assert_eq!(describe(&two, &lh).len(), 1);
     }

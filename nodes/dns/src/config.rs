@@ -174,10 +174,11 @@ impl DnsConfig {
             return bad("check_every", ">= 1", "0".into());
         }
         if let Forcing::FlowRate { bulk_velocity } = self.forcing {
-            if !(bulk_velocity > 0.0 && bulk_velocity.is_finite()) {
+            // 0 holds the fluid at no net flow (e.g. a settling test in still fluid)
+            if !(bulk_velocity >= 0.0 && bulk_velocity.is_finite()) {
                 return bad(
                     "forcing.bulk_velocity",
-                    "positive",
+                    ">= 0 and finite",
                     bulk_velocity.to_string(),
                 );
             }

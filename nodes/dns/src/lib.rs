@@ -17,8 +17,8 @@ pub mod regrid;
 pub mod rhs;
 pub mod sample;
 pub mod slice;
-pub mod spread;
 pub mod solver;
+pub mod spread;
 pub mod stats;
 pub mod timestep;
 

@@ -243,7 +243,11 @@ mod tests {
             spread(&g, &[p], &[f], &mut out);
             for c in 0..3 {
                 let t = total(&g, [&out.u, &out.v, &out.w][c], c);
-                assert!((t - f[c]).abs() < 1e-14 * f[c].abs(), "{p:?} c{c}: {t} vs {}", f[c]);
+                assert!(
+                    (t - f[c]).abs() < 1e-14 * f[c].abs(),
+                    "{p:?} c{c}: {t} vs {}",
+                    f[c]
+                );
             }
         }
     }
@@ -276,13 +280,17 @@ mod tests {
         let g = grid();
         let mut seed = 7u64;
         let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (seed >> 11) as f64 / (1u64 << 53) as f64
         };
         let pts: Vec<[f64; 3]> = (0..500)
             .map(|_| [2.0 * rnd(), 2.0 * rnd() - 1.0, rnd()])
             .collect();
-        let fs: Vec<[f64; 3]> = (0..500).map(|_| [rnd() - 0.5, rnd() - 0.5, rnd()]).collect();
+        let fs: Vec<[f64; 3]> = (0..500)
+            .map(|_| [rnd() - 0.5, rnd() - 0.5, rnd()])
+            .collect();
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
@@ -294,7 +302,10 @@ mod tests {
         };
         let (a, b) = (run(1), run(4));
         for (x, y) in [(&a.u, &b.u), (&a.v, &b.v), (&a.w, &b.w)] {
-            assert!(x.iter().zip(y.iter()).all(|(p, q)| p.to_bits() == q.to_bits()));
+            assert!(x
+                .iter()
+                .zip(y.iter())
+                .all(|(p, q)| p.to_bits() == q.to_bits()));
         }
     }
 }

@@ -62,10 +62,7 @@ fn budget_closes(forcing: Forcing) {
         s.step().unwrap();
         let after = s.ledger().unwrap().body;
         // every step: the fluid got the forces' sum times dt, exactly as given
-        let sum: [f64; 2] = [
-            fs.iter().map(|f| f[0]).sum(),
-            fs.iter().map(|f| f[2]).sum(),
-        ];
+        let sum: [f64; 2] = [fs.iter().map(|f| f[0]).sum(), fs.iter().map(|f| f[2]).sum()];
         for a in 0..2 {
             let got = after[a] - before[a];
             assert!(

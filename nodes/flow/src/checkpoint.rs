@@ -1,16 +1,24 @@
 //! The flow node's share of a coupled checkpoint (DESIGN §3): the DNS field at the
 //! checkpoint step in the solver's own format (`flow.ckpt`), plus `flow-extra.bin` with
 //! what the solver's checkpoint does not hold but the run reads on (the running statistics
-//! published as FlowProfiles, the last divergence check). An analytic flow has no state:
-//! its `flow.ckpt` only names the step.
+//! published as FlowProfiles, the last divergence check), and in two-way runs
+//! `self-induced.bin` with the self-induced correction's memories per piece. An analytic
+//! flow has no state: its `flow.ckpt` only names the step.
 
 use crate::error::{io_err, FlowError};
+use crate::self_induced::History;
 use fiberflow_dns::stats::RunningStats;
 use fiberflow_dns::Solver;
 use fiberflow_messages::checkpoints::piece;
+use std::collections::BTreeMap;
 use std::path::Path;
 
 const ANALYTIC_MAGIC: &[u8; 8] = b"FFANALYT";
+const HISTORY_MAGIC: &[u8; 8] = b"FFSELF01";
+const HISTORY_FILE: &str = "self-induced.bin";
+
+/// The self-induced correction's memories of every piece, by (group, first fibre).
+pub type Histories = BTreeMap<(String, u32), History>;
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FlowError> {
     fiberflow_messages::checkpoints::write_atomic(path, bytes).map_err(io_err(path))
@@ -21,8 +29,12 @@ pub fn write_dns(
     dir: &Path,
     solver: &Solver,
     stats: Option<&RunningStats>,
+    histories: &Histories,
 ) -> Result<(), FlowError> {
     std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    if !histories.is_empty() {
+        write_atomic(&dir.join(HISTORY_FILE), &histories_to_bytes(histories))?;
+    }
     let mut extra = Vec::new();
     extra.extend_from_slice(&solver.last_divergence().to_le_bytes());
     if let Some(s) = stats {
@@ -51,6 +63,56 @@ pub fn read_dns(dir: &Path, solver: &mut Solver) -> Result<Option<RunningStats>,
     RunningStats::from_bytes(&solver.grid, &b[8..])
         .map(Some)
         .ok_or_else(|| bad("running statistics do not fit the grid"))
+}
+
+/// Magic, entry count, then per entry: group name (u32 length, bytes), first fibre (u32),
+/// value count (u64), values (f64); all little-endian.
+fn histories_to_bytes(h: &Histories) -> Vec<u8> {
+    let mut b = HISTORY_MAGIC.to_vec();
+    b.extend_from_slice(&(h.len() as u64).to_le_bytes());
+    for ((group, first), hist) in h {
+        b.extend_from_slice(&(group.len() as u32).to_le_bytes());
+        b.extend_from_slice(group.as_bytes());
+        b.extend_from_slice(&first.to_le_bytes());
+        b.extend_from_slice(&(hist.memory.len() as u64).to_le_bytes());
+        for x in &hist.memory {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    b
+}
+
+/// The memories a two-way run's checkpoint holds (none if it has no file: a run that
+/// starts two-way from a one-way checkpoint starts with empty memories).
+pub fn read_histories(dir: &Path) -> Result<Histories, FlowError> {
+    let p = dir.join(HISTORY_FILE);
+    if !p.exists() {
+        return Ok(Histories::new());
+    }
+    let b = std::fs::read(&p).map_err(io_err(&p))?;
+    let bad = || FlowError::Protocol(format!("{}: damaged self-induced memories", p.display()));
+    let mut at = 0usize;
+    let mut take = |n: usize| -> Result<&[u8], FlowError> {
+        let s = b.get(at..at + n).ok_or_else(bad)?;
+        at += n;
+        Ok(s)
+    };
+    if take(8)? != HISTORY_MAGIC {
+        return Err(bad());
+    }
+    let word = |s: &[u8]| u64::from_le_bytes(s.try_into().unwrap_or([0; 8]));
+    let entries = word(take(8)?);
+    let mut out = Histories::new();
+    for _ in 0..entries {
+        let len = u32::from_le_bytes(take(4)?.try_into().map_err(|_| bad())?) as usize;
+        let group = String::from_utf8(take(len)?.to_vec()).map_err(|_| bad())?;
+        let first = u32::from_le_bytes(take(4)?.try_into().map_err(|_| bad())?);
+        let n = usize::try_from(word(take(8)?)).map_err(|_| bad())?;
+        let raw = take(n.checked_mul(8).ok_or_else(bad)?)?;
+        let memory = raw.chunks_exact(8).map(word).map(f64::from_bits).collect();
+        out.insert((group, first), History { memory });
+    }
+    Ok(out)
 }
 
 /// Writes the analytic flow's (stateless) share.

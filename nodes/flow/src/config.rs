@@ -63,7 +63,8 @@ pub struct FlowNodeConfig {
     #[serde(default = "default_streaks_y_plus")]
     pub streaks_y_plus: f64,
     /// Two-way coupling: remove each fibre's own disturbance from its samples
-    /// (`"quasi-steady"`, the default; `crate::self_induced`) or leave it (`"none"`).
+    /// (`"history"`, the default: unsteady Stokes memories, `crate::self_induced`) or
+    /// leave it (`"none"`).
     #[serde(default)]
     pub self_induced: SelfInduced,
 }
@@ -74,7 +75,7 @@ pub struct FlowNodeConfig {
 #[serde(rename_all = "kebab-case")]
 pub enum SelfInduced {
     #[default]
-    QuasiSteady,
+    History,
     None,
 }
 
@@ -168,7 +169,7 @@ mod tests {
             interpolation: Interpolation::Trilinear,
             slices_every: 10,
             streaks_y_plus: 15.0,
-            self_induced: SelfInduced::QuasiSteady,
+            self_induced: SelfInduced::History,
         }
     }
 

@@ -41,7 +41,8 @@ pub fn gather(
             )));
         }
         for (c, f) in s.centre.chunks_exact(3).zip(s.hydro_force.chunks_exact(3)) {
-            out.points.push([c[0] / re_tau, c[1] / re_tau, c[2] / re_tau]);
+            out.points
+                .push([c[0] / re_tau, c[1] / re_tau, c[2] / re_tau]);
             out.forces
                 .push([-f[0] * f_scale, -f[1] * f_scale, -f[2] * f_scale]);
             for a in 0..3 {
@@ -86,7 +87,10 @@ mod tests {
         );
         let mut fb = Feedback::default();
         gather(&m, 150.0, &mut fb).unwrap();
-        assert_eq!(fb.points, vec![[0.0, -1.0, 0.5], [2.0, 0.1, 0.0], [1.0, 0.0, 0.0]]);
+        assert_eq!(
+            fb.points,
+            vec![[0.0, -1.0, 0.5], [2.0, 0.1, 0.0], [1.0, 0.0, 0.0]]
+        );
         let s = 1.0 / 22500.0;
         assert_eq!(fb.forces[0], [s, -0.0, -0.0]);
         assert_eq!(fb.forces[1], [-4.0 * s, -0.0, -0.0]);

@@ -13,7 +13,8 @@ use fiberflow_dns::Solver;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
-    encode, lifecycle, FlowSamples, FlowStatus, Heartbeat, RunAnnouncement, SCHEMA_VERSION,
+    encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, Heartbeat, RunAnnouncement,
+    SCHEMA_VERSION,
 };
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -211,8 +212,13 @@ pub fn serve(
     let mut start_wait_s = 0.0;
     let mut step_times = StepTimes::new((run.steps - run.start_step) as usize + 1);
     let mut feedback = crate::feedback::Feedback::default();
+    // the self-induced correction's memories per piece (kept in coupled checkpoints)
+    let mut histories = match &run.resume_dir {
+        Some(dir) if run.two_way => crate::checkpoint::read_histories(dir)?,
+        _ => BTreeMap::new(),
+    };
     let self_widths = match (&field, run.two_way, cfg.self_induced) {
-        (Field::Dns(d), true, crate::config::SelfInduced::QuasiSteady) => Some(
+        (Field::Dns(d), true, crate::config::SelfInduced::History) => Some(
             crate::self_induced::Widths::new(&d.solver.grid, d.solver.cfg.re_tau),
         ),
         _ => None,
@@ -256,19 +262,25 @@ pub fn serve(
         if let (true, Field::Dns(d)) = (run.two_way, &mut field) {
             let t0 = Instant::now();
             crate::feedback::gather(&step_states, d.solver.cfg.re_tau, &mut feedback)?;
-            d.solver
-                .set_body_force(&feedback.points, &feedback.forces);
+            d.solver.set_body_force(&feedback.points, &feedback.forces);
             if let Some(w) = &self_widths {
                 let re_tau = d.solver.cfg.re_tau;
-                let states: Vec<&fiberflow_messages::FiberGroupState> =
-                    step_states.values().collect();
+                for key in step_states.keys() {
+                    histories.entry(key.clone()).or_default();
+                }
+                let mut work: Vec<(&mut crate::self_induced::History, &FiberGroupState)> =
+                    histories
+                        .iter_mut()
+                        .filter_map(|(k, h)| step_states.get(k).map(|s| (h, s)))
+                        .collect();
                 samples
                     .par_iter_mut()
-                    .zip(states.par_iter())
-                    .for_each(|((vel, _), s)| {
-                        crate::self_induced::correct(
+                    .zip(work.par_iter_mut())
+                    .for_each(|((vel, _), (h, s))| {
+                        h.correct_and_advance(
                             w,
                             re_tau,
+                            cfg.dt_plus,
                             &s.segments_per_fiber,
                             &s.centre,
                             &s.hydro_force,
@@ -332,7 +344,9 @@ pub fn serve(
                 let dir = fiberflow_messages::checkpoints::step_dir(root, k);
                 let t0 = Instant::now();
                 match &field {
-                    Field::Dns(d) => crate::checkpoint::write_dns(&dir, &d.solver, stats.as_ref())?,
+                    Field::Dns(d) => {
+                        crate::checkpoint::write_dns(&dir, &d.solver, stats.as_ref(), &histories)?
+                    }
                     Field::Analytic(_) => crate::checkpoint::write_analytic(&dir, k)?,
                 }
                 tracing::info!(

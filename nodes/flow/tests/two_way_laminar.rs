@@ -103,6 +103,9 @@ fn fixed_fibre_array_balances_driving_against_walls_and_drag() {
         "driving {driving:.10e} = wall shear {:.10e} + drag {drag_outer:.10e}; relative residual {rel:.2e}",
         -walls
     );
-    assert!(drag_outer > 0.2 * driving, "the fibres must carry a real share");
+    assert!(
+        drag_outer > 0.2 * driving,
+        "the fibres must carry a real share"
+    );
     assert!(rel < 1e-8, "relative residual {rel:e}");
 }
