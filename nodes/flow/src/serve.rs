@@ -241,6 +241,33 @@ pub fn serve(
         } else {
             timing.waiting_s += waited_s;
         }
+        // coupled checkpoint of the field at t_k, before this step's samples: the
+        // self-induced memories it holds are those of t_k, which a resumed run advances
+        // again with the same forces
+        if let Some(root) = &run.checkpoint_root {
+            if k != run.start_step
+                && k < run.steps
+                && fiberflow_messages::checkpoints::is_checkpoint_step(
+                    k,
+                    run.checkpoint_every,
+                    run.steps,
+                )
+            {
+                let dir = fiberflow_messages::checkpoints::step_dir(root, k);
+                let t0 = Instant::now();
+                match &field {
+                    Field::Dns(d) => {
+                        crate::checkpoint::write_dns(&dir, &d.solver, stats.as_ref(), &histories)?
+                    }
+                    Field::Analytic(_) => crate::checkpoint::write_analytic(&dir, k)?,
+                }
+                tracing::info!(
+                    step = k,
+                    ms = t0.elapsed().as_millis() as u64,
+                    "checkpoint written"
+                );
+            }
+        }
         // every piece's points in one pass, in cell order (parallel; the same bits as one
         // by one)
         let t0 = Instant::now();
@@ -331,30 +358,6 @@ pub fn serve(
         }
         if k == run.steps {
             break;
-        }
-        // coupled checkpoint of the field at t_k (the groups integrate meanwhile)
-        if let Some(root) = &run.checkpoint_root {
-            if k != run.start_step
-                && fiberflow_messages::checkpoints::is_checkpoint_step(
-                    k,
-                    run.checkpoint_every,
-                    run.steps,
-                )
-            {
-                let dir = fiberflow_messages::checkpoints::step_dir(root, k);
-                let t0 = Instant::now();
-                match &field {
-                    Field::Dns(d) => {
-                        crate::checkpoint::write_dns(&dir, &d.solver, stats.as_ref(), &histories)?
-                    }
-                    Field::Analytic(_) => crate::checkpoint::write_analytic(&dir, k)?,
-                }
-                tracing::info!(
-                    step = k,
-                    ms = t0.elapsed().as_millis() as u64,
-                    "checkpoint written"
-                );
-            }
         }
         // advance the field to t_{k+1} while the groups integrate
         let status = match &mut field {
