@@ -151,24 +151,27 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Velo
     }
     let Velocity { u, v, w } = out;
     for (c, field) in [u, v, w].into_iter().enumerate() {
+        // each plane's points, in the list's order (so the sums are those of one pass)
+        let mut by_plane: Vec<Vec<(usize, usize)>> = vec![Vec::new(); nz + 2];
+        for (n, (st, f)) in stencils.iter().zip(forces).enumerate() {
+            if f[c] == 0.0 {
+                continue;
+            }
+            let sz = &st.z[c];
+            for oz in 0..3 {
+                if sz.w[oz] != 0.0 {
+                    by_plane[wrap(sz.first + oz as isize, nz)].push((n, oz));
+                }
+            }
+        }
         field
             .par_chunks_mut(plane)
-            .enumerate()
-            .filter(|(k, _)| *k >= 1 && *k <= nz)
-            .for_each(|(k, pl)| {
-                for (st, f) in stencils.iter().zip(forces) {
-                    let fc = f[c];
-                    if fc == 0.0 {
-                        continue;
-                    }
-                    let sz = &st.z[c];
-                    let Some(oz) = (0..3).find(|&o| wrap(sz.first + o as isize, nz) == k) else {
-                        continue;
-                    };
-                    let wz = sz.w[oz];
-                    if wz == 0.0 {
-                        continue;
-                    }
+            .zip(by_plane.par_iter())
+            .for_each(|(pl, points)| {
+                for &(n, oz) in points {
+                    let st = &stencils[n];
+                    let fc = forces[n][c];
+                    let wz = st.z[c].w[oz];
                     let (sx, sy) = (&st.x[c], &st.y[c]);
                     for (oy, &wy) in sy.w.iter().enumerate() {
                         if wy == 0.0 {

@@ -183,10 +183,12 @@ impl Modes {
     }
 }
 
-/// sin(x)/x, the shell average of e^{ik·r} for |k| r = x.
+/// sin(x)/x, the shell average of e^{ik·r} for |k| r = x ≥ 0 (its series below 0.5,
+/// where the first term left out is below 1e-8).
 fn sinc(x: f64) -> f64 {
-    if x.abs() < 1e-4 {
-        1.0 - x * x / 6.0
+    if x < 0.5 {
+        let x2 = x * x;
+        1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
     } else {
         x.sin() / x
     }
@@ -203,9 +205,13 @@ impl Widths {
     pub fn new(g: &Grid, re_tau: f64) -> Self {
         use rayon::prelude::*;
         let rows_y: Vec<f64> = (1..=g.ny).map(|j| g.yc[j]).collect();
-        let rows = (1..=g.ny)
+        // the grid is symmetric about the centreline: the lower half's rows serve both
+        let half: Vec<Modes> = (1..=g.ny.div_ceil(2))
             .into_par_iter()
             .map(|j| mode_weights([g.dx, g.dyf[j], g.dz].map(|x| x * re_tau)))
+            .collect();
+        let rows = (1..=g.ny)
+            .map(|j| half[j.min(g.ny + 1 - j) - 1].clone())
             .collect();
         Self { rows_y, rows }
     }
@@ -258,6 +264,7 @@ impl History {
             (e, -(-a * dt_plus).exp_m1() / a)
         });
         let mut first = 0usize;
+        let mut share: Vec<f64> = Vec::new();
         for (f, &n) in segments_per_fiber.iter().enumerate() {
             let n = n as usize;
             let segs = first..first + n;
@@ -302,23 +309,36 @@ impl History {
             }
             // segment i gets segment j's share of the force (1/n of it) through the shell
             // average of e^{ik·r_ij}, sinc(q r_ij)
+            // (each pair once; modes the grid does not hold are skipped)
+            share.clear();
+            share.resize(n * MODES, 0.0);
+            for (k, mk) in mode.iter().enumerate() {
+                if mk.iter().all(|x| *x == 0.0) {
+                    continue;
+                }
+                let q = (2.0 * lambda(k)).sqrt();
+                for i in 0..n {
+                    share[i * MODES + k] += 1.0;
+                    for j in i + 1..n {
+                        let x = q * w.effective_distance(k, gap(first + i, first + j));
+                        let s = sinc(x);
+                        share[i * MODES + k] += s;
+                        share[j * MODES + k] += s;
+                    }
+                }
+            }
             let mut fluid = [0.0; 3];
-            for i in segs.clone() {
+            for (i, seg) in segs.clone().enumerate() {
                 let mut du = [0.0; 3];
                 for (k, mk) in mode.iter().enumerate() {
-                    let q = (2.0 * lambda(k)).sqrt();
-                    let share: f64 = segs
-                        .clone()
-                        .map(|j| sinc(q * w.effective_distance(k, gap(i, j))))
-                        .sum::<f64>()
-                        / n as f64;
+                    let sh = share[i * MODES + k] / n as f64;
                     for a in 0..3 {
-                        du[a] += share * mk[a];
+                        du[a] += sh * mk[a];
                     }
                 }
                 for a in 0..3 {
-                    velocity[3 * i + a] += du[a];
-                    fluid[a] += velocity[3 * i + a] / n as f64;
+                    velocity[3 * seg + a] += du[a];
+                    fluid[a] += velocity[3 * seg + a] / n as f64;
                 }
             }
             // the step's impulse enters every memory at offset 0; the offsets are the
