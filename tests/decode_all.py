@@ -17,8 +17,12 @@ with open(path, "rb") as f:
         if schema.name == "fiberflow_msgs/msg/FiberGroupState":
             n = sum(decoded.segments_per_fiber)
             assert len(decoded.centre) == 3 * n, "centre length"
-            assert decoded.schema_version == 2
+            assert decoded.schema_version == 3
+            # one force per segment in two-way runs, none one-way
+            assert len(decoded.hydro_force) in (0, 3 * n), "hydro_force length"
             last_step[decoded.group] = decoded.step
+        if schema.name == "fiberflow_msgs/msg/FlowStatus":
+            assert len(decoded.fibre_force_plus) in (0, 3), "fibre_force_plus length"
         if schema.name == "sensor_msgs/msg/PointCloud2":
             assert decoded.point_step == 16 and len(decoded.data) == 16 * decoded.width
         if schema.name == "sensor_msgs/msg/Image":
