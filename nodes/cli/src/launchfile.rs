@@ -409,6 +409,12 @@ impl LaunchFile {
                 r.fibre_processes
             );
         }
+        if r.coupling == Coupling::TwoWay && !matches!(self.flow.source, FlowSource::Dns { .. }) {
+            bail!(
+                "run.coupling = \"two-way\" needs flow.source.kind = \"dns\" (an analytic flow \
+                 cannot feel the fibres); use run.coupling = \"one-way\""
+            );
+        }
         self.flow.validate()?;
         let mut names = std::collections::BTreeSet::new();
         for f in &self.fibers {
@@ -714,6 +720,23 @@ mod tests {
                 "two-way.toml"
             ]
         );
+    }
+
+    /// Two-way coupling needs a DNS to act on: an analytic flow is refused by key.
+    #[test]
+    fn two_way_needs_the_dns() {
+        let dir = std::env::temp_dir().join(format!("ff-twoway-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("a.toml");
+        std::fs::write(
+            &p,
+            "[run]\nid = \"a\"\nsteps = 2\ndt_plus = 0.25\ncoupling = \"two-way\"\n\
+             [flow.source]\nkind = \"analytic\"\nflow = { kind = \"uniform\", velocity = [1.0, 0.0, 0.0] }\n",
+        )
+        .unwrap();
+        let e = format!("{:#}", LaunchFile::load_with(&p, &[]).unwrap_err());
+        assert!(e.contains("run.coupling") && e.contains("dns"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

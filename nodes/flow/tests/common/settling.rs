@@ -123,3 +123,38 @@ pub fn settle(
     }
     out
 }
+
+/// A constant unit force along x held at one point of still fluid: (t+, the disturbance
+/// the DNS shows there, the memories' estimate of it) every `every` steps. The memories are
+/// fed the DNS's samples, as in the flow node.
+pub fn probe(fine: bool, t_end: f64, every: usize) -> Vec<[f64; 3]> {
+    let mut cfg = DnsConfig::with_cells(if fine { 192 } else { 64 }, 64, 64);
+    cfg.dt_fixed_plus = Some(DT_PLUS);
+    cfg.forcing = Forcing::FlowRate { bulk_velocity: 0.0 };
+    cfg.init = InitialField::Rest;
+    let re = cfg.re_tau;
+    let mut s = Solver::new(cfg).unwrap();
+    let sampler = Sampler::new(&s.grid);
+    let widths = Widths::new(&s.grid, re);
+    let pt = [
+        0.5 * s.grid.lx + 0.37 / re,
+        0.0,
+        0.5 * s.grid.lz + 0.21 / re,
+    ];
+    let centre = [pt[0] * re, pt[1] * re, pt[2] * re];
+    // F^h on the "fibre" is −1 along x: the fluid receives +1
+    let force = [-1.0, 0.0, 0.0];
+    let mut history = History::default();
+    let mut out = Vec::new();
+    for k in 0..=((t_end / DT_PLUS).round() as usize) {
+        let sampled = sampler.sample(&s.grid, &s.vel, pt).vel;
+        let mut v = sampled;
+        history.correct_and_advance(&widths, re, DT_PLUS, &[1], &centre, &force, &mut v);
+        if k % every == 0 {
+            out.push([k as f64 * DT_PLUS, sampled[0], sampled[0] - v[0]]);
+        }
+        s.set_body_force(&[pt], &[[1.0 / (re * re), 0.0, 0.0]]);
+        s.step().unwrap();
+    }
+    out
+}
