@@ -37,6 +37,7 @@
 //! The settling fibre measures what is left (docs/two-way.md).
 
 use fiberflow_dns::Grid;
+use rayon::prelude::*;
 
 /// Memories per fibre: λ = |k̃|²/2 from 1e-8 to 1e2 per squared wall unit (decay rate 2νλ),
 /// h = 0.5 in ln λ.
@@ -203,7 +204,6 @@ pub struct Widths {
 
 impl Widths {
     pub fn new(g: &Grid, re_tau: f64) -> Self {
-        use rayon::prelude::*;
         let rows_y: Vec<f64> = (1..=g.ny).map(|j| g.yc[j]).collect();
         // the grid is symmetric about the centreline: the lower half's rows serve both
         let half: Vec<Modes> = (1..=g.ny.div_ceil(2))
@@ -263,106 +263,141 @@ impl History {
             let e = (-a * dt_plus).exp();
             (e, -(-a * dt_plus).exp_m1() / a)
         });
+        // the fibres' segment ranges, then each fibre on its own (in parallel: every
+        // fibre's arithmetic is its own, so the bits do not depend on the threads)
+        let mut pieces = Vec::with_capacity(segments_per_fiber.len());
+        let mut rest_v = velocity;
         let mut first = 0usize;
-        let mut share: Vec<f64> = Vec::new();
-        for (f, &n) in segments_per_fiber.iter().enumerate() {
+        for (&n, m) in segments_per_fiber
+            .iter()
+            .zip(self.memory.chunks_exact_mut(PER_FIBRE))
+        {
             let n = n as usize;
-            let segs = first..first + n;
-            let mut mean = [0.0; 3];
-            let mut total = [0.0; 3];
-            for i in segs.clone() {
-                for a in 0..3 {
-                    mean[a] += centre[3 * i + a] / n as f64;
-                    total[a] += force[3 * i + a];
-                }
-            }
-            // offsets between the fibre's segment centres
-            let gap = |i: usize, j: usize| -> [f64; 3] {
-                [0, 1, 2].map(|a| centre[3 * i + a] - centre[3 * j + a])
-            };
-            let w = widths.at(mean[1] / re_tau);
-            let m = &mut self.memory[PER_FIBRE * f..PER_FIBRE * (f + 1)];
-            let (forces, rest) = m.split_at_mut(3 * MODES);
-            let (weight, rest) = rest.split_at_mut(MODES);
-            let (offset, last) = rest.split_at_mut(3 * MODES);
-            // the fibre's slip since the last step: its own displacement less the fluid's
-            // (the disturbance drifts with the fluid); the past impulses now lie that much
-            // further behind
-            let mut slip = [0.0; 3];
-            if last[6] != 0.0 {
-                for a in 0..3 {
-                    slip[a] = mean[a] - last[a] - dt_plus * last[3 + a];
-                }
-            }
-            // per mode: the shell of wavenumbers |k| = q (q² ≈ 2λ) seen from the offset o of
-            // the mode's impulses averages e^{ik·o} to ≈ e^{−q²o²/6}
-            let mut mode = [[0.0; 3]; MODES];
-            for (k, wk) in w.weights.iter().enumerate() {
-                for a in 0..3 {
-                    offset[3 * k + a] += slip[a];
-                }
-                let o2: f64 = (0..3).map(|a| offset[3 * k + a].powi(2)).sum();
-                let drift = (-2.0 * lambda(k) * o2 / 6.0).exp();
-                for a in 0..3 {
-                    mode[k][a] = drift * wk[a] * forces[3 * k + a];
-                }
-            }
-            // segment i gets segment j's share of the force (1/n of it) through the shell
-            // average of e^{ik·r_ij}, sinc(q r_ij)
-            // (each pair once; modes the grid does not hold are skipped)
-            share.clear();
-            share.resize(n * MODES, 0.0);
-            for (k, mk) in mode.iter().enumerate() {
-                if mk.iter().all(|x| *x == 0.0) {
-                    continue;
-                }
-                let q = (2.0 * lambda(k)).sqrt();
-                for i in 0..n {
-                    share[i * MODES + k] += 1.0;
-                    for j in i + 1..n {
-                        let x = q * w.effective_distance(k, gap(first + i, first + j));
-                        let s = sinc(x);
-                        share[i * MODES + k] += s;
-                        share[j * MODES + k] += s;
-                    }
-                }
-            }
-            let mut fluid = [0.0; 3];
-            for (i, seg) in segs.clone().enumerate() {
-                let mut du = [0.0; 3];
-                for (k, mk) in mode.iter().enumerate() {
-                    let sh = share[i * MODES + k] / n as f64;
-                    for a in 0..3 {
-                        du[a] += sh * mk[a];
-                    }
-                }
-                for a in 0..3 {
-                    velocity[3 * seg + a] += du[a];
-                    fluid[a] += velocity[3 * seg + a] / n as f64;
-                }
-            }
-            // the step's impulse enters every memory at offset 0; the offsets are the
-            // memories' force-weighted mean positions behind the fibre
-            let size = (total[0] * total[0] + total[1] * total[1] + total[2] * total[2]).sqrt();
-            for (k, &(e, g)) in fade.iter().enumerate() {
-                for a in 0..3 {
-                    forces[3 * k + a] = e * forces[3 * k + a] + g * total[a];
-                }
-                let old = e * weight[k];
-                let new = old + g * size;
-                if new > 0.0 {
-                    for a in 0..3 {
-                        offset[3 * k + a] *= old / new;
-                    }
-                }
-                weight[k] = new;
-            }
-            last[..3].copy_from_slice(&mean);
-            last[3..6].copy_from_slice(&fluid);
-            last[6] = 1.0;
+            let (v, tail) = std::mem::take(&mut rest_v).split_at_mut(3 * n);
+            rest_v = tail;
+            pieces.push((
+                n,
+                &centre[3 * first..3 * (first + n)],
+                &force[3 * first..3 * (first + n)],
+                v,
+                m,
+            ));
             first += n;
         }
+        pieces
+            .into_par_iter()
+            .for_each_init(Vec::new, |share, (n, c, f, v, m)| {
+                fibre(widths, re_tau, dt_plus, &fade, n, c, f, v, m, share)
+            });
     }
+}
+
+/// One fibre's correction and advance ([`History::correct_and_advance`]): `centre`,
+/// `force` and `velocity` its segments' (3 each), `m` its [`PER_FIBRE`] memories.
+fn fibre(
+    widths: &Widths,
+    re_tau: f64,
+    dt_plus: f64,
+    fade: &[(f64, f64); MODES],
+    n: usize,
+    centre: &[f64],
+    force: &[f64],
+    velocity: &mut [f64],
+    m: &mut [f64],
+    share: &mut Vec<f64>,
+) {
+    let segs = 0..n;
+    let mut mean = [0.0; 3];
+    let mut total = [0.0; 3];
+    for i in segs.clone() {
+        for a in 0..3 {
+            mean[a] += centre[3 * i + a] / n as f64;
+            total[a] += force[3 * i + a];
+        }
+    }
+    // offsets between the fibre's segment centres
+    let gap = |i: usize, j: usize| -> [f64; 3] {
+        [0, 1, 2].map(|a| centre[3 * i + a] - centre[3 * j + a])
+    };
+    let w = widths.at(mean[1] / re_tau);
+    let (forces, rest) = m.split_at_mut(3 * MODES);
+    let (weight, rest) = rest.split_at_mut(MODES);
+    let (offset, last) = rest.split_at_mut(3 * MODES);
+    // the fibre's slip since the last step: its own displacement less the fluid's
+    // (the disturbance drifts with the fluid); the past impulses now lie that much
+    // further behind
+    let mut slip = [0.0; 3];
+    if last[6] != 0.0 {
+        for a in 0..3 {
+            slip[a] = mean[a] - last[a] - dt_plus * last[3 + a];
+        }
+    }
+    // per mode: the shell of wavenumbers |k| = q (q² ≈ 2λ) seen from the offset o of
+    // the mode's impulses averages e^{ik·o} to ≈ e^{−q²o²/6}
+    let mut mode = [[0.0; 3]; MODES];
+    for (k, wk) in w.weights.iter().enumerate() {
+        for a in 0..3 {
+            offset[3 * k + a] += slip[a];
+        }
+        let o2: f64 = (0..3).map(|a| offset[3 * k + a].powi(2)).sum();
+        let drift = (-2.0 * lambda(k) * o2 / 6.0).exp();
+        for a in 0..3 {
+            mode[k][a] = drift * wk[a] * forces[3 * k + a];
+        }
+    }
+    // segment i gets segment j's share of the force (1/n of it) through the shell
+    // average of e^{ik·r_ij}, sinc(q r_ij)
+    // (each pair once; modes the grid does not hold are skipped)
+    share.clear();
+    share.resize(n * MODES, 0.0);
+    for (k, mk) in mode.iter().enumerate() {
+        if mk.iter().all(|x| *x == 0.0) {
+            continue;
+        }
+        let q = (2.0 * lambda(k)).sqrt();
+        for i in 0..n {
+            share[i * MODES + k] += 1.0;
+            for j in i + 1..n {
+                let x = q * w.effective_distance(k, gap(i, j));
+                let s = sinc(x);
+                share[i * MODES + k] += s;
+                share[j * MODES + k] += s;
+            }
+        }
+    }
+    let mut fluid = [0.0; 3];
+    for (i, seg) in segs.clone().enumerate() {
+        let mut du = [0.0; 3];
+        for (k, mk) in mode.iter().enumerate() {
+            let sh = share[i * MODES + k] / n as f64;
+            for a in 0..3 {
+                du[a] += sh * mk[a];
+            }
+        }
+        for a in 0..3 {
+            velocity[3 * seg + a] += du[a];
+            fluid[a] += velocity[3 * seg + a] / n as f64;
+        }
+    }
+    // the step's impulse enters every memory at offset 0; the offsets are the
+    // memories' force-weighted mean positions behind the fibre
+    let size = (total[0] * total[0] + total[1] * total[1] + total[2] * total[2]).sqrt();
+    for (k, &(e, g)) in fade.iter().enumerate() {
+        for a in 0..3 {
+            forces[3 * k + a] = e * forces[3 * k + a] + g * total[a];
+        }
+        let old = e * weight[k];
+        let new = old + g * size;
+        if new > 0.0 {
+            for a in 0..3 {
+                offset[3 * k + a] *= old / new;
+            }
+        }
+        weight[k] = new;
+    }
+    last[..3].copy_from_slice(&mean);
+    last[3..6].copy_from_slice(&fluid);
+    last[6] = 1.0;
 }
 
 #[cfg(test)]
