@@ -18,6 +18,20 @@ use std::collections::BTreeMap;
 /// Coupling time step (t+).
 pub const DT_PLUS: f64 = 0.2;
 
+/// The channel at rest, held at no net flow, on the coarse (64³) or fine (192×64×64) grid,
+/// with its sampler and self-induced weights; and Re_τ.
+fn still_channel(fine: bool) -> (Solver, Sampler, Widths, f64) {
+    let mut cfg = DnsConfig::with_cells(if fine { 192 } else { 64 }, 64, 64);
+    cfg.dt_fixed_plus = Some(DT_PLUS);
+    cfg.forcing = Forcing::FlowRate { bulk_velocity: 0.0 };
+    cfg.init = InitialField::Rest;
+    let re = cfg.re_tau;
+    let s = Solver::new(cfg).unwrap();
+    let sampler = Sampler::new(&s.grid);
+    let widths = Widths::new(&s.grid, re);
+    (s, sampler, widths, re)
+}
+
 /// (t+, mean x velocity one-way, two-way) every `every` steps up to `t_end` t+, on the
 /// coarse (64³) or fine (192×64×64) grid, with or without the self-induced correction.
 pub fn settle(
@@ -27,14 +41,7 @@ pub fn settle(
     segments: usize,
     every: usize,
 ) -> Vec<[f64; 3]> {
-    let mut cfg = DnsConfig::with_cells(if fine { 192 } else { 64 }, 64, 64);
-    cfg.dt_fixed_plus = Some(DT_PLUS);
-    cfg.forcing = Forcing::FlowRate { bulk_velocity: 0.0 };
-    cfg.init = InitialField::Rest;
-    let re = cfg.re_tau;
-    let mut s = Solver::new(cfg).unwrap();
-    let sampler = Sampler::new(&s.grid);
-    let widths = Widths::new(&s.grid, re);
+    let (mut s, sampler, widths, re) = still_channel(fine);
     let p = ModelParams {
         drag: DragModel {
             viscosity: 1.0,
@@ -128,14 +135,7 @@ pub fn settle(
 /// the DNS shows there, the memories' estimate of it) every `every` steps. The memories are
 /// fed the DNS's samples, as in the flow node.
 pub fn probe(fine: bool, t_end: f64, every: usize) -> Vec<[f64; 3]> {
-    let mut cfg = DnsConfig::with_cells(if fine { 192 } else { 64 }, 64, 64);
-    cfg.dt_fixed_plus = Some(DT_PLUS);
-    cfg.forcing = Forcing::FlowRate { bulk_velocity: 0.0 };
-    cfg.init = InitialField::Rest;
-    let re = cfg.re_tau;
-    let mut s = Solver::new(cfg).unwrap();
-    let sampler = Sampler::new(&s.grid);
-    let widths = Widths::new(&s.grid, re);
+    let (mut s, sampler, widths, re) = still_channel(fine);
     let pt = [
         0.5 * s.grid.lx + 0.37 / re,
         0.0,
