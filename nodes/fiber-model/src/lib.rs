@@ -14,6 +14,7 @@ pub mod hydro;
 pub mod lanes;
 pub mod metrics;
 pub mod step;
+pub mod suspension;
 
 pub use error::FibreError;
 pub use fibre::{Fibre, Segment};

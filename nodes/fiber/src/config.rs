@@ -4,6 +4,7 @@ use fiberflow_fiber_model::cases::{
     build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement,
 };
 use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::suspension::{random_suspension, Suspension};
 use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
 use fiberflow_messages::pieces::{split, Piece};
 use nalgebra::Vector3;
@@ -33,6 +34,18 @@ pub enum PlacementConfig {
         #[serde(default = "default_next")]
         next_plus: f64,
     },
+    /// A suspension: `count` straight fibres at random centres and isotropic random
+    /// axes, none closer to another than `min_distance_plus` (default: the diameter),
+    /// within `band_plus` (wall distances from the lower wall; default the whole channel).
+    Random {
+        count: usize,
+        #[serde(default = "default_seed")]
+        seed: u64,
+        #[serde(default)]
+        band_plus: Option<[f64; 2]>,
+        #[serde(default)]
+        min_distance_plus: Option<f64>,
+    },
     /// Explicit centres and axes (wall units); layer tags default to "middle".
     Explicit {
         centres: Vec<[f64; 3]>,
@@ -49,6 +62,9 @@ fn default_near() -> f64 {
 }
 fn default_next() -> f64 {
     50.0
+}
+fn default_seed() -> u64 {
+    1
 }
 
 /// One fibre group.
@@ -299,6 +315,32 @@ impl FiberNodeConfig {
                 }
                 five_layers(box_plus, *per_layer, *near_wall_plus, *next_plus)
             }
+            PlacementConfig::Random {
+                count,
+                seed,
+                band_plus,
+                min_distance_plus,
+            } => {
+                if *count == 0 {
+                    return bad("placement.count", ">= 1", "0".into());
+                }
+                let gap = min_distance_plus.unwrap_or(d);
+                if !(gap >= 0.0 && gap.is_finite()) {
+                    return bad("placement.min_distance_plus", ">= 0", gap.to_string());
+                }
+                let band = band_plus.unwrap_or([0.0, box_plus[1]]);
+                random_suspension(&Suspension {
+                    count: *count,
+                    seed: *seed,
+                    box_plus,
+                    band_plus: band,
+                    segments: self.segments,
+                    segment_length_plus: l,
+                    diameter_plus: d,
+                    min_distance_plus: gap,
+                })
+                .map_err(|e| FibreError::Config(format!("fibers[{}].{e}", self.group)))?
+            }
             PlacementConfig::Explicit { centres, axes } => {
                 if centres.len() != axes.len() || centres.is_empty() {
                     return bad(
@@ -398,6 +440,36 @@ mod tests {
         c.physical.as_mut().unwrap().friction_velocity_m_s = -1.0;
         let e = c.build([942.0, 300.0, 471.0]).err().unwrap().to_string();
         assert!(e.contains("physical.friction_velocity_m_s"), "{e}");
+    }
+
+    /// `placement = { kind = "random", ... }` builds `count` fibres (the layer tags by
+    /// where they start), and bad keys are refused by name.
+    #[test]
+    fn random_placement_builds_and_checks_its_keys() {
+        let b = [942.0, 300.0, 471.0];
+        let c: FiberNodeConfig = toml::from_str(
+            "group = \"g\"\ncase = \"case1\"\nplacement = { kind = \"random\", count = 500 }",
+        )
+        .unwrap();
+        let g = c.build(b).unwrap();
+        assert_eq!(g.group.len(), 500);
+        assert!(g.layers.iter().any(|&l| l == Layer::Middle.index()));
+        assert!(g.layers.iter().any(|&l| l == Layer::NearWall.index()));
+        for (text, key) in [
+            ("count = 0", "placement.count"),
+            (
+                "count = 5, min_distance_plus = -1.0",
+                "placement.min_distance_plus",
+            ),
+            ("count = 5, band_plus = [0.0, 5.0]", "placement.band_plus"),
+        ] {
+            let c: FiberNodeConfig = toml::from_str(&format!(
+                "group = \"g\"\ncase = \"case1\"\nplacement = {{ kind = \"random\", {text} }}"
+            ))
+            .unwrap();
+            let e = c.build(b).err().unwrap().to_string();
+            assert!(e.contains(&format!("fibers[g].{key}")), "{e}");
+        }
     }
 
     #[test]
