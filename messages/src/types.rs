@@ -41,7 +41,7 @@ pub struct FlowStatus {
 
 /// Running flow statistics (paper figs. 3–4), half channel in wall units, averaged over
 /// x–z planes and time since the run started.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FlowProfiles {
     pub schema_version: u32,
     pub step: u64,

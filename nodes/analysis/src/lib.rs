@@ -5,6 +5,7 @@ pub mod bootstrap;
 pub mod coiling;
 pub mod fibres;
 pub mod flow_validation;
+pub mod modulation;
 pub mod plot;
 pub mod reference;
 

@@ -1,4 +1,4 @@
-//! `analyze` and `flow-report`.
+//! `analyze` (fibres, and what the fibres do to the flow) and `flow-report`.
 
 use anyhow::{Context, Result};
 use std::path::Path;
@@ -32,6 +32,45 @@ pub fn fibres(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String
         .with_context(|| format!("writing {}", out.display()))?;
     println!("analysis written to {}", out.display());
     Ok(table)
+}
+
+/// What the fibres do to the flow ([`fiberflow_analysis::modulation`]), against an
+/// unladen run if given; `None` when the recording has no flow statistics (an analytic
+/// flow).
+pub fn modulation(
+    mcap: &Path,
+    unladen: Option<&Path>,
+    transient_plus: f64,
+    batches: usize,
+    out: &Path,
+) -> Result<Option<String>> {
+    use fiberflow_analysis::modulation::{read_flow, report};
+    if !(transient_plus >= 0.0 && transient_plus.is_finite()) {
+        anyhow::bail!("--transient-plus must be >= 0 (got {transient_plus})");
+    }
+    if batches < 2 {
+        anyhow::bail!("--batches must be >= 2 (got {batches})");
+    }
+    let run = read_flow(mcap).with_context(|| format!("reading the flow of {}", mcap.display()))?;
+    if run.status.is_empty() {
+        return Ok(None);
+    }
+    let base = unladen
+        .map(|u| read_flow(u).with_context(|| format!("reading the flow of {}", u.display())))
+        .transpose()?;
+    if let Some(b) = &base {
+        if b.box_plus != run.box_plus {
+            anyhow::bail!(
+                "--unladen {}: its channel box {:?} is not this run's {:?}",
+                unladen.map_or(String::new(), |u| u.display().to_string()),
+                b.box_plus,
+                run.box_plus
+            );
+        }
+    }
+    let md = report(&run, base.as_ref(), transient_plus, batches, out)
+        .with_context(|| format!("writing the flow modulation into {}", out.display()))?;
+    Ok(Some(md))
 }
 
 /// Flow validation report against the reference data.

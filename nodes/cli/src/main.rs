@@ -161,8 +161,9 @@ enum Cmd {
         #[arg(long, default_value_t = 60.0)]
         wait_s: f64,
     },
-    /// Fibre analysis of a recording (a run folder or one .mcap): MSD, alignment,
-    /// coiling (CSV, PNG, summary.md).
+    /// Analysis of a recording (a run folder or one .mcap): the fibres' MSD, alignment and
+    /// coiling, and what the fibres do to the flow (CSV, PNG, summary.md,
+    /// flow_modulation.md).
     Analyze {
         mcap: PathBuf,
         /// Output folder (default: <run folder>/analysis).
@@ -171,6 +172,16 @@ enum Cmd {
         /// sigma^2 thresholds of the coiling-onset table.
         #[arg(long, value_delimiter = ',', default_value = "0.1,0.5,1.0")]
         coil_thresholds: Vec<f64>,
+        /// An unladen (or one-way) run of the same flow to compare the flow statistics with
+        /// (a run folder or one .mcap).
+        #[arg(long)]
+        unladen: Option<PathBuf>,
+        /// Flow statistics start at this t+ (the transient before it is left out).
+        #[arg(long, default_value_t = 0.0)]
+        transient_plus: f64,
+        /// Batches of the flow statistics' batch means (95% intervals over them).
+        #[arg(long, default_value_t = 10)]
+        batches: usize,
     },
     /// Show a recording (a run folder or one .mcap) in Rerun: channel box, fibres
     /// coloured by coiling, plots per case.
@@ -363,6 +374,9 @@ fn main() -> Result<()> {
             mcap,
             out,
             coil_thresholds,
+            unladen,
+            transient_plus,
+            batches,
         } => {
             let out = out.unwrap_or_else(|| {
                 if mcap.is_dir() {
@@ -375,6 +389,11 @@ fn main() -> Result<()> {
             });
             let table = analyze::fibres(&mcap, &out, &coil_thresholds)?;
             println!("{table}");
+            if let Some(md) =
+                analyze::modulation(&mcap, unladen.as_deref(), transient_plus, batches, &out)?
+            {
+                println!("{md}");
+            }
             Ok(())
         }
         Cmd::View {
