@@ -1,4 +1,4 @@
-//! Checks after decoding (DESIGN §3): a message can be valid CDR and still make no sense —
+//! Checks after decoding (docs/architecture.md): a message can be valid CDR and still make no sense —
 //! array lengths that disagree with the segment counts, NaN or infinite values, an unknown
 //! lifecycle state. Receivers drop and count such messages like undecodable ones, so no
 //! node indexes an array by a count it has not checked.

@@ -220,6 +220,15 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
                 &fiberflow_analysis::coiling::DEFAULT_THRESHOLDS,
             )?;
             println!("{table}");
+            // two-way: what the fibres did to the flow (against nothing: `fiberflow analyze
+            // --unladen` compares with another run)
+            if lf.run.coupling == crate::launchfile::Coupling::TwoWay {
+                if let Some(md) =
+                    crate::analyze::modulation(m, None, 0.0, 10, &out_dir.join("analysis"))?
+                {
+                    println!("{md}");
+                }
+            }
             let rrd = out_dir.join("run.rrd");
             let s = fiberflow_viewer::view(
                 m,

@@ -710,7 +710,7 @@ mod tests {
             );
         }
         idle.sort();
-        assert_eq!(n, 9, "launch files with a [run] table");
+        assert_eq!(n, 10, "launch files with a [run] table");
         assert_eq!(
             idle,
             [

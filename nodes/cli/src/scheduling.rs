@@ -7,7 +7,7 @@
 //! runs in the DNS's idle gaps (and, at the latest, while the flow node waits for the
 //! states), so its work no longer stretches the field step. The recorder keeps the
 //! default: under `SCHED_IDLE` it fell behind at 6 × 10⁴ fibres and its back-pressure
-//! held the flow node (README, "Fibre nodes in the DNS's idle time").
+//! held the flow node (docs/architecture.md, "Fibre nodes in the DNS's idle time").
 
 use anyhow::{bail, Result};
 

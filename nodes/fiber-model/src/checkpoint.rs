@@ -1,4 +1,4 @@
-//! Checkpoints of a fibre group: everything the next step reads (DESIGN §3), bit for bit.
+//! Checkpoints of a fibre group: everything the next step reads (docs/architecture.md), bit for bit.
 //!
 //! The implicit step (eq. 5, 7, 8, 11, 12) reads, per segment, the centre r, the axis ẑ,
 //! the velocity ṙ and angular velocity ω at n−1 (the inertial drag is linearised with the

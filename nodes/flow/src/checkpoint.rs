@@ -1,4 +1,4 @@
-//! The flow node's share of a coupled checkpoint (DESIGN §3): the DNS field at the
+//! The flow node's share of a coupled checkpoint (docs/architecture.md): the DNS field at the
 //! checkpoint step in the solver's own format (`flow.ckpt`), plus `flow-extra.bin` with
 //! what the solver's checkpoint does not hold but the run reads on (the running statistics
 //! published as FlowProfiles, the last divergence check), and in two-way runs

@@ -69,7 +69,7 @@ pub(crate) fn await_recorder_finishing(
     Ok(())
 }
 
-/// Publishes the viewers' flow slices of the field at step `k` (DESIGN §3: u' at
+/// Publishes the viewers' flow slices of the field at step `k` (docs/architecture.md: u' at
 /// `streaks_y_plus` and the x = 0 cross-section).
 pub(crate) fn publish_slices(
     out: &mut Outbox,

@@ -1,4 +1,4 @@
-//! The flow node's coupling loop (DESIGN §3): join barrier, run announcement, then lockstep
+//! The flow node's coupling loop (docs/architecture.md): join barrier, run announcement, then lockstep
 //! — for each step k, wait for every group's state at t_k, sample v and ∇v at its segment
 //! centres from the field at t_k, publish, and advance the field to t_{k+1}.
 
