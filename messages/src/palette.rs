@@ -5,6 +5,34 @@
 /// viewer.
 pub const U_FLUCT_RANGE_PLUS: f64 = 4.0;
 
+/// The `quantity` of a slice of the fibres' streamwise force on the fluid per unit volume
+/// (two-way coupling), wall units.
+pub const FIBRE_FORCE_QUANTITY: &str = "fibre_force_x_plus";
+
+/// Colour range of a slice's values: ±[`U_FLUCT_RANGE_PLUS`] for u'; for any other
+/// quantity (the fibres' force, which has no natural scale) the 99th percentile of |value|
+/// over the slice, so the strongest 1% saturate (1 when every value is 0).
+pub fn range_for(quantity: &str, values: &[f32]) -> f64 {
+    if quantity == "u_fluct_plus" {
+        return U_FLUCT_RANGE_PLUS;
+    }
+    let mut a: Vec<f32> = values
+        .iter()
+        .map(|v| v.abs())
+        .filter(|v| v.is_finite())
+        .collect();
+    if a.is_empty() {
+        return 1.0;
+    }
+    let k = ((a.len() - 1) as f64 * 0.99).round() as usize;
+    let (_, x, _) = a.select_nth_unstable_by(k, f32::total_cmp);
+    if *x > 0.0 {
+        f64::from(*x)
+    } else {
+        1.0
+    }
+}
+
 /// Diverging blue–white–red for a signed value in [−range, range] (clamped outside):
 /// blue slow, red fast.
 pub fn diverging(x: f64, range: f64) -> [u8; 3] {
@@ -33,6 +61,20 @@ pub fn diverging(x: f64, range: f64) -> [u8; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// u' keeps its fixed ±4; another quantity takes its slice's 99th percentile of |value|
+    /// (values 1..=100 in any order: 99), and an all-zero slice 1.
+    #[test]
+    fn ranges_by_quantity() {
+        assert_eq!(range_for("u_fluct_plus", &[100.0]), U_FLUCT_RANGE_PLUS);
+        let v: Vec<f32> = (1..=100)
+            .rev()
+            .map(|x| if x % 2 == 0 { x as f32 } else { -(x as f32) })
+            .collect();
+        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &v), 99.0);
+        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[0.0; 5]), 1.0);
+        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[]), 1.0);
+    }
 
     #[test]
     fn diverging_is_white_at_zero_and_saturates() {

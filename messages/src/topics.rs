@@ -3,7 +3,9 @@
 
 /// The flow slices the flow node publishes: the wall-parallel plane of u' near the lower
 /// wall and the y–z cross-section at x = 0.
-pub const FLOW_SLICE_NAMES: [&str; 2] = ["streaks", "cross_section"];
+/// The flow slices: u' near the wall, u' across the channel, and (two-way runs only) the
+/// fibres' streamwise force on the fluid in the streaks' plane.
+pub const FLOW_SLICE_NAMES: [&str; 3] = ["streaks", "cross_section", "fibre_force"];
 
 /// Topic builder for one run.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -374,6 +374,13 @@ pub fn report(
             ))
         );
     }
+    if ours.iter().any(|(_, e)| e.is_none()) {
+        let _ = writeln!(
+            md,
+            "\n—: fewer than two flow statuses with statistics per batch after t+ = {from} \
+             (`flow.status_every` sets how often the flow node measures them)."
+        );
+    }
     std::fs::write(out.join("flow_modulation.csv"), csv)
         .map_err(io_err(&out.join("flow_modulation.csv")))?;
 

@@ -87,6 +87,24 @@ pub fn streaks(g: &Grid, vel: &Velocity, re_tau: f64, y_plus: f64) -> Plane {
     }
 }
 
+/// The fibres' streamwise force on the fluid per unit volume (two-way coupling's body
+/// force `f`, outer units) in the streaks' plane ([`streaks`]: same row, same samples), in
+/// wall units (a+ = a/Re_τ): where the fibres push the near-wall fluid forward (> 0) or
+/// hold it back.
+pub fn fibre_force_plane(g: &Grid, f: &Velocity, re_tau: f64, y_plus: f64) -> Plane {
+    let (j, _) = row_near(g, re_tau, y_plus);
+    let mut values = Vec::with_capacity(g.nx * g.nz);
+    for k in 1..=g.nz {
+        for i in 0..g.nx {
+            values.push((f.u[g.idx(face_index(g, i), j, k)] / re_tau) as f32);
+        }
+    }
+    Plane {
+        values,
+        ..streaks(g, &Velocity::zeros(g), re_tau, y_plus)
+    }
+}
+
 /// The y–z plane of u' at x = 0 (the face shared with x = Lx): axis_u along z, axis_v
 /// along y, rows from wall to wall including both walls (where u' = 0, no slip).
 pub fn cross_section(g: &Grid, vel: &Velocity, re_tau: f64) -> Plane {
@@ -165,6 +183,29 @@ mod tests {
                 let want = fluct(x / 150.0, g.yc[j], z / 150.0);
                 let got = p.values[jv * p.u_plus.len() + iu] as f64;
                 assert!((got - want).abs() < 1e-5, "({iu},{jv}): {got} vs {want}");
+            }
+        }
+    }
+
+    /// The force plane lies where the streaks do and carries the body force there, in wall
+    /// units (the field's u component divided by Re_τ, no mean removed).
+    #[test]
+    fn fibre_force_plane_is_the_body_force_in_the_streaks_plane() {
+        let g = grid();
+        let (vel, fluct) = streaky(&g);
+        let p = fibre_force_plane(&g, &vel, 150.0, 15.0);
+        let s = streaks(&g, &vel, 150.0, 15.0);
+        assert_eq!(
+            (&p.u_plus, &p.v_plus, p.origin_plus),
+            (&s.u_plus, &s.v_plus, s.origin_plus)
+        );
+        let (j, _) = row_near(&g, 150.0, 15.0);
+        let mean = 20.0 * (1.0 - g.yc[j] * g.yc[j]);
+        for (jv, &z) in p.v_plus.iter().enumerate() {
+            for (iu, &x) in p.u_plus.iter().enumerate() {
+                let want = (mean + fluct(x / 150.0, g.yc[j], z / 150.0)) / 150.0;
+                let got = p.values[jv * p.u_plus.len() + iu] as f64;
+                assert!((got - want).abs() < 1e-6, "({iu},{jv}): {got} vs {want}");
             }
         }
     }

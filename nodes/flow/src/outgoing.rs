@@ -70,7 +70,8 @@ pub(crate) fn await_recorder_finishing(
 }
 
 /// Publishes the viewers' flow slices of the field at step `k` (docs/architecture.md: u' at
-/// `streaks_y_plus` and the x = 0 cross-section).
+/// `streaks_y_plus` and the x = 0 cross-section; two-way, the fibres' force on the fluid
+/// in the streaks' plane).
 pub(crate) fn publish_slices(
     out: &mut Outbox,
     t: &Topics,
@@ -80,20 +81,34 @@ pub(crate) fn publish_slices(
 ) -> Result<(), FlowError> {
     use fiberflow_dns::slice;
     let (g, re) = (&solver.grid, solver.cfg.re_tau);
-    let [streaks, cross] = fiberflow_messages::topics::FLOW_SLICE_NAMES;
-    for (name, p) in [
+    let [streaks, cross, force] = fiberflow_messages::topics::FLOW_SLICE_NAMES;
+    let mut planes = vec![
         (
             streaks,
+            "u_fluct_plus",
             slice::streaks(g, &solver.vel, re, cfg.streaks_y_plus),
         ),
-        (cross, slice::cross_section(g, &solver.vel, re)),
-    ] {
+        (
+            cross,
+            "u_fluct_plus",
+            slice::cross_section(g, &solver.vel, re),
+        ),
+    ];
+    // two-way: the fibres' force on the fluid beside the streaks
+    if let Some(f) = solver.body_force() {
+        planes.push((
+            force,
+            fiberflow_messages::palette::FIBRE_FORCE_QUANTITY,
+            slice::fibre_force_plane(g, f, re, cfg.streaks_y_plus),
+        ));
+    }
+    for (name, quantity, p) in planes {
         let msg = FlowSlice {
             schema_version: SCHEMA_VERSION,
             step: k,
             t_plus: k as f64 * cfg.dt_plus,
             name: name.into(),
-            quantity: "u_fluct_plus".into(),
+            quantity: quantity.into(),
             origin: p.origin_plus.to_vec(),
             axis_u: p.axis_u.to_vec(),
             axis_v: p.axis_v.to_vec(),

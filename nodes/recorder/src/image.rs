@@ -5,7 +5,9 @@
 //! largest v).
 
 use crate::ros::Header;
-use fiberflow_messages::palette::{diverging, U_FLUCT_RANGE_PLUS};
+#[cfg(test)]
+use fiberflow_messages::palette::U_FLUCT_RANGE_PLUS;
+use fiberflow_messages::palette::{diverging, range_for};
 use fiberflow_messages::FlowSlice;
 use serde::{Deserialize, Serialize};
 
@@ -94,9 +96,10 @@ pub fn from_slice(s: &FlowSlice) -> Image {
     vs.reverse(); // row 0 at the top
     let (width, height) = (us.len(), vs.len());
     let mut data = Vec::with_capacity(3 * width * height);
+    let range = range_for(&s.quantity, &s.values);
     for &v in &vs {
         for &u in &us {
-            data.extend_from_slice(&diverging(value_at(s, u, v), U_FLUCT_RANGE_PLUS));
+            data.extend_from_slice(&diverging(value_at(s, u, v), range));
         }
     }
     Image {

@@ -3,15 +3,21 @@
 //! on the nearer wall, under every fibre, so it hides none of them.
 
 use crate::{err, ViewerError};
-use fiberflow_messages::palette::U_FLUCT_RANGE_PLUS;
 use fiberflow_messages::FlowSlice;
 
 /// Where each sample of a slice is drawn (row by row, `u` fastest): at its own position,
-/// except that a wall-parallel plane is moved onto the nearer wall (y = ±`h_plus`).
+/// except that a wall-parallel plane is moved onto the nearer wall (y = ±`h_plus`), and
+/// the fibres' force (`fibre_force`, the streaks' plane) is drawn beside the channel, one
+/// box width and a gap further along z, so it sits next to the streaks it pushes.
 pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
     let (a, b) = (&s.axis_u, &s.axis_v);
     let normal_y = a[2] * b[0] - a[0] * b[2];
     let wall_y = (normal_y.abs() > 0.99).then(|| h_plus.copysign(s.origin[1]));
+    // beside the channel: the plane's z extent (samples at cell centres) and a twentieth
+    let dz = match (s.name == "fibre_force", s.v_plus.first(), s.v_plus.last()) {
+        (true, Some(a), Some(b)) => 1.05 * (a + b),
+        _ => 0.0,
+    };
     let mut out = Vec::with_capacity(s.u_plus.len() * s.v_plus.len());
     for &v in &s.v_plus {
         for &u in &s.u_plus {
@@ -19,6 +25,7 @@ pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
             if let Some(y) = wall_y {
                 p[1] = y;
             }
+            p[2] += dz;
             out.push(p.map(|x| x as f32));
         }
     }
@@ -57,8 +64,9 @@ pub fn log(
     h_plus: f64,
 ) -> Result<(), ViewerError> {
     let path = format!("world/slices/{}", s.name);
+    let range = fiberflow_messages::palette::range_for(&s.quantity, &s.values);
     let colours = s.values.iter().map(|&x| {
-        let c = fiberflow_messages::palette::diverging(x as f64, U_FLUCT_RANGE_PLUS);
+        let c = fiberflow_messages::palette::diverging(x as f64, range);
         rerun::Color::from_rgb(c[0], c[1], c[2])
     });
     let positions = positions(s, h_plus);
@@ -117,6 +125,19 @@ mod tests {
         let p = positions(&c, 150.0);
         assert_eq!(p[0], [0.0, -100.0, 0.0]);
         assert_eq!(p[5], [0.0, 5.0, 20.0]);
+    }
+
+    /// The fibres' force plane lies on the streaks' wall, shifted along z by its own extent
+    /// (first + last sample: cell centres) and a twentieth.
+    #[test]
+    fn fibre_force_lies_beside_the_streaks() {
+        let mut s = slice("fibre_force", -135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+        s.v_plus = vec![5.0, 15.0, 25.0];
+        s.values = vec![0.0; 9];
+        let p = positions(&s, 150.0);
+        let shift = (1.05 * 30.0) as f32;
+        assert_eq!(p[0], [0.0, -150.0, 5.0 + shift]);
+        assert_eq!(p[8], [20.0, -150.0, 25.0 + shift]);
     }
 
     #[test]
