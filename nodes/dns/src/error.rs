@@ -13,6 +13,9 @@ pub enum DnsError {
         t_plus: f64,
         reason: String,
     },
+    /// A point the sampler cannot place (a non-finite coordinate).
+    #[error("sample point {0}")]
+    Point(String),
     /// Checkpoint file problems.
     #[error("checkpoint {path}: {reason}")]
     Checkpoint { path: String, reason: String },

@@ -11,6 +11,7 @@
 //!   Exact (value and gradient) for fields that are cubic in each direction; fourth order
 //!   in the value, third in the gradient.
 
+use crate::error::DnsError;
 use crate::field::Velocity;
 use crate::grid::Grid;
 use serde::{Deserialize, Serialize};
@@ -206,6 +207,20 @@ pub struct Sample {
     pub grad: [f64; 9],
 }
 
+impl Sample {
+    /// The answer at a point that has none (a non-finite coordinate).
+    pub const NAN: Sample = Sample {
+        vel: [f64::NAN; 3],
+        grad: [f64::NAN; 9],
+    };
+}
+
+/// Whether every coordinate is finite (the samplers' indices are only in range then).
+#[inline(always)]
+pub(crate) fn finite_point(p: [f64; 3]) -> bool {
+    p[0].is_finite() && p[1].is_finite() && p[2].is_finite()
+}
+
 /// A sorted node list with a table that finds a point's bracket in a step or two: for
 /// each of `bins` equal bins of the list's range, the node at or below the bin's start.
 /// Gives exactly [`bracket`]'s answer (test `lookup_brackets_like_the_search`).
@@ -332,12 +347,27 @@ impl Sampler {
         }
     }
 
-    /// Samples velocity and gradient at `p` (x and z wrapped; y clamped to the channel).
+    /// Samples velocity and gradient at `p` (x and z wrapped; y clamped to the channel). A
+    /// point with a non-finite coordinate reads no memory and gives a NaN sample (the
+    /// unchecked reads below need a finite point); [`Sampler::try_sample`] says so instead.
     pub fn sample(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {
+        if !finite_point(p) {
+            return Sample::NAN;
+        }
         match self.scheme {
             Interpolation::Trilinear => self.sample_trilinear(g, vel, p),
             Interpolation::Tricubic => self.sample_tricubic(g, vel, p),
         }
+    }
+
+    /// [`Sampler::sample`], refusing a point with a non-finite coordinate by name.
+    pub fn try_sample(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Result<Sample, DnsError> {
+        if !finite_point(p) {
+            return Err(DnsError::Point(format!(
+                "{p:?} has a non-finite coordinate"
+            )));
+        }
+        Ok(self.sample(g, vel, p))
     }
 
     fn sample_tricubic(&self, g: &Grid, vel: &Velocity, p: [f64; 3]) -> Sample {

@@ -104,7 +104,11 @@ impl Tables {
 
     /// Velocity and gradient at `p` (outer units), bit for bit [`Sampler::sample`]'s
     /// trilinear answer for the field the tables were filled from.
+    /// A point with a non-finite coordinate reads no memory and gives a NaN sample.
     pub fn sample(&self, smp: &Sampler, g: &Grid, p: [f64; 3]) -> Sample {
+        if !super::finite_point(p) {
+            return Sample::NAN;
+        }
         let b = smp.brackets(g, p);
         let d = &self.data;
         let [u] = self.interp::<1>(&d[0], &b, 0);
@@ -127,6 +131,9 @@ impl Tables {
     /// path's operations in its order (no fused multiply-add), so no result changes
     /// (test `four_at_once_sample_like_one_at_a_time`); otherwise one point at a time.
     pub fn sample4(&self, smp: &Sampler, g: &Grid, p: [[f64; 3]; LANES]) -> [Sample; LANES] {
+        if !p.iter().all(|&q| super::finite_point(q)) {
+            return p.map(|q| self.sample(smp, g, q));
+        }
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx2") {
@@ -215,6 +222,45 @@ mod tests {
                 ]
             })
             .collect()
+    }
+
+    /// A point with a NaN or infinite coordinate (each place, each kind) reads no memory:
+    /// every sampler gives a NaN sample, alone or among finite points, and `try_sample`
+    /// refuses it with an error naming the point; before the check such a point reached
+    /// the unchecked reads with a wrapped index.
+    #[test]
+    fn non_finite_points_are_refused_without_reading_memory() {
+        let (s, smp, t) = field_and_tables(3);
+        let g = &s.grid;
+        let tri = Sampler::with_scheme(g, Interpolation::Tricubic);
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            for a in 0..3 {
+                let mut p = [0.3, 0.1, 0.2];
+                p[a] = bad;
+                for sm in [
+                    smp.sample(g, &s.vel, p),
+                    tri.sample(g, &s.vel, p),
+                    t.sample(&smp, g, p),
+                    t.sample4(
+                        &smp,
+                        g,
+                        [[0.1, 0.0, 0.1], p, [0.2, 0.5, 0.3], [0.4, -0.5, 0.1]],
+                    )[1],
+                ] {
+                    assert!(sm.vel.iter().chain(&sm.grad).all(|x| x.is_nan()), "{p:?}");
+                }
+                let e = smp.try_sample(g, &s.vel, p).unwrap_err().to_string();
+                assert!(e.contains("non-finite"), "{e}");
+                // the finite neighbours in the same group of four still get their answer
+                let four = t.sample4(
+                    &smp,
+                    g,
+                    [[0.1, 0.0, 0.1], p, [0.2, 0.5, 0.3], [0.4, -0.5, 0.1]],
+                );
+                assert_eq!(four[0], t.sample(&smp, g, [0.1, 0.0, 0.1]));
+            }
+        }
+        assert!(smp.try_sample(g, &s.vel, [0.3, 0.1, 0.2]).is_ok());
     }
 
     /// Random points all over the channel, on and beyond the walls, and on the periodic
