@@ -210,7 +210,11 @@ pub fn serve(
     // the wait for the first step's states is the fibre nodes starting up (once per run,
     // tens of ms): start-up, logged apart from the loop's per-step stages
     let mut start_wait_s = 0.0;
-    let mut step_times = StepTimes::new((run.steps - run.start_step) as usize + 1);
+    // diagnostics: a run does not fail over them (a file that cannot be written is left out)
+    let mut step_times = StepTimes::new(run.step_times.as_deref()).unwrap_or_else(|e| {
+        tracing::warn!(error = %e, "the per-step times are not kept");
+        StepTimes::disabled()
+    });
     let mut feedback = crate::feedback::Feedback::default();
     // the self-induced correction's memories per piece (kept in coupled checkpoints)
     let mut histories = match &run.resume_dir {
@@ -231,6 +235,7 @@ pub fn serve(
     }
     for k in run.start_step..=run.steps {
         step_times.begin(k, timing.stages());
+        step_times.flush_if_full();
         // gather every group's state at step k
         let wait_from = Instant::now();
         states.gather(k, run, &bus, &t, &mut hb_in, &served)?;
@@ -266,6 +271,8 @@ pub fn serve(
                     ms = t0.elapsed().as_millis() as u64,
                     "checkpoint written"
                 );
+                // the per-step times so far survive a kill from here on
+                step_times.flush();
             }
         }
         // every piece's points in one pass, in cell order (parallel; the same bits as one
@@ -438,12 +445,7 @@ pub fn serve(
         threads_cpu_s = fiberflow_bus::usage::threads_cpu_since(&threads_from),
         "where the flow node's time went"
     );
-    if let Some(path) = &run.step_times {
-        // diagnostics: a run whose results are all out does not fail over them
-        if let Err(e) = step_times.write(path) {
-            tracing::warn!(error = %e, "the per-step times were not written");
-        }
-    }
+    step_times.flush();
     heartbeat(&bus, &t, lifecycle::DONE, run.steps, states.drops().total())?;
     if run.expected_nodes.iter().any(|n| n == "recorder") {
         await_recorder_finishing(&bus, &t, &mut hb_in, run, states.drops().total())?;
