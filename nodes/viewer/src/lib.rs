@@ -391,7 +391,7 @@ fn log_static(
          box is the channel, 2h = {:.0} wall units high. Where the recording has flow slices: \
          the streaks, u' at y+ ≈ 15 above the lower wall (drawn on the wall, under the fibres), \
          and a cross-section at x1 = 0; blue slow, red fast, white = the plane's mean, \
-         ±4 u_tau. In two-way runs, beside the streaks (further along x3): the fibres' \
+         ±4 u_tau. In two-way runs, beyond the channel (at lower x3): the fibres' \
          streamwise force on the fluid in the same plane, red pushing it forward, blue \
          holding it back (the strongest 1% saturate).\n\n\
          **Plots** (right): one tab per series (σ², |z1|, end-to-end distance, wall distance \

@@ -8,14 +8,15 @@ use fiberflow_messages::FlowSlice;
 /// Where each sample of a slice is drawn (row by row, `u` fastest): at its own position,
 /// except that a wall-parallel plane is moved onto the nearer wall (y = ±`h_plus`), and
 /// the fibres' force (`fibre_force`, the streaks' plane) is drawn beside the channel, one
-/// box width and a gap further along z, so it sits next to the streaks it pushes.
+/// box width and a gap back along z (beyond the channel as the opening camera, at high z
+/// looking along −z, sees it), so it sits next to the streaks it pushes.
 pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
     let (a, b) = (&s.axis_u, &s.axis_v);
     let normal_y = a[2] * b[0] - a[0] * b[2];
     let wall_y = (normal_y.abs() > 0.99).then(|| h_plus.copysign(s.origin[1]));
     // beside the channel: the plane's z extent (samples at cell centres) and a twentieth
     let dz = match (s.name == "fibre_force", s.v_plus.first(), s.v_plus.last()) {
-        (true, Some(a), Some(b)) => 1.05 * (a + b),
+        (true, Some(a), Some(b)) => -1.05 * (a + b),
         _ => 0.0,
     };
     let mut out = Vec::with_capacity(s.u_plus.len() * s.v_plus.len());
@@ -127,8 +128,8 @@ mod tests {
         assert_eq!(p[5], [0.0, 5.0, 20.0]);
     }
 
-    /// The fibres' force plane lies on the streaks' wall, shifted along z by its own extent
-    /// (first + last sample: cell centres) and a twentieth.
+    /// The fibres' force plane lies on the streaks' wall, shifted back along z by its own
+    /// extent (first + last sample: cell centres) and a twentieth.
     #[test]
     fn fibre_force_lies_beside_the_streaks() {
         let mut s = slice("fibre_force", -135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
@@ -136,8 +137,8 @@ mod tests {
         s.values = vec![0.0; 9];
         let p = positions(&s, 150.0);
         let shift = (1.05 * 30.0) as f32;
-        assert_eq!(p[0], [0.0, -150.0, 5.0 + shift]);
-        assert_eq!(p[8], [20.0, -150.0, 25.0 + shift]);
+        assert_eq!(p[0], [0.0, -150.0, 5.0 - shift]);
+        assert_eq!(p[8], [20.0, -150.0, 25.0 - shift]);
     }
 
     #[test]
