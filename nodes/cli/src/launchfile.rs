@@ -8,21 +8,24 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 /// `[run]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RunSection {
+    /// Run id: a non-empty name of [A-Za-z0-9_-]; the topics' prefix and the default
+    /// output folder `recordings/<id>`.
     pub id: String,
-    /// Number of coupling steps.
+    /// Number of coupling steps, in 1..=1e8.
     pub steps: u64,
     /// Coupling (fibre and flow) time step, viscous units.
     pub dt_plus: f64,
     /// Channel box in wall units; default 2πh × 2h × πh at the DNS Re_tau (or 150).
     #[serde(default)]
     pub box_plus: Option<[f64; 3]>,
-    /// Seconds any node waits for a peer's message of one step.
+    /// Seconds any node waits for a peer's message of one step, in (0, 3600].
     #[serde(default = "default_step_timeout")]
     pub step_timeout_s: f64,
-    /// Default transport when `--transport` is not given.
+    /// Default transport when `--transport` is not given: `"inproc"`, `"zenoh"` or
+    /// `"iceoryx2"`.
     #[serde(default = "default_transport")]
     pub transport: String,
     /// Run the analysis after the run (and write the .rrd scene).
@@ -52,7 +55,7 @@ pub struct RunSection {
 }
 
 /// `run.coupling`: whether the fluid feels the fibres.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum Coupling {
     #[default]
@@ -62,7 +65,7 @@ pub enum Coupling {
 
 /// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
 /// processes of their own (the in-process bus leaves every thread as it is).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum FibreScheduling {
     /// The default time sharing, equal with the flow node: safe on a machine shared
@@ -80,7 +83,7 @@ fn default_checkpoint_every_plus() -> f64 {
 }
 
 /// `[run.restart]`: supervision of the nodes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RestartSection {
     /// `"on-failure"`: roll every node back to the newest complete checkpoint (or the
@@ -93,7 +96,7 @@ pub struct RestartSection {
 }
 
 /// `run.restart.policy`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum RestartPolicy {
     Never,
@@ -134,12 +137,14 @@ fn default_transport() -> String {
 }
 
 /// `[recorder]`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RecorderSection {
+    /// Run the recorder node (writes `run.mcap`).
     #[serde(default = "default_true")]
     pub enabled: bool,
-    /// Record every group's full state (and its PointCloud2) every this many steps; the
+    /// Record every group's full state (and its PointCloud2) every this many steps, in
+    /// 1..=`run.steps`; the
     /// first and last step always. Metrics, flow status and profiles are recorded every
     /// time they are published.
     #[serde(default = "default_one")]
@@ -175,7 +180,7 @@ impl Default for RecorderSection {
 /// mutual authentication and access control. The host that runs the flow node is the
 /// zenoh router every other node connects to; `fiberflow launch FILE --host NAME` starts
 /// one host's share of the nodes.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NetworkSection {
     /// The endpoint every node connects to, e.g. `tls/head.example.org:7447`.
@@ -189,6 +194,7 @@ pub struct NetworkSection {
     /// Certificate common names allowed to publish and subscribe under the run's topics
     /// (zenoh access control, deny by default).
     pub allowed_common_names: Vec<String>,
+    /// One table per host.
     pub hosts: Vec<HostSection>,
 }
 
@@ -201,18 +207,21 @@ impl NetworkSection {
 }
 
 /// `[[network.hosts]]`: the nodes one host runs and its TLS identity.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct HostSection {
+    /// The name `fiberflow launch FILE --host NAME` takes.
     pub name: String,
     /// Node names: `flow`, `recorder`, fibre group names.
     pub nodes: Vec<String>,
+    /// PEM certificate of this host (its common name must be allowed).
     pub certificate: PathBuf,
+    /// PEM private key of that certificate.
     pub private_key: PathBuf,
 }
 
 /// The whole launch file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct LaunchFile {
     pub run: RunSection,
@@ -288,6 +297,22 @@ fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Val
     }
 }
 
+/// `flow.steps` and `flow.dt_plus` are the flow node's own keys, which a launch file sets
+/// from `run.steps` and `run.dt_plus`: a value given under `[flow]` would be silently
+/// replaced, so it is an error that names the key to use.
+fn refuse_run_keys_under_flow(text: &str) -> Result<()> {
+    let doc: toml::Table = toml::from_str(text).context("parsing the launch file")?;
+    let Some(flow) = doc.get("flow").and_then(toml::Value::as_table) else {
+        return Ok(());
+    };
+    for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
+        if flow.contains_key(key) {
+            bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
+        }
+    }
+    Ok(())
+}
+
 impl LaunchFile {
     /// Reads a launch file with `--set` overrides, resolves relative paths against the
     /// file's folder, and validates. The returned text is the effective launch
@@ -318,6 +343,7 @@ impl LaunchFile {
                 )
             }
         })?;
+        refuse_run_keys_under_flow(&text)?;
         let base = path
             .parent()
             .map(Path::to_path_buf)
@@ -571,6 +597,23 @@ mod tests {
             msg.contains("interpolation") && msg.contains("tricubic"),
             "{msg}"
         );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// `flow.steps` / `flow.dt_plus` in a launch file would be replaced by the run's: an
+    /// error that names the key to use instead.
+    #[test]
+    fn run_keys_under_flow_are_refused_naming_the_run_key() {
+        let dir = std::env::temp_dir().join(format!("ff-fk-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (extra, want) in [("steps = 5", "run.steps"), ("dt_plus = 0.1", "run.dt_plus")] {
+            let err = LaunchFile::load_with(&write_launch(&dir, extra), &[]).unwrap_err();
+            let msg = format!("{err:#}");
+            assert!(msg.contains(want) && msg.contains("flow."), "{msg}");
+        }
+        let err = LaunchFile::load_with(&write_launch(&dir, ""), &["flow.steps=3".into()])
+            .unwrap_err();
+        assert!(format!("{err:#}").contains("run.steps"), "{err:#}");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -4,6 +4,7 @@ mod analyze;
 mod bench;
 mod coupled;
 mod huge_pages;
+mod keys;
 mod launch;
 mod launchfile;
 mod loading;
@@ -208,6 +209,13 @@ enum Cmd {
         /// σ² thresholds of the coiling events, comma separated.
         #[arg(long, value_delimiter = ',', default_values_t = fiberflow_analysis::coiling::DEFAULT_THRESHOLDS)]
         coil_thresholds: Vec<f64>,
+    },
+    /// Print every launch-file key with its type, default and meaning (Markdown), or
+    /// refresh the generated block of a file with it (docs/launch-files.md).
+    Keys {
+        /// Replace the generated block of this file instead of printing.
+        #[arg(long)]
+        write: Option<PathBuf>,
     },
     /// Compare DNS statistics (stats.csv from a spin-up) with the reference DNS data.
     FlowReport {
@@ -430,6 +438,20 @@ fn main() -> Result<()> {
                 flow_slices = s.slices,
                 "scene written"
             );
+            Ok(())
+        }
+        Cmd::Keys { write } => {
+            match write {
+                Some(file) => {
+                    let changed = keys::write_into(&file)?;
+                    println!(
+                        "{}: {}",
+                        file.display(),
+                        if changed { "updated" } else { "already up to date" }
+                    );
+                }
+                None => print!("{}", keys::markdown()?),
+            }
             Ok(())
         }
         Cmd::FlowReport {

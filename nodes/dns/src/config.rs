@@ -4,34 +4,48 @@ use crate::error::DnsError;
 use serde::{Deserialize, Serialize};
 
 /// How the mean flow is driven (paper eq. 13, term E ê1).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum Forcing {
     /// Constant mean pressure gradient E = u_tau²/h: Re_tau is fixed by construction.
     PressureGradient,
     /// Constant flow rate: the bulk velocity (in units of u_tau) is held at this value.
-    FlowRate { bulk_velocity: f64 },
+    FlowRate {
+        /// Bulk velocity U_b / u_tau, ≥ 0 (0 holds the fluid at no net flow).
+        bulk_velocity: f64,
+    },
 }
 
 /// Initial condition of a fresh run.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 pub enum InitialField {
     /// Fluid at rest.
     Rest,
     /// Laminar Poiseuille profile with the given centreline velocity (units of u_tau).
-    Laminar { centre_velocity: f64 },
+    Laminar {
+        /// Centreline velocity / u_tau.
+        centre_velocity: f64,
+    },
     /// Reichardt turbulent mean profile plus streamwise vortices, streaks and noise,
     /// strong enough to trigger transition at Re_tau = 150.
-    Turbulent { amplitude: f64, seed: u64 },
+    Turbulent {
+        /// Strength of the perturbations relative to the default, in 0..=2.
+        amplitude: f64,
+        /// Seed of the noise (same seed, same field).
+        seed: u64,
+    },
 }
 
 /// Everything the DNS needs to run.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DnsConfig {
+    /// Cells along x (streamwise, periodic): an even integer in 4..=4096.
     pub nx: usize,
+    /// Cells along y (wall-normal, stretched towards the walls): 4..=4096.
     pub ny: usize,
+    /// Cells along z (spanwise, periodic): an even integer in 4..=4096.
     pub nz: usize,
     /// Box length in x, units of h (default 2π).
     #[serde(default = "default_lx")]
@@ -39,13 +53,13 @@ pub struct DnsConfig {
     /// Box length in z, units of h (default π).
     #[serde(default = "default_lz")]
     pub lz: f64,
-    /// Friction Reynolds number u_tau h / ν.
+    /// Friction Reynolds number u_tau h / ν, in 1..=1e5.
     #[serde(default = "default_re_tau")]
     pub re_tau: f64,
     /// Wall distance of the first cell centre in wall units (None: uniform grid).
     #[serde(default = "default_y1_plus")]
     pub y1_plus: Option<f64>,
-    /// Target Courant sum per step.
+    /// Target Courant sum per step, in (0, 1.73] (RK3 stability).
     #[serde(default = "default_cfl")]
     pub cfl: f64,
     /// Upper bound on the time step, in viscous units.
@@ -57,11 +71,13 @@ pub struct DnsConfig {
     /// Crank–Nicolson for wall-normal diffusion.
     #[serde(default = "default_true")]
     pub implicit_y: bool,
+    /// How the mean flow is driven (default: constant pressure gradient).
     #[serde(default = "default_forcing")]
     pub forcing: Forcing,
     /// Check max |div u| every this many steps (a full pass over the field).
     #[serde(default = "default_check_every")]
     pub check_every: u64,
+    /// The field a run without a restart starts from (default: turbulent).
     #[serde(default = "default_init")]
     pub init: InitialField,
 }

@@ -14,7 +14,7 @@ pub const CASE1_LENGTH_PLUS: f64 = 3.0;
 pub const PAPER_TAU_S_PLUS: f64 = 13.5;
 
 /// One row of the paper's Table 1.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum PaperCase {
     Case1,
@@ -83,7 +83,7 @@ pub fn paper_diameter_plus() -> f64 {
 }
 
 /// Initial layer of a fibre in the 5-layer layout.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Layer {
     NearWall,

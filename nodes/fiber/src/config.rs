@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 /// Initial segment velocities.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum InitialVelocity {
     /// The fluid's velocity and rotation at each segment centre (default).
@@ -22,15 +22,19 @@ pub enum InitialVelocity {
 }
 
 /// Where fibres start.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum PlacementConfig {
     /// 5 layers in x2 (near each wall, next, centre) of `per_layer` vertical fibres.
     Layers {
+        /// Fibres per layer, ≥ 1 (spread along the layer's diagonal).
         #[serde(default = "default_per_layer")]
         per_layer: usize,
+        /// Wall distance of the layers next to each wall, wall units, in [half a fibre
+        /// length, h+).
         #[serde(default = "default_near")]
         near_wall_plus: f64,
+        /// Wall distance of the next layers, wall units, in [half a fibre length, h+).
         #[serde(default = "default_next")]
         next_plus: f64,
     },
@@ -38,17 +42,25 @@ pub enum PlacementConfig {
     /// axes, none closer to another than `min_distance_plus` (default: the diameter),
     /// within `band_plus` (wall distances from the lower wall; default the whole channel).
     Random {
+        /// Number of fibres, ≥ 1.
         count: usize,
+        /// Seed of the placement (same seed, same fibres).
         #[serde(default = "default_seed")]
         seed: u64,
+        /// [lowest, highest] wall distance of fibre centres from the lower wall, wall
+        /// units, within [0, 2h+] (default: the whole channel).
         #[serde(default)]
         band_plus: Option<[f64; 2]>,
+        /// Closest allowed centre-line distance between segments of different fibres,
+        /// wall units, ≥ 0 (default: the diameter).
         #[serde(default)]
         min_distance_plus: Option<f64>,
     },
     /// Explicit centres and axes (wall units); layer tags default to "middle".
     Explicit {
+        /// Fibre centres, wall units (x2 from the channel centre).
         centres: Vec<[f64; 3]>,
+        /// Fibre axes (normalised), one per centre.
         axes: Vec<[f64; 3]>,
     },
 }
@@ -68,7 +80,7 @@ fn default_seed() -> u64 {
 }
 
 /// One fibre group.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FiberNodeConfig {
     /// Group name (topic path component).
@@ -76,26 +88,34 @@ pub struct FiberNodeConfig {
     /// A paper case sets segment length and density ratio (explicit values override).
     #[serde(default)]
     pub case: Option<PaperCase>,
+    /// Segments per fibre N, in 1..=1000.
     #[serde(default = "default_segments")]
     pub segments: usize,
+    /// Segment length l+ (wall units), > `diameter_plus` (default: the case's, else 3).
     #[serde(default)]
     pub segment_length_plus: Option<f64>,
     /// Default: the d+ ≈ 0.232 consistent with the paper's τ_s+ = 13.5.
     #[serde(default)]
     pub diameter_plus: Option<f64>,
+    /// Fibre to fluid density ratio ρ_s/ρ_f, > 0 (default: the case's, else 1150).
     #[serde(default)]
     pub density_ratio: Option<f64>,
+    /// Where the fibres start (default: layers of 10).
     #[serde(default = "default_placement")]
     pub placement: PlacementConfig,
     #[serde(default)]
     pub initial_velocity: InitialVelocity,
+    /// Joint bending stiffness in wall units, ≥ 0 (0: joints bend freely, as in the paper).
     #[serde(default)]
     pub bending_stiffness_plus: f64,
     /// Joint twisting stiffness in wall units (0: joints twist freely, as in the paper).
     #[serde(default)]
     pub twisting_stiffness_plus: f64,
+    /// Gravitational acceleration, wall units (g ν / u_tau³); buoyancy is included.
     #[serde(default)]
     pub gravity_plus: [f64; 3],
+    /// Relative Tikhonov parameter of the joint-force solve, in [0, 1) (0: the exact
+    /// block-Thomas solve, as in the paper).
     #[serde(default)]
     pub tikhonov: f64,
     /// Cross-flow drag coefficient C_D (1 in the paper; 0 = viscous only).
@@ -104,7 +124,7 @@ pub struct FiberNodeConfig {
     /// Keep segment ends inside the walls (|x2| <= box_plus[1]/2).
     #[serde(default = "default_true")]
     pub wall_contact: bool,
-    /// Publish metrics every this many steps.
+    /// Publish metrics every this many steps, ≥ 1.
     #[serde(default = "default_metrics_every")]
     pub metrics_every: u64,
     /// Fibre nodes that integrate the group, each a contiguous slice of its fibres (nodes
@@ -119,7 +139,7 @@ pub struct FiberNodeConfig {
 
 /// Fibre and fluid properties in SI units, converted to wall units with ν and u_tau:
 /// length+ = L u_tau / ν, density ratio = ρ_s / ρ_f.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PhysicalProperties {
     /// Kinematic viscosity of the fluid, m²/s (air at 20 °C: 1.5e-5).
@@ -128,10 +148,13 @@ pub struct PhysicalProperties {
     pub friction_velocity_m_s: f64,
     /// Fluid density, kg/m³ (air: 1.2).
     pub fluid_density_kg_m3: f64,
+    /// Segment length, m (overrides `segment_length_plus`).
     #[serde(default)]
     pub segment_length_m: Option<f64>,
+    /// Fibre diameter, m (overrides `diameter_plus`).
     #[serde(default)]
     pub diameter_m: Option<f64>,
+    /// Fibre density, kg/m³ (overrides `density_ratio`).
     #[serde(default)]
     pub density_kg_m3: Option<f64>,
 }

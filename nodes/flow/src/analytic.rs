@@ -4,26 +4,39 @@
 use serde::{Deserialize, Serialize};
 
 /// A steady analytic velocity field v(r) with its gradient.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum AnalyticFlow {
     /// v = U.
-    Uniform { velocity: [f64; 3] },
+    Uniform {
+        /// U, wall units.
+        velocity: [f64; 3],
+    },
     /// v = S x2 ê1 (shear rate S).
-    SimpleShear { shear_rate: f64 },
+    SimpleShear {
+        /// S, wall units (u_tau²/ν).
+        shear_rate: f64,
+    },
     /// v = Uc (1 - (x2/h)²) ê1 between walls at x2 = ±h.
     Poiseuille {
+        /// Uc, wall units.
         centre_velocity: f64,
+        /// h, wall units.
         half_height: f64,
     },
     /// v = Ω × (r - c).
     SolidBodyRotation {
+        /// Ω, wall units.
         angular_velocity: [f64; 3],
+        /// c, wall units.
         #[serde(default)]
         centre: [f64; 3],
     },
     /// v = E (x1, -x2, 0): stretching along ê1, compression along ê2.
-    PureStrain { rate: f64 },
+    PureStrain {
+        /// E, wall units.
+        rate: f64,
+    },
 }
 
 impl AnalyticFlow {

@@ -9,14 +9,20 @@ use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 /// Where the velocity samples come from.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum FlowSource {
     /// An analytic flow (wall units), for tests and model validation.
-    Analytic { flow: AnalyticFlow },
+    Analytic {
+        /// Which analytic flow.
+        flow: AnalyticFlow,
+    },
     /// The channel DNS, optionally from a checkpoint.
     Dns {
+        /// The grid, box and driving of the DNS.
         dns: DnsConfig,
+        /// Start from this flow checkpoint (`flow.ckpt` of a spin-up or a run; relative
+        /// to the launch file) instead of `dns.init`.
         #[serde(default)]
         restart: Option<PathBuf>,
         /// The restart field is on another grid of the same box: interpolate it
@@ -27,23 +33,25 @@ pub enum FlowSource {
 }
 
 /// The whole flow-node configuration (the `[flow]` table of a launch file).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FlowNodeConfig {
     pub source: FlowSource,
     /// Run a standalone spin-up instead of serving fibre groups.
     #[serde(default)]
     pub spinup: Option<SpinupConfig>,
-    /// Serve this many coupling steps (fibre time step `dt_plus` each).
+    /// Serve this many coupling steps (fibre time step `dt_plus` each). A launch file
+    /// sets it from `run.steps` (giving it under `[flow]` is an error).
     #[serde(default)]
     pub steps: u64,
-    /// Coupling time step in viscous units (the fibre groups use the same).
+    /// Coupling time step in viscous units (the fibre groups use the same), in (0, 10].
+    /// A launch file sets it from `run.dt_plus` (giving it under `[flow]` is an error).
     #[serde(default = "default_dt")]
     pub dt_plus: f64,
-    /// How long to wait for every expected fibre group to announce itself.
+    /// Seconds to wait for every expected fibre group to announce itself, in (0, 3600].
     #[serde(default = "default_join_timeout")]
     pub join_timeout_s: f64,
-    /// Publish a status message every this many coupling steps.
+    /// Publish a status message every this many coupling steps, ≥ 1.
     #[serde(default = "default_status_every")]
     pub status_every: u64,
     /// Publish running flow statistics (FlowProfiles) every this many coupling steps
@@ -71,7 +79,7 @@ pub struct FlowNodeConfig {
 
 /// `flow.self_induced`: how the samples of a two-way run treat each fibre's own
 /// disturbance of the flow.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum SelfInduced {
     #[default]
