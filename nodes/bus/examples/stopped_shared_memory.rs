@@ -1,5 +1,5 @@
 //! Do zenoh shared-memory messages in flight survive their processes being stopped and
-//! continued (`SIGSTOP`, `SIGCONT`: what `fiberflow bench-scale --slice-ms` does to run
+//! continued (`SIGSTOP`, `SIGCONT`: what `fiberflow-bench scale --slice-ms` does to run
 //! configurations in turns, and what a suspended launch gets)?
 //!
 //! `cargo run --release -p fiberflow-bus --example stopped_shared_memory -- MODE CYCLES`

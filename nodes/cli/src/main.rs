@@ -1,20 +1,9 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
-mod analyze;
-mod bench;
-mod coupled;
 mod huge_pages;
-mod keys;
-mod launch;
-mod launchfile;
-mod loading;
-mod nodes;
-mod progress;
 mod recording;
-mod run_lock;
-mod scheduling;
-mod slicing;
-mod spinup_cmd;
+
+use fiberflow_launcher::{analyze, keys, launch, nodes, spinup_cmd};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -56,56 +45,6 @@ enum Cmd {
         /// Ctrl-C or a crash); give the same launch file and --set options.
         #[arg(long, value_name = "DIR")]
         resume: Option<PathBuf>,
-    },
-    /// Scale benchmark: the fine-grid flow alone and carrying increasing fibre counts, over
-    /// each transport, interleaved; prints wall per coupling step split into stages.
-    BenchScale {
-        /// Total fibre counts, multiples of 30 (0 = the flow alone).
-        #[arg(long, value_delimiter = ',', default_value = "0,300,3000,30000,60000")]
-        fibres: Vec<u64>,
-        /// Transports to compare: iceoryx2, zenoh, inproc (every node a thread of one
-        /// process).
-        #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
-        transports: Vec<String>,
-        /// Coupling steps per run [default: the launch files' run.steps, 150 in the
-        /// shipped ones; the two files must agree].
-        #[arg(long)]
-        steps: Option<u64>,
-        /// Runs per configuration: rounds of every configuration, each run beside its
-        /// flow-only baseline, every other round in reverse order.
-        #[arg(long, default_value_t = 2)]
-        repeats: usize,
-        /// Leave the recorder off (default: on, states every 10 steps, no samples).
-        #[arg(long)]
-        no_record: bool,
-        /// Launch file with six fibre groups.
-        #[arg(long, default_value = "launch/scale-1e4.toml")]
-        fibres_file: PathBuf,
-        /// Launch file of the flow alone.
-        #[arg(long, default_value = "launch/scale-flow-only.toml")]
-        flow_only_file: PathBuf,
-        /// Fibre counts (multiples of 60) also run over two launchers on this machine, as
-        /// if on two hosts (zenoh with mutual TLS; compared with zenoh's flow-only runs).
-        #[arg(long, value_delimiter = ',')]
-        two_launchers: Vec<u64>,
-        /// The `[network]` launch file of those runs (hosts head and worker).
-        #[arg(long, default_value = "launch/scale-3e5-two-launchers.toml")]
-        two_launchers_file: PathBuf,
-        /// Where the runs and bench-scale.md go.
-        #[arg(long, default_value = "recordings/bench-scale")]
-        out: PathBuf,
-        /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
-        /// run.fibre_scheduling=idle,normal), or of an environment variable of the
-        /// launcher and its nodes: env:NAME=V1,V2,… The flow-only runs take the first value.
-        #[arg(long, value_name = "KEY=V1,V2")]
-        compare: Option<bench::Compare>,
-        /// Run each transport's configurations of a round at once, in turns of this many
-        /// milliseconds (the others stopped meanwhile), and take each run's step wall
-        /// from the steps no pause touched: every configuration sees the same host, so a
-        /// difference of 1–3% shows where whole runs scatter by ±10%. Stage walls of the
-        /// fibre nodes and the recorder, which pauses inflate, are not reported then.
-        #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(50..=10_000))]
-        slice_ms: Option<u64>,
     },
     /// Run one node from a spec written by the launcher.
     Node {
@@ -291,10 +230,7 @@ fn main() -> Result<()> {
     // commands that print behave like other command-line tools when piped into `head`:
     // exit quietly on EPIPE. Not the launcher and its nodes: a peer closing a network
     // connection must surface as an error on that link, not kill the process
-    if !matches!(
-        cli.cmd,
-        Cmd::Launch { .. } | Cmd::Node { .. } | Cmd::BenchScale { .. }
-    ) {
+    if !matches!(cli.cmd, Cmd::Launch { .. } | Cmd::Node { .. }) {
         // SAFETY: resetting a signal disposition to its default before any thread starts
         unsafe {
             libc::signal(libc::SIGPIPE, libc::SIG_DFL);
@@ -334,33 +270,6 @@ fn main() -> Result<()> {
             Ok(())
         }
         Cmd::Node { spec } => nodes::node_cmd(&spec),
-        Cmd::BenchScale {
-            fibres,
-            transports,
-            steps,
-            repeats,
-            no_record,
-            fibres_file,
-            flow_only_file,
-            two_launchers,
-            two_launchers_file,
-            out,
-            compare,
-            slice_ms,
-        } => bench::run(&bench::BenchOptions {
-            fibres_file,
-            flow_only_file,
-            two_launchers,
-            two_launchers_file,
-            fibres,
-            transports,
-            steps,
-            repeats,
-            record: !no_record,
-            out,
-            compare,
-            slice_ms,
-        }),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
         Cmd::Replay {
@@ -447,7 +356,11 @@ fn main() -> Result<()> {
                     println!(
                         "{}: {}",
                         file.display(),
-                        if changed { "updated" } else { "already up to date" }
+                        if changed {
+                            "updated"
+                        } else {
+                            "already up to date"
+                        }
                     );
                 }
                 None => print!("{}", keys::markdown()?),

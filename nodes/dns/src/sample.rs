@@ -20,7 +20,9 @@ mod tables;
 pub use tables::{Tables, LANES};
 
 /// Interpolation scheme of the fibre-position sampler.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum Interpolation {
     /// Trilinear from the staggered locations (8 nodes per quantity).

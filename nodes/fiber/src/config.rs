@@ -11,7 +11,9 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 /// Initial segment velocities.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum InitialVelocity {
     /// The fluid's velocity and rotation at each segment centre (default).

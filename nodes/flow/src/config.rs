@@ -79,7 +79,9 @@ pub struct FlowNodeConfig {
 
 /// `flow.self_induced`: how the samples of a two-way run treat each fibre's own
 /// disturbance of the flow.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum SelfInduced {
     #[default]

@@ -1,6 +1,6 @@
 //! Every coupling step's wall and stages as CSV (`logs/flow-steps.csv` of a launch): what
 //! a per-run total hides — slow steps, drift, a step that a pause of the process fell
-//! into. `fiberflow bench-scale --slice-ms` reads it to leave out the steps its pauses
+//! into. `fiberflow-bench scale --slice-ms` reads it to leave out the steps its pauses
 //! touched. The rows go to the file as the run steps — every [`FLUSH_ROWS`] rows, at
 //! every checkpoint and at the end — so memory stays bounded however long the run, and a
 //! killed flow node leaves the rows up to its last flush.

@@ -180,7 +180,17 @@ pub struct RecordPlan {
 /// zstd took ≈ 6% of the machine at level 3, ≈ 2.5% at level 1); none writes the messages
 /// as they are. Rerun, Foxglove and the
 /// Python `mcap` reader open all three.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum ChunkCompression {
     #[default]

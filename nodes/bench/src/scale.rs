@@ -1,4 +1,4 @@
-//! `fiberflow bench-scale`: the scale benchmark. Runs the fine-grid flow alone and carrying
+//! `fiberflow-bench scale`: the scale benchmark. Runs the fine-grid flow alone and carrying
 //! increasing numbers of fibres, over each transport, configurations interleaved (A B C …
 //! A B C …) so slow drifts of a shared machine hit every configuration alike; reads each
 //! node's own "where … time went" log line and prints, per configuration, the wall time per
@@ -365,7 +365,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
     }
     let mut files = Vec::new();
     for f in [&o.fibres_file, &o.flow_only_file] {
-        let (lf, _) = crate::launchfile::LaunchFile::load_with(f, &[])?;
+        let (lf, _) = fiberflow_launcher::launchfile::LaunchFile::load_with(f, &[])?;
         files.push((f.as_path(), lf.run.steps));
     }
     let steps = steps_per_run(o.steps, &files)?;
@@ -382,7 +382,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
             TRANSPORTS.join(", ")
         );
     }
-    let exe = std::env::current_exe().context("locating the fiberflow executable")?;
+    let exe = fiberflow_exe()?;
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
     if o.two_launchers.iter().any(|n| *n == 0 || n % 60 != 0) {
         bail!("--two-launchers: every count must be a positive multiple of 60 (six groups of five layers, two shards)");
@@ -396,7 +396,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
         ensure_certificates(&o.two_launchers_file)?;
     }
     let total = configs.len() * o.repeats;
-    let bar = crate::progress::bar(total as u64, "runs");
+    let bar = fiberflow_launcher::progress::bar(total as u64, "runs");
     let mut results: BTreeMap<(u64, String), Vec<Figures>> = BTreeMap::new();
     let numbered: Vec<(usize, &Config)> = configs.iter().enumerate().collect();
     for r in 0..o.repeats {
@@ -505,6 +505,19 @@ struct Started {
     dirs: Vec<PathBuf>,
     launchers: Vec<std::process::Child>,
     t0: Instant,
+}
+
+/// The `fiberflow` binary beside this one (`cargo build --release --workspace` builds both).
+fn fiberflow_exe() -> Result<PathBuf> {
+    let me = std::env::current_exe().context("locating the fiberflow-bench executable")?;
+    let exe = me.with_file_name("fiberflow");
+    if !exe.is_file() {
+        bail!(
+            "{} not found: build it beside fiberflow-bench (cargo build --release --workspace)",
+            exe.display()
+        );
+    }
+    Ok(exe)
 }
 
 /// Starts configuration `c` (number `i`) of round `r`: one launcher, or head and worker.
@@ -1028,7 +1041,8 @@ mod tests {
             .iter()
             .map(|f| {
                 let p = dir.join(f);
-                let (lf, _) = crate::launchfile::LaunchFile::load_with(&p, &[]).unwrap();
+                let (lf, _) =
+                    fiberflow_launcher::launchfile::LaunchFile::load_with(&p, &[]).unwrap();
                 (p, lf.run.steps)
             })
             .collect();

@@ -1,4 +1,4 @@
-//! Time-sliced runs for `fiberflow bench-scale --slice-ms`: several runs alive at once,
+//! Time-sliced runs for `fiberflow-bench scale --slice-ms`: several runs alive at once,
 //! only one of them running at a time, in turns of a few hundred milliseconds (every
 //! process of the others stopped with SIGSTOP). Run by run, a shared host's speed drifts
 //! by ±10% (whole-run ratios scatter that much); in turns of 0.2 s every run sees the same

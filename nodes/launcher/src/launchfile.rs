@@ -55,7 +55,9 @@ pub struct RunSection {
 }
 
 /// `run.coupling`: whether the fluid feels the fibres.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum Coupling {
     #[default]
@@ -65,7 +67,9 @@ pub enum Coupling {
 
 /// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
 /// processes of their own (the in-process bus leaves every thread as it is).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum FibreScheduling {
     /// The default time sharing, equal with the flow node: safe on a machine shared
@@ -611,8 +615,8 @@ mod tests {
             let msg = format!("{err:#}");
             assert!(msg.contains(want) && msg.contains("flow."), "{msg}");
         }
-        let err = LaunchFile::load_with(&write_launch(&dir, ""), &["flow.steps=3".into()])
-            .unwrap_err();
+        let err =
+            LaunchFile::load_with(&write_launch(&dir, ""), &["flow.steps=3".into()]).unwrap_err();
         assert!(format!("{err:#}").contains("run.steps"), "{err:#}");
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -82,7 +82,8 @@ pub fn markdown() -> Result<String> {
 
 /// Replaces the generated block of `file` with [`markdown`] (the block must be there).
 pub fn write_into(file: &Path) -> Result<bool> {
-    let text = std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let text =
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
     let new = splice(&text, &markdown()?)?;
     if new == text {
         return Ok(false);
@@ -135,7 +136,14 @@ impl Walker<'_> {
     }
 
     /// Emits the rows for the key at `path` with schema `s`.
-    fn key(&self, path: &str, s: &Value, required: bool, note: &str, out: &mut Vec<Key>) -> Result<()> {
+    fn key(
+        &self,
+        path: &str,
+        s: &Value,
+        required: bool,
+        note: &str,
+        out: &mut Vec<Key>,
+    ) -> Result<()> {
         let s = self.resolve(s)?;
         let meaning = join(note, &describe(&s));
         // Option<Table>: `anyOf: [table, null]`
@@ -194,7 +202,14 @@ impl Walker<'_> {
         self.fields(path, s, note, &[], out)
     }
 
-    fn fields(&self, path: &str, s: &Value, note: &str, skip: &[&str], out: &mut Vec<Key>) -> Result<()> {
+    fn fields(
+        &self,
+        path: &str,
+        s: &Value,
+        note: &str,
+        skip: &[&str],
+        out: &mut Vec<Key>,
+    ) -> Result<()> {
         let Some(props) = s.get("properties").and_then(Value::as_object) else {
             return Ok(());
         };
@@ -202,7 +217,13 @@ impl Walker<'_> {
             if skip.contains(&name.as_str()) {
                 continue;
             }
-            self.key(&format!("{path}.{name}"), p, is_required(s, name), note, out)?;
+            self.key(
+                &format!("{path}.{name}"),
+                p,
+                is_required(s, name),
+                note,
+                out,
+            )?;
         }
         Ok(())
     }
@@ -258,7 +279,10 @@ fn kind(s: &Value) -> String {
         return e.iter().map(toml_value).collect::<Vec<_>>().join(" \\| ");
     }
     if let Some(one_of) = s.get("oneOf").and_then(Value::as_array) {
-        let consts: Option<Vec<String>> = one_of.iter().map(|v| v.get("const").map(toml_value)).collect();
+        let consts: Option<Vec<String>> = one_of
+            .iter()
+            .map(|v| v.get("const").map(toml_value))
+            .collect();
         if let Some(c) = consts {
             return c.join(" \\| ");
         }
@@ -269,16 +293,17 @@ fn kind(s: &Value) -> String {
         _ => vec![],
     };
     let optional = types.contains(&"null");
-    let base = types.iter().copied().find(|t| *t != "null").unwrap_or("any");
+    let base = types
+        .iter()
+        .copied()
+        .find(|t| *t != "null")
+        .unwrap_or("any");
     let text = match base {
         "number" => "number".to_string(),
-        "integer" => {
-            let min = s.get("minimum").and_then(Value::as_f64);
-            match min {
-                Some(m) if m == 0.0 => "integer ≥ 0".to_string(),
-                _ => "integer".to_string(),
-            }
-        }
+        "integer" => match s.get("minimum").and_then(Value::as_f64) {
+            Some(0.0) => "integer ≥ 0".to_string(),
+            _ => "integer".to_string(),
+        },
         "boolean" => "bool".to_string(),
         "string" => "string".to_string(),
         "array" => {
@@ -310,7 +335,10 @@ fn default_of(s: &Value, required: bool) -> String {
 fn toml_value(v: &Value) -> String {
     match v {
         Value::String(s) => format!("\"{s}\""),
-        Value::Array(a) => format!("[{}]", a.iter().map(toml_value).collect::<Vec<_>>().join(", ")),
+        Value::Array(a) => format!(
+            "[{}]",
+            a.iter().map(toml_value).collect::<Vec<_>>().join(", ")
+        ),
         Value::Object(_) => "(table)".into(),
         Value::Null => "unset".into(),
         other => other.to_string(),
@@ -380,12 +408,17 @@ mod tests {
             if path.extension().and_then(|e| e.to_str()) != Some("toml") {
                 continue;
             }
-            let doc: toml::Table = toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+            let doc: toml::Table =
+                toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
             let mut paths = Vec::new();
             flatten("", &toml::Value::Table(doc), &mut paths);
             for p in paths {
                 seen += 1;
-                assert!(listed.contains(&p), "{}: key {p} is not in the reference", path.display());
+                assert!(
+                    listed.contains(&p),
+                    "{}: key {p} is not in the reference",
+                    path.display()
+                );
             }
         }
         assert!(seen > 100, "only {seen} keys found in launch/");
@@ -396,7 +429,11 @@ mod tests {
         match v {
             toml::Value::Table(t) => {
                 for (k, v) in t {
-                    let p = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                    let p = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
                     flatten(&p, v, out);
                 }
             }
@@ -414,14 +451,23 @@ mod tests {
     #[test]
     fn reference_rows_for_known_keys() {
         let keys = launch_keys().unwrap();
-        let get = |p: &str| keys.iter().find(|k| k.path == p).unwrap_or_else(|| panic!("no {p}"));
+        let get = |p: &str| {
+            keys.iter()
+                .find(|k| k.path == p)
+                .unwrap_or_else(|| panic!("no {p}"))
+        };
         assert_eq!(get("run.steps").default, "required");
         assert_eq!(get("run.coupling").kind, "\"one-way\" \\| \"two-way\"");
         assert_eq!(get("run.coupling").default, "\"one-way\"");
         assert!(get("flow.source.kind").kind.contains("\"dns\""));
-        assert!(get("flow.source.dns.nx").meaning.contains("(when `flow.source.kind = \"dns\"`)"));
+        assert!(get("flow.source.dns.nx")
+            .meaning
+            .contains("(when `flow.source.kind = \"dns\"`)"));
         let count = &get("fibers[].placement.count").meaning;
-        assert!(count.contains("(when `fibers[].placement.kind = \"random\"`)"), "{count}");
+        assert!(
+            count.contains("(when `fibers[].placement.kind = \"random\"`)"),
+            "{count}"
+        );
         assert_eq!(get("run.box_plus").kind, "[number; 3] (optional)");
         assert!(keys.iter().any(|k| k.path.starts_with("network.hosts[].")));
     }

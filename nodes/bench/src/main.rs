@@ -1,0 +1,116 @@
+//! `fiberflow-bench`: whole-run benchmarks of fiberflow, kept out of the product binary.
+//! `scale` runs the fine-grid flow alone and carrying increasing fibre counts, over each
+//! transport, in alternating rounds, and reports wall per coupling step with paired
+//! ratios (docs/performance.md). It starts the `fiberflow` binary that sits beside it
+//! (`cargo build --release --workspace` builds both).
+
+mod scale;
+mod slicing;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "fiberflow-bench",
+    version,
+    about = "Whole-run benchmarks of fiberflow (alternating rounds, paired ratios)"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Scale benchmark: the fine-grid flow alone and carrying increasing fibre counts, over
+    /// each transport, interleaved; prints wall per coupling step split into stages.
+    Scale {
+        /// Total fibre counts, multiples of 30 (0 = the flow alone).
+        #[arg(long, value_delimiter = ',', default_value = "0,300,3000,30000,60000")]
+        fibres: Vec<u64>,
+        /// Transports to compare: iceoryx2, zenoh, inproc (every node a thread of one
+        /// process).
+        #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
+        transports: Vec<String>,
+        /// Coupling steps per run [default: the launch files' run.steps, 150 in the
+        /// shipped ones; the two files must agree].
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Runs per configuration: rounds of every configuration, each run beside its
+        /// flow-only baseline, every other round in reverse order.
+        #[arg(long, default_value_t = 2)]
+        repeats: usize,
+        /// Leave the recorder off (default: on, states every 10 steps, no samples).
+        #[arg(long)]
+        no_record: bool,
+        /// Launch file with six fibre groups.
+        #[arg(long, default_value = "launch/scale-1e4.toml")]
+        fibres_file: PathBuf,
+        /// Launch file of the flow alone.
+        #[arg(long, default_value = "launch/scale-flow-only.toml")]
+        flow_only_file: PathBuf,
+        /// Fibre counts (multiples of 60) also run over two launchers on this machine, as
+        /// if on two hosts (zenoh with mutual TLS; compared with zenoh's flow-only runs).
+        #[arg(long, value_delimiter = ',')]
+        two_launchers: Vec<u64>,
+        /// The `[network]` launch file of those runs (hosts head and worker).
+        #[arg(long, default_value = "launch/scale-3e5-two-launchers.toml")]
+        two_launchers_file: PathBuf,
+        /// Where the runs and bench-scale.md go.
+        #[arg(long, default_value = "recordings/bench-scale")]
+        out: PathBuf,
+        /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
+        /// run.fibre_scheduling=idle,normal), or of an environment variable of the
+        /// launcher and its nodes: env:NAME=V1,V2,… The flow-only runs take the first value.
+        #[arg(long, value_name = "KEY=V1,V2")]
+        compare: Option<scale::Compare>,
+        /// Run each transport's configurations of a round at once, in turns of this many
+        /// milliseconds (the others stopped meanwhile), and take each run's step wall
+        /// from the steps no pause touched: every configuration sees the same host, so a
+        /// difference of 1–3% shows where whole runs scatter by ±10%. Stage walls of the
+        /// fibre nodes and the recorder, which pauses inflate, are not reported then.
+        #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(50..=10_000))]
+        slice_ms: Option<u64>,
+    },
+}
+
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().cmd {
+        Cmd::Scale {
+            fibres,
+            transports,
+            steps,
+            repeats,
+            no_record,
+            fibres_file,
+            flow_only_file,
+            two_launchers,
+            two_launchers_file,
+            out,
+            compare,
+            slice_ms,
+        } => scale::run(&scale::BenchOptions {
+            fibres_file,
+            flow_only_file,
+            two_launchers,
+            two_launchers_file,
+            fibres,
+            transports,
+            steps,
+            repeats,
+            record: !no_record,
+            out,
+            compare,
+            slice_ms,
+        }),
+    }
+}

@@ -1,0 +1,16 @@
+//! The launcher: launch files (schema, checks, `--set`), the key reference, node wiring
+//! and supervision (process groups, restart on failure), coupled checkpoints and their
+//! manifests, the run lock, and the analysis a run ends with. The `fiberflow` binary is
+//! argument parsing over this crate.
+
+pub mod analyze;
+pub mod coupled;
+pub mod keys;
+pub mod launch;
+pub mod launchfile;
+pub mod loading;
+pub mod nodes;
+pub mod progress;
+pub mod run_lock;
+pub mod scheduling;
+pub mod spinup_cmd;
