@@ -308,8 +308,10 @@ fn run_inproc_on(
             std::thread::Builder::new()
                 .name(format!("node-{n}"))
                 .spawn(move || {
-                    // a panic drops `done` unsent: the count below then comes up short
-                    let _ = done.send(run_nodes(&spec, bus, stop));
+                    // a panic is this process's failure at once, like an error
+                    let what = format!("node process {}", spec.node);
+                    let r = crate::panics::catching(&what, || run_nodes(&spec, bus, stop));
+                    let _ = done.send(r);
                 })?,
         );
     }

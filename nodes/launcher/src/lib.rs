@@ -10,6 +10,7 @@ pub mod launch;
 pub mod launchfile;
 pub mod loading;
 pub mod nodes;
+pub mod panics;
 pub mod progress;
 pub mod run_lock;
 pub mod scheduling;

@@ -319,30 +319,20 @@ pub(crate) fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) 
                 .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
         }
     }
-    let (done_tx, done_rx) = std::sync::mpsc::channel();
-    for name in &names {
-        let mut s = spec.clone();
-        s.node = name.clone();
-        s.co_nodes.clear();
-        let (bus, stop, done) = (bus.clone(), stop.clone(), done_tx.clone());
-        std::thread::Builder::new()
-            .name(format!("node-{name}"))
-            .spawn(move || {
-                let r = run_node(&s, bus, stop).with_context(|| format!("node {} failed", s.node));
-                let _ = done.send(r);
-            })
-            .with_context(|| format!("starting node {name}"))?;
-    }
-    drop(done_tx);
-    for _ in &names {
-        match done_rx.recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(e),
-            // a node thread that panicked dropped its sender without a result
-            Err(_) => bail!("a node of {} panicked", names.join(", ")),
-        }
-    }
-    Ok(())
+    let tasks: Vec<crate::panics::Task> = names
+        .iter()
+        .map(|name| {
+            let mut s = spec.clone();
+            s.node = name.clone();
+            s.co_nodes.clear();
+            let (bus, stop) = (bus.clone(), stop.clone());
+            let task: Box<dyn FnOnce() -> Result<()> + Send> = Box::new(move || {
+                run_node(&s, bus, stop).with_context(|| format!("node {} failed", s.node))
+            });
+            (name.clone(), task)
+        })
+        .collect();
+    crate::panics::first_failure(tasks)
 }
 
 /// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most
@@ -384,6 +374,8 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
         .with_context(|| format!("reading {}", spec_path.display()))?;
     let spec: NodeSpec =
         toml::from_str(&text).with_context(|| format!("parsing {}", spec_path.display()))?;
+    // a panic on any thread ends this node at once (status 101), for the restart policy
+    crate::panics::end_process_on_panic();
     let stop = Arc::new(AtomicBool::new(false));
     // the recorder finishes its file on SIGTERM/SIGINT; the other nodes hold nothing that
     // a signal could leave half-written, so they keep the default action and stop at once
