@@ -4,6 +4,7 @@
 pub mod analytic;
 pub mod checkpoint;
 pub mod config;
+mod coupling;
 pub mod error;
 pub mod feedback;
 mod lockstep;

@@ -1,0 +1,451 @@
+//! The stages of the flow node's coupling loop (`serve::serve` calls them in order, each
+//! step): gather every piece's state at t_k, write a coupled checkpoint when one is due,
+//! sample the field at t_k at the states' segment centres (two-way: put the fibres'
+//! forces on the fluid and remove each fibre's own disturbance from its samples), publish
+//! the samples and the viewers' slices, advance the field to t_{k+1}, report its status.
+
+use crate::config::FlowNodeConfig;
+use crate::error::FlowError;
+use crate::lockstep::{Served, States};
+use crate::outgoing::{await_recorder_finishing, heartbeat, profiles_message, publish_slices};
+use crate::sampling::{Field, PieceSamples};
+use crate::serve::{RunInfo, ServeSummary};
+use crate::step_times::{Stages, StepTimes};
+use fiberflow_bus::{BusHandle, Encode, Inbox, Outbox};
+use fiberflow_dns::stats::RunningStats;
+use fiberflow_messages::topics::Topics;
+use fiberflow_messages::{
+    encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION,
+};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Every piece's state of one step, by (group, first fibre).
+pub(crate) type StepStates = BTreeMap<(String, u32), FiberGroupState>;
+
+/// Wall seconds per stage of the coupling loop (logged at the end of a run).
+#[derive(Debug, Default)]
+struct Timing {
+    waiting_s: f64,
+    sampling_s: f64,
+    /// Building the messages (the samples are encoded on the outbox's thread, straight
+    /// into the transport's buffer: that counts as background publishing).
+    encoding_s: f64,
+    /// Handing messages to the outbox (publishing itself overlaps the field step).
+    publishing_s: f64,
+    field_step_s: f64,
+    /// Two-way coupling: gathering the fibres' forces and spreading them on the grid.
+    feedback_s: f64,
+}
+
+impl Timing {
+    /// The sums a per-step row is taken from (building and handing over messages count
+    /// as publishing).
+    fn stages(&self) -> Stages {
+        Stages {
+            field_step_s: self.field_step_s,
+            sampling_s: self.sampling_s,
+            waiting_s: self.waiting_s,
+            publishing_s: self.encoding_s + self.publishing_s,
+        }
+    }
+}
+
+/// Messages the outbox may hold unpublished: a step's samples, slices, profiles and status.
+fn outbox_depth(run: &RunInfo) -> usize {
+    run.pieces.len() + 8
+}
+
+/// The coupling loop's state between its stages.
+pub(crate) struct Coupling<'a> {
+    cfg: &'a FlowNodeConfig,
+    run: &'a RunInfo,
+    bus: BusHandle,
+    t: Topics,
+    field: Field,
+    states: States,
+    hb_in: Inbox,
+    /// The samples last published to each piece, to send again when a node waits for them.
+    served: Served,
+    /// Running plane/time statistics of the served field, published as FlowProfiles.
+    stats: Option<RunningStats>,
+    /// The loop's messages go out on the outbox's thread while the field steps on.
+    out: Outbox,
+    timing: Timing,
+    step_times: StepTimes,
+    /// Two-way: the fibres' forces of the step, as points and forces.
+    feedback: crate::feedback::Feedback,
+    /// The self-induced correction's memories per piece (kept in coupled checkpoints).
+    histories: BTreeMap<(String, u32), crate::self_induced::History>,
+    self_widths: Option<crate::self_induced::Widths>,
+    /// The wait for the first step's states is the fibre nodes starting up (once per
+    /// run, tens of ms): logged apart from the loop's per-step stages.
+    start_wait_s: f64,
+    loop_from: Instant,
+    cpu_from: f64,
+    threads_from: BTreeMap<String, f64>,
+}
+
+impl<'a> Coupling<'a> {
+    pub(crate) fn new(
+        cfg: &'a FlowNodeConfig,
+        bus: BusHandle,
+        t: Topics,
+        run: &'a RunInfo,
+        field: Field,
+        states: States,
+        hb_in: Inbox,
+        stats: Option<RunningStats>,
+    ) -> Result<Self, FlowError> {
+        let cpu_from = fiberflow_bus::usage::process_cpu_s();
+        let threads_from = fiberflow_bus::usage::threads_cpu_s();
+        let out = Outbox::new(bus.clone(), outbox_depth(run))?;
+        // diagnostics: a run does not fail over them (a file that cannot be written is left out)
+        let step_times = StepTimes::new(run.step_times.as_deref()).unwrap_or_else(|e| {
+            tracing::warn!(error = %e, "the per-step times are not kept");
+            StepTimes::disabled()
+        });
+        let histories = match &run.resume_dir {
+            Some(dir) if run.two_way => crate::checkpoint::read_histories(dir)?,
+            _ => BTreeMap::new(),
+        };
+        let self_widths = match (&field, run.two_way, cfg.self_induced) {
+            (Field::Dns(d), true, crate::config::SelfInduced::History) => Some(
+                crate::self_induced::Widths::new(&d.solver.grid, d.solver.cfg.re_tau),
+            ),
+            _ => None,
+        };
+        if run.two_way {
+            tracing::info!(
+                self_induced = ?cfg.self_induced,
+                "two-way coupling: the fibres' forces act on the fluid"
+            );
+        }
+        Ok(Self {
+            cfg,
+            run,
+            bus,
+            t,
+            field,
+            states,
+            hb_in,
+            served: BTreeMap::new(),
+            stats,
+            out,
+            timing: Timing::default(),
+            step_times,
+            feedback: crate::feedback::Feedback::default(),
+            histories,
+            self_widths,
+            start_wait_s: 0.0,
+            // the loop's whole wall, stages and what lies between them (statistics,
+            // status), less the start-up wait for the first states
+            loop_from: Instant::now(),
+            cpu_from,
+            threads_from,
+        })
+    }
+
+    /// Waits for every piece's state at step `k` (answering nodes that wait for samples
+    /// already served).
+    pub(crate) fn gather(&mut self, k: u64) -> Result<(), FlowError> {
+        self.step_times.begin(k, self.timing.stages());
+        self.step_times.flush_if_full();
+        let wait_from = Instant::now();
+        self.states.gather(
+            k,
+            self.run,
+            &self.bus,
+            &self.t,
+            &mut self.hb_in,
+            &self.served,
+        )?;
+        let waited_s = wait_from.elapsed().as_secs_f64();
+        if k == self.run.start_step {
+            self.start_wait_s = waited_s;
+        } else {
+            self.timing.waiting_s += waited_s;
+        }
+        Ok(())
+    }
+
+    /// The coupled checkpoint of the field at t_k, before this step's samples: the
+    /// self-induced memories it holds are those of t_k, which a resumed run advances again
+    /// with the same forces.
+    pub(crate) fn checkpoint_if_due(&mut self, k: u64) -> Result<(), FlowError> {
+        let run = self.run;
+        let Some(root) = &run.checkpoint_root else {
+            return Ok(());
+        };
+        let due = k != run.start_step
+            && k < run.steps
+            && fiberflow_messages::checkpoints::is_checkpoint_step(
+                k,
+                run.checkpoint_every,
+                run.steps,
+            );
+        if !due {
+            return Ok(());
+        }
+        let dir = fiberflow_messages::checkpoints::step_dir(root, k);
+        let t0 = Instant::now();
+        match &self.field {
+            Field::Dns(d) => {
+                crate::checkpoint::write_dns(&dir, &d.solver, self.stats.as_ref(), &self.histories)?
+            }
+            Field::Analytic(_) => crate::checkpoint::write_analytic(&dir, k)?,
+        }
+        tracing::info!(
+            step = k,
+            ms = t0.elapsed().as_millis() as u64,
+            "checkpoint written"
+        );
+        // the per-step times so far survive a kill from here on
+        self.step_times.flush();
+        Ok(())
+    }
+
+    /// Every piece's samples of the field at t_k, in one pass in cell order (parallel; the
+    /// same bits as one by one). Two-way: the states' forces become the fluid's body force
+    /// over its next step, and each fibre's own disturbance leaves its samples.
+    pub(crate) fn sample(&mut self) -> Result<(StepStates, Vec<PieceSamples>), FlowError> {
+        let t0 = Instant::now();
+        let step_states = self.states.take();
+        let pieces: Vec<(&[f64], &[u32])> = step_states
+            .values()
+            .map(|s| (&s.centre[..], &s.segments_per_fiber[..]))
+            .collect();
+        // every node has answered the last step's samples: their arrays are sampled into
+        // again (unless the outbox still holds one, which then stays with it)
+        let spare: Vec<PieceSamples> = std::mem::take(&mut self.served)
+            .into_values()
+            .filter_map(|(_, _, msg)| Arc::try_unwrap(msg).ok())
+            .map(|Encode(m)| (m.velocity, m.velocity_gradient))
+            .collect();
+        let mut samples = self.field.sample_pieces(&pieces, spare);
+        self.timing.sampling_s += t0.elapsed().as_secs_f64();
+        if self.run.two_way {
+            let t0 = Instant::now();
+            self.feed_back(&step_states, &mut samples)?;
+            self.timing.feedback_s += t0.elapsed().as_secs_f64();
+        }
+        Ok((step_states, samples))
+    }
+
+    /// Two-way: spreads the states' forces on the grid and corrects the samples for each
+    /// fibre's self-induced disturbance (docs/two-way.md).
+    fn feed_back(
+        &mut self,
+        step_states: &StepStates,
+        samples: &mut [PieceSamples],
+    ) -> Result<(), FlowError> {
+        let Field::Dns(d) = &mut self.field else {
+            return Ok(());
+        };
+        let re_tau = d.solver.cfg.re_tau;
+        crate::feedback::gather(step_states, re_tau, &mut self.feedback)?;
+        d.solver
+            .set_body_force(&self.feedback.points, &self.feedback.forces);
+        let Some(w) = &self.self_widths else {
+            return Ok(());
+        };
+        for key in step_states.keys() {
+            self.histories.entry(key.clone()).or_default();
+        }
+        let mut work: Vec<(&mut crate::self_induced::History, &FiberGroupState)> = self
+            .histories
+            .iter_mut()
+            .filter_map(|(k, h)| step_states.get(k).map(|s| (h, s)))
+            .collect();
+        let dt_plus = self.cfg.dt_plus;
+        samples
+            .par_iter_mut()
+            .zip(work.par_iter_mut())
+            .for_each(|((vel, _), (h, s))| {
+                h.correct_and_advance(
+                    w,
+                    re_tau,
+                    dt_plus,
+                    &s.segments_per_fiber,
+                    &s.centre,
+                    &s.hydro_force,
+                    vel,
+                )
+            });
+        Ok(())
+    }
+
+    /// Hands every piece's samples to the outbox together (the fibre nodes sharing a
+    /// process are woken once for all), then the viewers' slices when due.
+    pub(crate) fn publish(
+        &mut self,
+        k: u64,
+        step_states: StepStates,
+        samples: Vec<PieceSamples>,
+    ) -> Result<(), FlowError> {
+        let (run, t) = (self.run, &self.t);
+        let t_plus = k as f64 * self.cfg.dt_plus;
+        let mut step_samples: Vec<(String, Arc<dyn fiberflow_bus::Outgoing>)> =
+            Vec::with_capacity(step_states.len());
+        for (((group, first_fiber), s), (vel, grad)) in step_states.into_iter().zip(samples) {
+            let t0 = Instant::now();
+            let msg = FlowSamples {
+                schema_version: SCHEMA_VERSION,
+                group: group.clone(),
+                step: k,
+                t_plus,
+                first_fiber,
+                group_fibers: s.group_fibers,
+                velocity: vel,
+                velocity_gradient: grad,
+            };
+            // admitted states belong to a piece of the run
+            let topic = run
+                .pieces
+                .iter()
+                .find(|p| p.group == group && p.first_fiber == first_fiber)
+                .map(|p| p.samples_topic(t))
+                .unwrap_or_else(|| t.flow_samples(&group));
+            let msg = Arc::new(Encode(msg));
+            self.timing.encoding_s += t0.elapsed().as_secs_f64();
+            step_samples.push((topic.clone(), msg.clone()));
+            self.served
+                .insert((group.clone(), first_fiber), (k, topic, msg));
+            self.states.recycle(s);
+        }
+        let t0 = Instant::now();
+        self.out.send_together(step_samples)?;
+        self.timing.publishing_s += t0.elapsed().as_secs_f64();
+        let cfg = self.cfg;
+        if let Field::Dns(d) = &self.field {
+            if cfg.slices_every > 0 && (k.is_multiple_of(cfg.slices_every) || k == run.steps) {
+                let t0 = Instant::now();
+                publish_slices(&mut self.out, t, &d.solver, cfg, k)?;
+                self.timing.publishing_s += t0.elapsed().as_secs_f64();
+            }
+        }
+        Ok(())
+    }
+
+    /// Advances the field to t_{k+1} while the groups integrate; takes statistics and
+    /// publishes the profiles when due. Returns the status of step k + 1.
+    pub(crate) fn advance(&mut self, k: u64) -> Result<FlowStatus, FlowError> {
+        let (cfg, run) = (self.cfg, self.run);
+        let next = k + 1;
+        let t_plus = next as f64 * cfg.dt_plus;
+        let d = match &mut self.field {
+            Field::Analytic(_) => {
+                return Ok(FlowStatus {
+                    schema_version: SCHEMA_VERSION,
+                    step: next,
+                    t_plus,
+                    dt_plus: cfg.dt_plus,
+                    cfl: 0.0,
+                    max_divergence: 0.0,
+                    bulk_velocity: 0.0,
+                    re_tau: 0.0,
+                    pressure_gradient: 0.0,
+                    fibre_force_plus: vec![],
+                })
+            }
+            Field::Dns(d) => d,
+        };
+        let solver = &mut d.solver;
+        let t0 = Instant::now();
+        let r = solver.step()?;
+        self.timing.field_step_s += t0.elapsed().as_secs_f64();
+        // the DNS branch always has statistics; the analytic one has none
+        let stats = self
+            .stats
+            .get_or_insert_with(|| RunningStats::new(&solver.grid));
+        let sampled = next % cfg.status_every == 0;
+        if sampled {
+            stats.add(&solver.grid, &solver.vel, r.t_plus);
+        }
+        if (next % cfg.profiles_every == 0 || next == run.steps) && stats.samples > 0 {
+            let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
+            let msg = profiles_message(&p, next, t_plus);
+            self.out
+                .send(self.t.flow_profiles(), Arc::new(encode(&msg)))?;
+        }
+        Ok(FlowStatus {
+            schema_version: SCHEMA_VERSION,
+            step: next,
+            t_plus,
+            dt_plus: r.dt_plus,
+            cfl: r.cfl,
+            max_divergence: r.max_divergence,
+            bulk_velocity: r.bulk_velocity,
+            re_tau: if sampled {
+                fiberflow_dns::stats::wall_re_tau(&solver.grid, &solver.vel, solver.cfg.re_tau)
+            } else {
+                f64::NAN
+            },
+            pressure_gradient: r.forcing,
+            fibre_force_plus: if run.two_way {
+                self.feedback.total_plus.to_vec()
+            } else {
+                vec![]
+            },
+        })
+    }
+
+    /// Publishes the status of step k + 1 when due (and hands it to the caller).
+    pub(crate) fn report(
+        &mut self,
+        k: u64,
+        status: &FlowStatus,
+        on_status: &mut impl FnMut(&FlowStatus),
+    ) -> Result<(), FlowError> {
+        let next = k + 1;
+        if next % self.cfg.status_every == 0 || next == self.run.steps {
+            self.out
+                .send(self.t.flow_status(), Arc::new(encode(status)))?;
+            on_status(status);
+        }
+        Ok(())
+    }
+
+    /// Logs where the time went, says DONE, waits for the recorder to finish its file,
+    /// and sums what was dropped.
+    pub(crate) fn finish(mut self) -> Result<ServeSummary, FlowError> {
+        let (run, timing) = (self.run, &self.timing);
+        self.step_times.end(timing.stages());
+        let loop_s = self.loop_from.elapsed().as_secs_f64() - self.start_wait_s;
+        let background_publishing_s = self.out.finish()?;
+        tracing::info!(
+            steps = run.steps - run.start_step,
+            background_publishing_s = format!("{background_publishing_s:.3}"),
+            waiting_for_states_s = format!("{:.3}", timing.waiting_s),
+            sampling_s = format!("{:.3}", timing.sampling_s),
+            encoding_and_publishing_s = format!("{:.3}", timing.encoding_s + timing.publishing_s),
+            encoding_s = format!("{:.3}", timing.encoding_s),
+            field_step_s = format!("{:.3}", timing.field_step_s),
+            feedback_s = format!("{:.3}", timing.feedback_s),
+            loop_s = format!("{loop_s:.3}"),
+            start_wait_s = format!("{:.3}", self.start_wait_s),
+            cpu_s = format!(
+                "{:.3}",
+                fiberflow_bus::usage::process_cpu_s() - self.cpu_from
+            ),
+            threads_cpu_s = fiberflow_bus::usage::threads_cpu_since(&self.threads_from),
+            "where the flow node's time went"
+        );
+        self.step_times.flush();
+        let dropped = self.states.drops().total();
+        heartbeat(&self.bus, &self.t, lifecycle::DONE, run.steps, dropped)?;
+        if run.expected_nodes.iter().any(|n| n == "recorder") {
+            await_recorder_finishing(&self.bus, &self.t, &mut self.hb_in, run, dropped)?;
+        }
+        let mut drops = self.states.drops().clone();
+        for (k, v) in std::mem::take(&mut self.hb_in.drops.by_topic) {
+            *drops.by_topic.entry(k).or_insert(0) += v;
+        }
+        Ok(ServeSummary {
+            steps: run.steps,
+            drops,
+        })
+    }
+}
