@@ -1277,7 +1277,7 @@ mod tests {
         std::fs::create_dir_all(&logs).unwrap();
         std::fs::write(
             logs.join("flow.log"),
-            "2026-01-01T00:00:00Z  INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" cpu_s=\"10.000\"\n",
+            "2026-01-01T00:00:00Z  INFO fiberflow_flow::coupling: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" cpu_s=\"10.000\"\n",
         )
         .unwrap();
         // the second group's node ran under another launcher (a two-launcher run)
@@ -1308,7 +1308,7 @@ mod tests {
         // step wall (statistics and status lie between the stages)
         std::fs::write(
             logs.join("flow.log"),
-            "x INFO fiberflow_flow::serve: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" loop_s=\"7.750\" cpu_s=\"10.000\"\n",
+            "x INFO fiberflow_flow::coupling: where the flow node's time went steps=20 waiting_for_states_s=\"1.000\" sampling_s=\"2.000\" encoding_and_publishing_s=\"0.500\" field_step_s=\"4.000\" loop_s=\"7.750\" cpu_s=\"10.000\"\n",
         )
         .unwrap();
         let f = read_figures(std::slice::from_ref(&dir), 12.0, false).unwrap();
