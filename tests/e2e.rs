@@ -21,7 +21,7 @@ fn large_messages_in_shared_memory_give_identical_states() {
         let b = scratch(&format!("large-{transport}"));
         let mut sets = sets.to_vec();
         if transport == "iceoryx2" {
-            sets.push("run.fibre_processes=1");
+            sets.push("run.fiber_processes=1");
         }
         launch_with(&file, &b, transport, &sets);
         let sb = states(&b.join("run.mcap"));
@@ -69,7 +69,7 @@ fn transports_give_bitwise_identical_states() {
         // the recorder do not, and no bit changes
         let idle = transport == "iceoryx2";
         let sets: &[&str] = if idle {
-            &["run.fibre_scheduling=idle"]
+            &["run.fiber_scheduling=idle"]
         } else {
             &[]
         };
@@ -716,7 +716,7 @@ fn sharded_groups_match_unsharded_bitwise() {
             "run.checkpoint_every_plus=5".into(),
             format!("fibers.case1.shards={shards}"),
             format!("fibers.case4.shards={shards}"),
-            format!("run.fibre_processes={processes}"),
+            format!("run.fiber_processes={processes}"),
         ] {
             c.arg("--set").arg(s);
         }

@@ -29,7 +29,7 @@ enum Cmd {
     Scale {
         /// Total fibre counts, multiples of 30 (0 = the flow alone).
         #[arg(long, value_delimiter = ',', default_value = "0,300,3000,30000,60000")]
-        fibres: Vec<u64>,
+        fibers: Vec<u64>,
         /// Transports to compare: iceoryx2, zenoh, inproc (every node a thread of one
         /// process).
         #[arg(long, value_delimiter = ',', default_value = "iceoryx2,zenoh")]
@@ -47,7 +47,7 @@ enum Cmd {
         no_record: bool,
         /// Launch file with six fibre groups.
         #[arg(long, default_value = "launch/scale-1e4.toml")]
-        fibres_file: PathBuf,
+        fibers_file: PathBuf,
         /// Launch file of the flow alone.
         #[arg(long, default_value = "launch/scale-flow-only.toml")]
         flow_only_file: PathBuf,
@@ -62,7 +62,7 @@ enum Cmd {
         #[arg(long, default_value = "recordings/bench-scale")]
         out: PathBuf,
         /// Compare the values of one launch-file key, run by run: KEY=V1,V2,… (e.g.
-        /// run.fibre_scheduling=idle,normal), or of an environment variable of the
+        /// run.fiber_scheduling=idle,normal), or of an environment variable of the
         /// launcher and its nodes: env:NAME=V1,V2,… The flow-only runs take the first value.
         #[arg(long, value_name = "KEY=V1,V2")]
         compare: Option<scale::Compare>,
@@ -86,12 +86,12 @@ fn main() -> Result<()> {
         .init();
     match Cli::parse().cmd {
         Cmd::Scale {
-            fibres,
+            fibers,
             transports,
             steps,
             repeats,
             no_record,
-            fibres_file,
+            fibers_file,
             flow_only_file,
             two_launchers,
             two_launchers_file,
@@ -99,11 +99,11 @@ fn main() -> Result<()> {
             compare,
             slice_ms,
         } => scale::run(&scale::BenchOptions {
-            fibres_file,
+            fibres_file: fibers_file,
             flow_only_file,
             two_launchers,
             two_launchers_file,
-            fibres,
+            fibres: fibers,
             transports,
             steps,
             repeats,

@@ -54,7 +54,7 @@ impl std::str::FromStr for Compare {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         let (key, values) = s.split_once('=').ok_or_else(|| {
-            format!("{s:?} is not KEY=V1,V2,… (e.g. run.fibre_scheduling=idle,normal)")
+            format!("{s:?} is not KEY=V1,V2,… (e.g. run.fiber_scheduling=idle,normal)")
         })?;
         let values: Vec<String> = values.split(',').map(str::to_string).collect();
         if key.is_empty() || key == "env:" || values.iter().any(String::is_empty) {
@@ -283,7 +283,7 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
     }
     for e in entries {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
-        // fibre nodes sharing a process (`run.fibre_processes`) share a log, and each
+        // fibre nodes sharing a process (`run.fiber_processes`) share a log, and each
         // one's `cpu_s` is their process's: counted once, the largest
         let mut fibre_process_cpu_s: f64 = 0.0;
         for line in text.lines() {
@@ -361,7 +361,7 @@ fn steps_per_run(given: Option<u64>, files: &[(&Path, u64)]) -> Result<u64> {
 
 pub fn run(o: &BenchOptions) -> Result<()> {
     if o.fibres.iter().any(|n| n % 30 != 0) {
-        bail!("--fibres: every count must be a multiple of 30 (six groups of five layers)");
+        bail!("--fibers: every count must be a multiple of 30 (six groups of five layers)");
     }
     let mut files = Vec::new();
     for f in [&o.fibres_file, &o.flow_only_file] {
@@ -981,7 +981,7 @@ mod tests {
         let o = options(
             &[0, 300],
             &["iceoryx2", "zenoh"],
-            Some("run.fibre_scheduling=idle,normal"),
+            Some("run.fiber_scheduling=idle,normal"),
         );
         let configs = configurations(&o);
         let mut results = BTreeMap::new();
@@ -995,10 +995,10 @@ mod tests {
                     let idle = 1.05 * base;
                     match (c.fibres, c.transport.as_str(), c.setting.as_deref()) {
                         (0, _, _) => base,
-                        (300, "iceoryx2", Some("run.fibre_scheduling=normal")) => {
+                        (300, "iceoryx2", Some("run.fiber_scheduling=normal")) => {
                             idle * [0.98, 0.99, 1.01, 0.97][r]
                         }
-                        (300, "zenoh", Some("run.fibre_scheduling=normal")) => idle * 1.02,
+                        (300, "zenoh", Some("run.fiber_scheduling=normal")) => idle * 1.02,
                         _ => idle,
                     }
                 })
@@ -1012,10 +1012,10 @@ mod tests {
             .lines()
             .next()
             .unwrap()
-            .contains("over run.fibre_scheduling=idle"));
+            .contains("over run.fiber_scheduling=idle"));
         assert!(
             rows[0].starts_with(
-                "| 300 | iceoryx2, run.fibre_scheduling=normal | 0.985 (0.970–1.010) |"
+                "| 300 | iceoryx2, run.fiber_scheduling=normal | 0.985 (0.970–1.010) |"
             ),
             "{}",
             rows[0]
@@ -1023,7 +1023,7 @@ mod tests {
         assert!(rows[0].ends_with("| 3 of 4 |"), "{}", rows[0]);
         assert!(
             rows[1].starts_with(
-                "| 300 | zenoh, run.fibre_scheduling=normal | 1.020 (1.020–1.020) | 1.020–1.020 |"
+                "| 300 | zenoh, run.fiber_scheduling=normal | 1.020 (1.020–1.020) | 1.020–1.020 |"
             ),
             "{}",
             rows[1]
@@ -1087,14 +1087,14 @@ mod tests {
         let o = options(
             &[0, 300],
             &["iceoryx2", "zenoh"],
-            Some("run.fibre_scheduling=idle,normal"),
+            Some("run.fiber_scheduling=idle,normal"),
         );
         let got: Vec<(u64, String, Option<String>, String)> = configurations(&o)
             .into_iter()
             .map(|c| (c.fibres, c.label, c.setting, c.baseline))
             .collect();
-        let idle = "run.fibre_scheduling=idle";
-        let normal = "run.fibre_scheduling=normal";
+        let idle = "run.fiber_scheduling=idle";
+        let normal = "run.fiber_scheduling=normal";
         let row = |n, t: &str, s: &str, b: &str| {
             (
                 n,
@@ -1121,11 +1121,11 @@ mod tests {
             .collect();
         assert_eq!(plain, ["0 zenoh zenoh", "300 zenoh zenoh"]);
         for bad in [
-            "run.fibre_scheduling",
+            "run.fiber_scheduling",
             "=idle",
-            "run.fibre_scheduling=idle,",
+            "run.fiber_scheduling=idle,",
             "env:=1,2",
-            "run.fibre_scheduling=idle,normal,idle",
+            "run.fiber_scheduling=idle,normal,idle",
         ] {
             assert!(bad.parse::<Compare>().is_err(), "{bad}");
         }
@@ -1316,7 +1316,7 @@ mod tests {
         // every node a thread of one process: the flow node's cpu_s (the process's) alone
         let f = read_figures(std::slice::from_ref(&dir), 12.0, true).unwrap();
         assert_eq!(f.nodes_cpu_s, 10.0);
-        // two groups in one process (`run.fibre_processes`): one log, each line's cpu_s the
+        // two groups in one process (`run.fiber_processes`): one log, each line's cpu_s the
         // process's, counted once (the larger); the stages still average over the groups
         std::fs::remove_file(logs.join("case1.log")).unwrap();
         let line = |g: &str, s: &str, cpu: &str| {

@@ -289,7 +289,7 @@ fn run_inproc(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Resul
 }
 
 /// Runs `nodes` as threads of this process on `bus`, grouped as the node processes of
-/// a launch would be (`run.fibre_processes`: the fibre nodes of one group stepped in
+/// a launch would be (`run.fiber_processes`: the fibre nodes of one group stepped in
 /// turn on one thread).
 fn run_inproc_on(
     bus: BusHandle,
@@ -301,7 +301,7 @@ fn run_inproc_on(
     let prog = progress_thread(bus.clone(), &base.launch, finished.clone())?;
     let mut handles = Vec::new();
     let (done_tx, done_rx) = std::sync::mpsc::channel();
-    for (n, members) in processes(nodes, base.launch.run.fibre_processes) {
+    for (n, members) in processes(nodes, base.launch.run.fiber_processes) {
         let spec = process_spec(base, &members);
         let (bus, stop, done) = (bus.clone(), stop.clone(), done_tx.clone());
         handles.push(
@@ -542,7 +542,7 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
-    for (n, members) in processes(nodes, base.launch.run.fibre_processes) {
+    for (n, members) in processes(nodes, base.launch.run.fiber_processes) {
         let mut spec = process_spec(base, &members);
         if !zenoh {
             // shared memory: nothing to configure
@@ -639,16 +639,16 @@ fn process_spec(base: &NodeSpec, members: &[String]) -> NodeSpec {
 }
 
 /// The node processes of one launcher, in start order: (process name, its nodes). The
-/// flow node and the recorder run alone; with `fibre_processes` = N ≥ 1 the fibre nodes
+/// flow node and the recorder run alone; with `fiber_processes` = N ≥ 1 the fibre nodes
 /// are cut into N runs of consecutive nodes, near-equal in count, named `fibres-1`, …
 /// (a run of one keeps its node's name); with 0 each is a process of its own.
-fn processes(nodes: &[String], fibre_processes: u32) -> Vec<(String, Vec<String>)> {
+fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, Vec<String>)> {
     let is_fibre = |n: &String| n != "flow" && n != "recorder";
     let fibres: Vec<&String> = nodes.iter().filter(|n| is_fibre(n)).collect();
-    let k = if fibre_processes == 0 {
+    let k = if fiber_processes == 0 {
         fibres.len()
     } else {
-        (fibre_processes as usize).min(fibres.len())
+        (fiber_processes as usize).min(fibres.len())
     };
     let mut chunks: Vec<Vec<String>> = Vec::new();
     let mut rest = &fibres[..];
@@ -755,7 +755,7 @@ mod tests {
 
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder
     /// included); returns every recorded state by (topic, step).
-    /// `run.fibre_processes`: 0 keeps a process per node; N cuts the fibre nodes into N
+    /// `run.fiber_processes`: 0 keeps a process per node; N cuts the fibre nodes into N
     /// runs of consecutive nodes, near-equal, between the flow node and the recorder.
     #[test]
     fn fibre_nodes_are_spread_over_the_processes_asked_for() {
@@ -980,7 +980,7 @@ mod tests {
         assert_eq!(lost.len(), 2, "{lost:?}");
     }
 
-    /// The two fibre nodes stepped in turn on one thread (`run.fibre_processes = 1`, as
+    /// The two fibre nodes stepped in turn on one thread (`run.fiber_processes = 1`, as
     /// the scale launches run them) and the second one's state lost (its 10th, step 8):
     /// the flow node answers no node before it holds every state, so the first node's
     /// samples never come; when they are late it sends the later node's state again with
@@ -992,7 +992,7 @@ mod tests {
         let lost = repaired_run(
             "lossy-turn",
             &[("/fibers/stiff/state", 10)],
-            &["run.fibre_processes=1", "run.step_timeout_s=12"],
+            &["run.fiber_processes=1", "run.step_timeout_s=12"],
         );
         assert_eq!(lost, ["fiberflow/analytic-shear/fibers/stiff/state"]);
     }

@@ -40,13 +40,13 @@ pub struct RunSection {
     pub restart: RestartSection,
     /// How the fibre nodes share the cores with the flow node.
     #[serde(default)]
-    pub fibre_scheduling: FibreScheduling,
+    pub fiber_scheduling: FiberScheduling,
     /// Processes that carry the fibre nodes of one launcher: 0 (the default) runs each
     /// fibre node in a process of its own; N ≥ 1 spreads them over N processes, each
     /// running its share as threads on one bus connection (fewer processes, transport
     /// sessions and task switches; a node that dies takes its process's others with it).
     #[serde(default)]
-    pub fibre_processes: u32,
+    pub fiber_processes: u32,
     /// `"one-way"` (the default, the paper's): the fibres feel the flow, the flow does not
     /// feel them. `"two-way"`: every segment's hydrodynamic force goes back to the fluid as
     /// a body force (docs/two-way.md); all groups of the run are then one suspension.
@@ -65,13 +65,13 @@ pub enum Coupling {
     TwoWay,
 }
 
-/// `run.fibre_scheduling`: the CPU scheduling of the fibre nodes when they run as
+/// `run.fiber_scheduling`: the CPU scheduling of the fibre nodes when they run as
 /// processes of their own (the in-process bus leaves every thread as it is).
 #[derive(
     Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
 )]
 #[serde(rename_all = "kebab-case")]
-pub enum FibreScheduling {
+pub enum FiberScheduling {
     /// The default time sharing, equal with the flow node: safe on a machine shared
     /// with other work.
     #[default]
@@ -305,13 +305,39 @@ fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Val
 /// from `run.steps` and `run.dt_plus`: a value given under `[flow]` would be silently
 /// replaced, so it is an error that names the key to use.
 fn refuse_run_keys_under_flow(text: &str) -> Result<()> {
-    let doc: toml::Table = toml::from_str(text).context("parsing the launch file")?;
+    // a file that is not TOML gets its error, with the file's name, from the parse after
+    let Ok(doc) = toml::from_str::<toml::Table>(text) else {
+        return Ok(());
+    };
     let Some(flow) = doc.get("flow").and_then(toml::Value::as_table) else {
         return Ok(());
     };
     for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
         if flow.contains_key(key) {
             bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
+        }
+    }
+    Ok(())
+}
+
+/// Keys that were renamed (user-facing keys spell "fiber", as `[[fibers]]` does): the old
+/// name is an error that names the new one.
+const RENAMED_RUN_KEYS: [(&str, &str); 2] = [
+    ("fibre_processes", "fiber_processes"),
+    ("fibre_scheduling", "fiber_scheduling"),
+];
+
+fn refuse_renamed_keys(text: &str) -> Result<()> {
+    // a file that is not TOML gets its error, with the file's name, from the parse after
+    let Ok(doc) = toml::from_str::<toml::Table>(text) else {
+        return Ok(());
+    };
+    let Some(run) = doc.get("run").and_then(toml::Value::as_table) else {
+        return Ok(());
+    };
+    for (old, new) in RENAMED_RUN_KEYS {
+        if run.contains_key(old) {
+            bail!("run.{old} was renamed: use run.{new}");
         }
     }
     Ok(())
@@ -336,6 +362,8 @@ impl LaunchFile {
                 sets.join(" ")
             );
         }
+        refuse_run_keys_under_flow(&text)?;
+        refuse_renamed_keys(&text)?;
         let mut lf: LaunchFile = toml::from_str(&text).with_context(|| {
             if sets.is_empty() {
                 format!("parsing launch file {}", path.display())
@@ -347,7 +375,6 @@ impl LaunchFile {
                 )
             }
         })?;
-        refuse_run_keys_under_flow(&text)?;
         let base = path
             .parent()
             .map(Path::to_path_buf)
@@ -432,11 +459,11 @@ impl LaunchFile {
             );
         }
         let fibre_nodes = self.pieces().map(|p| p.len()).unwrap_or(0);
-        if r.fibre_processes as usize > fibre_nodes.max(1) {
+        if r.fiber_processes as usize > fibre_nodes.max(1) {
             bail!(
-                "run.fibre_processes must be in 0..={} (the fibre nodes; 0 = a process each) (got {})",
+                "run.fiber_processes must be in 0..={} (the fibre nodes; 0 = a process each) (got {})",
                 fibre_nodes.max(1),
-                r.fibre_processes
+                r.fiber_processes
             );
         }
         if r.coupling == Coupling::TwoWay && !matches!(self.flow.source, FlowSource::Dns { .. }) {
@@ -621,6 +648,28 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
+    /// The old spellings of renamed keys name the new key.
+    #[test]
+    fn renamed_keys_name_their_new_spelling() {
+        let dir = std::env::temp_dir().join(format!("ff-rn-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (old, new, value) in [
+            ("fibre_processes", "run.fiber_processes", "1"),
+            ("fibre_scheduling", "run.fiber_scheduling", "\"idle\""),
+        ] {
+            let set = format!("run.{old}={value}");
+            let err = LaunchFile::load_with(&write_launch(&dir, ""), &[set]).unwrap_err();
+            let msg = format!("{err:#}");
+            assert!(
+                msg.contains(&format!("run.{old} was renamed: use {new}")),
+                "{msg}"
+            );
+            let set = format!("{new}={value}");
+            LaunchFile::load_with(&write_launch(&dir, ""), &[set]).unwrap();
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
     #[test]
     fn network_section_is_checked() {
         let dir = std::env::temp_dir().join(format!("ff-net-{}", std::process::id()));
@@ -708,11 +757,11 @@ mod tests {
             ("fibers.nope.density_ratio=3", "no entry \"nope\""),
             ("run.steps", "KEY=VALUE"),
             ("run.restart.policy=sometimes", "policy"),
-            ("run.fibre_scheduling=low", "fibre_scheduling"),
-            ("run.fibre_processes=-1", "fibre_processes"),
+            ("run.fiber_scheduling=low", "fiber_scheduling"),
+            ("run.fiber_processes=-1", "fiber_processes"),
             (
-                "run.fibre_processes=99",
-                "run.fibre_processes must be in 0..=",
+                "run.fiber_processes=99",
+                "run.fiber_processes must be in 0..=",
             ),
         ] {
             let e = format!(
@@ -745,19 +794,19 @@ mod tests {
             let (lf, _) =
                 LaunchFile::load_with(&p, &[]).unwrap_or_else(|e| panic!("{}: {e:#}", p.display()));
             n += 1;
-            if lf.run.fibre_scheduling == FibreScheduling::Idle {
+            if lf.run.fiber_scheduling == FiberScheduling::Idle {
                 idle.push(p.file_name().unwrap().to_string_lossy().to_string());
             }
             // the same runs carry their fibre nodes in one process
             assert_eq!(
-                lf.run.fibre_processes,
-                u32::from(lf.run.fibre_scheduling == FibreScheduling::Idle),
+                lf.run.fiber_processes,
+                u32::from(lf.run.fiber_scheduling == FiberScheduling::Idle),
                 "{}",
                 p.display()
             );
         }
         idle.sort();
-        assert_eq!(n, 10, "launch files with a [run] table");
+        assert_eq!(n, 11, "launch files with a [run] table");
         assert_eq!(
             idle,
             [

@@ -1,7 +1,7 @@
 //! `fiberflow node`: runs one node (flow, fiber group, recorder) on a bus. The launcher
 //! calls the same function in threads (inproc) or in child processes (zenoh).
 
-use crate::launchfile::{FibreScheduling, LaunchFile};
+use crate::launchfile::{FiberScheduling, LaunchFile};
 use anyhow::{bail, Context, Result};
 use fiberflow_bus::zenoh_bus::{AccessControl, TlsFiles, ZenohBus, ZenohMode, ZenohSettings};
 use fiberflow_bus::{inproc::InprocBus, BusHandle, Inbox, Transport};
@@ -19,7 +19,7 @@ pub struct NodeSpec {
     /// "flow", "recorder", or a fibre group name.
     pub node: String,
     /// Further fibre nodes this process runs, as threads on the same bus
-    /// (`run.fibre_processes`).
+    /// (`run.fiber_processes`).
     #[serde(default)]
     pub co_nodes: Vec<String>,
     pub launch: LaunchFile,
@@ -386,11 +386,11 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
             .context("installing SIGINT handler")?;
     }
     let fibre_node = !matches!(spec.node.as_str(), "flow" | "recorder");
-    if fibre_node && spec.launch.run.fibre_scheduling == FibreScheduling::Idle {
+    if fibre_node && spec.launch.run.fiber_scheduling == FiberScheduling::Idle {
         // before the bus and the thread pool start their threads, which inherit it
         crate::scheduling::run_in_idle_time()?;
         tracing::info!(
-            "running under SCHED_IDLE, in the time the flow node leaves free (run.fibre_scheduling)"
+            "running under SCHED_IDLE, in the time the flow node leaves free (run.fiber_scheduling)"
         );
     }
     let bus = open_bus(&spec)?;

@@ -19,8 +19,8 @@ pub fn run_in_idle_time() -> Result<()> {
     let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
     if rc != 0 {
         bail!(
-            "could not put the node under SCHED_IDLE (run.fibre_scheduling = \"idle\"): {}; \
-             set run.fibre_scheduling = \"normal\"",
+            "could not put the node under SCHED_IDLE (run.fiber_scheduling = \"idle\"): {}; \
+             set run.fiber_scheduling = \"normal\"",
             std::io::Error::last_os_error()
         );
     }
