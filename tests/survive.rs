@@ -278,3 +278,78 @@ fn deterministic_failure_is_not_restarted() {
     assert!(!err.contains("restart 1 of"), "it was restarted: {err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A run folder belongs to its live launcher: a second launch with the same `--out`, and a
+/// `--resume` of the run while it still goes, are refused before they touch the folder,
+/// naming the live process (the resume used to finish the live recorder's segment and
+/// resume from a checkpoint the live run then pruned, losing states).
+#[test]
+fn a_live_run_folder_is_not_launched_or_resumed_into() {
+    let _one = one_run_at_a_time();
+    let out = scratch("live-folder");
+    let file = root().join("launch/analytic-shear.toml");
+    let sets = [
+        "run.steps=100000000",
+        "recorder.enabled=false",
+        "run.analyze=false",
+    ];
+    let cmd = |extra: &[&str]| {
+        let mut c = Command::new(fiberflow());
+        c.arg("launch").arg(&file).args(["--transport", "inproc"]);
+        for s in sets {
+            c.arg("--set").arg(s);
+        }
+        c.args(extra);
+        c
+    };
+    let out_s = out.to_string_lossy().to_string();
+    let mut live = cmd(&["--out", &out_s])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("launch");
+    let pid = live.id().to_string();
+    let lock = out.join(".fiberflow.lock");
+    let from = Instant::now();
+    while std::fs::read_to_string(&lock).unwrap_or_default() != pid {
+        assert!(
+            live.try_wait().unwrap().is_none(),
+            "the live run ended early"
+        );
+        assert!(
+            from.elapsed() < Duration::from_secs(60),
+            "no lock after 60 s"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let launch_toml = std::fs::read_to_string(out.join("launch.toml")).ok();
+    for extra in [
+        vec!["--out", out_s.as_str()],
+        vec!["--resume", out_s.as_str()],
+    ] {
+        let o = cmd(&extra).output().unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(!o.status.success(), "{extra:?} was not refused:\n{stdout}");
+        assert!(
+            stderr.contains("in use by a live run") && stderr.contains(&format!("process {pid}")),
+            "{extra:?}: {stderr}"
+        );
+        assert!(
+            !stdout.contains("finished the interrupted segment"),
+            "{stdout}"
+        );
+    }
+    assert!(
+        live.try_wait().unwrap().is_none(),
+        "the live run was disturbed"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("launch.toml")).ok(),
+        launch_toml,
+        "the live run's launch.toml was touched"
+    );
+    live.kill().unwrap();
+    live.wait().unwrap();
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -79,6 +79,13 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         (Some(r), _) => r.clone(),
         (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id)),
     };
+    // nothing in the folder is touched before its lock is ours: a live run there (a second
+    // launch with the same --out, or --resume of a run still going) is refused
+    if resume.is_some() && !out_dir.is_dir() {
+        bail!("--resume {}: no such run folder", out_dir.display());
+    }
+    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let _folder_lock = crate::run_lock::FolderLock::acquire(&out_dir)?;
     let digest = crate::nodes::digest(&text);
     if resume.is_some() {
         let saved = out_dir.join("launch.toml");

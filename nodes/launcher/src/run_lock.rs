@@ -4,7 +4,8 @@
 //! benchmark did: "state of step 2 while serving step 1", and one stalled). A launch
 //! therefore holds a lock named for its run id while it runs; a second launch with that
 //! id waits for it, saying so, as `cargo` waits for a build directory. The operating
-//! system drops the lock when the holder exits, however it exits.
+//! system drops the lock when the holder exits, however it exits. A run folder has a lock
+//! of its own ([`FolderLock`]), for every transport.
 
 use anyhow::{bail, Context, Result};
 use std::fs::File;
@@ -70,10 +71,82 @@ impl RunLock {
     }
 }
 
+/// The run folder's lock file (hidden; it holds the launcher's process id).
+pub const FOLDER_LOCK: &str = ".fiberflow.lock";
+
+/// Held by the launcher for as long as it works in a run folder: a second launcher with the
+/// same `--out`, or a `--resume` of a run that is still live, is refused before it touches
+/// anything there (both used to overwrite or prune what the live run was writing).
+#[derive(Debug)]
+pub struct FolderLock {
+    _file: File,
+}
+
+impl FolderLock {
+    /// Takes the lock of `dir` (which must exist) at once, or fails naming the live
+    /// process that holds it.
+    pub fn acquire(dir: &Path) -> Result<Self> {
+        use std::io::{Read, Seek, Write};
+        let path = dir.join(FOLDER_LOCK);
+        let mut file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .read(true)
+            .write(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        if !try_lock(&file).with_context(|| format!("locking {}", path.display()))? {
+            let mut holder = String::new();
+            let _ = file.read_to_string(&mut holder);
+            let pid = holder.trim();
+            let what = std::fs::read(format!("/proc/{pid}/cmdline"))
+                .map(|c| {
+                    String::from_utf8_lossy(&c)
+                        .replace('\0', " ")
+                        .trim()
+                        .to_string()
+                })
+                .unwrap_or_default();
+            bail!(
+                "{} is in use by a live run: process {pid} ({what}) holds {}; wait for it to end \
+                 (or stop it: kill {pid}) before launching or resuming in this folder",
+                dir.display(),
+                path.display()
+            );
+        }
+        // ours now: say who holds it
+        file.set_len(0)?;
+        file.rewind()?;
+        write!(file, "{}", std::process::id())?;
+        file.flush()?;
+        Ok(Self { _file: file })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use std::sync::Arc;
+
+    /// A second taker of a run folder is refused at once with the holder's process id;
+    /// once the holder lets go the folder is free again.
+    #[test]
+    fn a_live_run_folder_is_refused_naming_its_process() {
+        let dir = std::env::temp_dir().join(format!("ff-folder-lock-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let held = FolderLock::acquire(&dir).unwrap();
+        let pid = std::process::id().to_string();
+        assert_eq!(std::fs::read_to_string(dir.join(FOLDER_LOCK)).unwrap(), pid);
+        let e = format!("{:#}", FolderLock::acquire(&dir).unwrap_err());
+        assert!(
+            e.contains("in use by a live run") && e.contains(&format!("process {pid}")),
+            "{e}"
+        );
+        drop(held);
+        let again = FolderLock::acquire(&dir).unwrap();
+        drop(again);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// A second taker of the same id waits (and says so) until the first lets go; another
     /// id is not held up; a stop ends the wait with an error.
