@@ -23,6 +23,23 @@ pub struct LaunchOutcome {
     pub launch: Option<LaunchFile>,
 }
 
+/// In a child between fork and exec: a launcher killed outright takes its nodes with it
+/// (no orphans). The parent-death signal only covers a parent that dies after it is set,
+/// so a child whose parent is already gone (re-parented: `getppid` is no longer the
+/// launcher) ends at once.
+fn die_with_parent(launcher_pid: libc::pid_t) -> std::io::Result<()> {
+    // SAFETY: async-signal-safe calls that change no memory of this process
+    unsafe {
+        if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        if libc::getppid() != launcher_pid {
+            libc::_exit(1);
+        }
+    }
+    Ok(())
+}
+
 fn free_port() -> Result<u16> {
     let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free loopback port")?;
     Ok(l.local_addr()?.port())
@@ -587,15 +604,11 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         ) {
             cmd.env("ZENOH_RUNTIME", rt);
         }
-        // SAFETY: prctl is async-signal-safe; it only sets this child's parent-death signal
+        let launcher_pid = std::process::id() as libc::pid_t;
+        // SAFETY: prctl, getppid and _exit are async-signal-safe; they only set this
+        // child's parent-death signal or end it
         unsafe {
-            cmd.pre_exec(|| {
-                // a launcher killed outright takes its nodes with it (no orphans)
-                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
+            cmd.pre_exec(move || die_with_parent(launcher_pid));
         }
         let child = cmd.spawn().with_context(|| format!("starting node {n}"))?;
         if pgid == 0 {
@@ -741,6 +754,35 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ende
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A child whose launcher is not its parent any more (it died before the parent-death
+    /// signal was set) ends at once with status 1; one whose launcher lives goes on.
+    #[test]
+    fn a_child_of_a_dead_launcher_ends_at_once() {
+        // (the launcher it was started by is its parent, status 0; is not, status 1)
+        for (launcher_is_parent, status) in [(true, 0), (false, 1)] {
+            // SAFETY: the child calls only async-signal-safe functions, then _exit
+            let pid = unsafe { libc::fork() };
+            assert!(pid >= 0, "fork failed");
+            if pid == 0 {
+                // SAFETY: as above
+                unsafe {
+                    let launcher = if launcher_is_parent {
+                        libc::getppid()
+                    } else {
+                        -1
+                    };
+                    let _ = die_with_parent(launcher);
+                    libc::_exit(0);
+                }
+            }
+            let mut st = 0;
+            // SAFETY: waits for the child forked above
+            unsafe { libc::waitpid(pid, &mut st, 0) };
+            assert!(libc::WIFEXITED(st), "child did not exit: {st}");
+            assert_eq!(libc::WEXITSTATUS(st), status);
+        }
+    }
     use fiberflow_bus::lossy::LossyBus;
     use std::collections::BTreeMap;
 
