@@ -17,22 +17,38 @@ pub struct Inspection {
     pub damage: Option<String>,
 }
 
-/// Reads every record in order (tolerating a truncated tail).
+/// The largest record (or chunk, compressed or not) `inspect` reads; a larger length in a
+/// file is damage, not an allocation (a full state of 3 × 10⁵ fibres is ≈ 0.3 GB).
+pub const RECORD_LIMIT_BYTES: usize = 1 << 30;
+
+/// Reads every record in order, streaming the file through mcap's own reader (chunks are
+/// decompressed by the crate, a piece at a time; no record longer than
+/// [`RECORD_LIMIT_BYTES`] is buffered), tolerating a truncated or damaged tail.
 pub fn inspect(path: &Path) -> Result<Inspection, std::io::Error> {
-    let bytes = std::fs::read(path)?;
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
     let mut out = Inspection::default();
     let mut chans: BTreeMap<u16, (String, u16)> = BTreeMap::new();
     let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    let reader = match mcap::read::LinearReader::new(&bytes) {
-        Ok(r) => r,
-        Err(e) => {
-            out.damage = Some(e.to_string());
-            return Ok(out);
-        }
-    };
-    for rec in reader {
-        match rec {
-            Ok(r) => visit(r, &mut out, &mut chans, &mut schemas),
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default().with_record_length_limit(RECORD_LIMIT_BYTES),
+    );
+    while let Some(event) = reader.next_event() {
+        match event {
+            Ok(LinearReadEvent::ReadRequest(need)) => {
+                let read = file.read(reader.insert(need))?;
+                reader.notify_read(read);
+            }
+            Ok(LinearReadEvent::Record { data, opcode }) => {
+                match mcap::parse_record(opcode, data) {
+                    Ok(r) => visit(r, &mut out, &mut chans, &mut schemas),
+                    Err(e) => {
+                        out.damage = Some(e.to_string());
+                        break;
+                    }
+                }
+            }
             Err(e) => {
                 out.damage = Some(e.to_string());
                 break;
@@ -56,15 +72,6 @@ fn visit(
         Record::Channel(c) => {
             chans.insert(c.id, (c.topic.clone(), c.schema_id));
         }
-        Record::Chunk { header, data } => {
-            // decompress and walk the chunk's records
-            if let Ok(inner) = decompress(&header.compression, &data, header.uncompressed_size) {
-                let rd = mcap::read::LinearReader::sans_magic(&inner);
-                for rec in rd.flatten() {
-                    visit(rec.into_owned(), out, chans, schemas);
-                }
-            }
-        }
         Record::Message { header, .. } => {
             if let Some((topic, sid)) = chans.get(&header.channel_id) {
                 let sname = schemas.get(sid).cloned().unwrap_or_default();
@@ -79,28 +86,6 @@ fn visit(
         Record::Attachment { header, .. } => out.attachments.push(header.name.clone()),
         _ => {}
     }
-}
-
-fn decompress(kind: &str, data: &[u8], size: u64) -> Result<Vec<u8>, std::io::Error> {
-    match kind {
-        "" => Ok(data.to_vec()),
-        "zstd" => zstd_decode(data, size),
-        "lz4" => {
-            let mut out = Vec::with_capacity(size.min(1 << 30) as usize);
-            std::io::copy(&mut lz4::Decoder::new(data)?, &mut out)?;
-            Ok(out)
-        }
-        other => Err(std::io::Error::other(format!(
-            "compression {other} not supported"
-        ))),
-    }
-}
-
-fn zstd_decode(data: &[u8], size: u64) -> Result<Vec<u8>, std::io::Error> {
-    let mut out = Vec::with_capacity(size.min(1 << 30) as usize);
-    let mut dec = zstd::stream::read::Decoder::new(data)?;
-    std::io::copy(&mut dec, &mut out)?;
-    Ok(out)
 }
 
 /// Copies every readable message (with its schema and channel) of a damaged file into a
@@ -152,4 +137,59 @@ pub fn recover(src: &Path, dst: &Path) -> Result<u64, Box<dyn std::error::Error>
     }
     w.finish()?;
     Ok(saved)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small complete file: one channel, three messages, chunked and compressed.
+    fn small_file(path: &Path) {
+        let mut w = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .create(BufWriter::new(std::fs::File::create(path).unwrap()))
+            .unwrap();
+        let ch = w.add_channel(0, "t/x", "raw", &BTreeMap::new()).unwrap();
+        for i in 0..3u32 {
+            let header = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: i,
+                log_time: u64::from(i),
+                publish_time: u64::from(i),
+            };
+            w.write_to_known_channel(&header, &[7u8; 100]).unwrap();
+        }
+        w.finish().unwrap();
+    }
+
+    /// A record length beyond [`RECORD_LIMIT_BYTES`] is reported as damage, not
+    /// allocated; a truncated tail is damage too, and what came before it still counts.
+    #[test]
+    fn absurd_lengths_and_truncation_are_damage_not_allocations() {
+        let dir = std::env::temp_dir().join(format!("ff-inspect-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("good.mcap");
+        small_file(&good);
+        let ins = inspect(&good).unwrap();
+        assert!(ins.damage.is_none(), "{:?}", ins.damage);
+        assert_eq!(ins.messages, 3);
+        let bytes = std::fs::read(&good).unwrap();
+        // the start magic (8 bytes) and the header record, then a chunk that claims 1 TiB
+        let header_len = u64::from_le_bytes(bytes[9..17].try_into().unwrap()) as usize;
+        let mut absurd = bytes[..8 + 9 + header_len].to_vec();
+        absurd.push(0x06);
+        absurd.extend_from_slice(&(1u64 << 40).to_le_bytes());
+        absurd.extend_from_slice(&[0u8; 64]);
+        let p = dir.join("absurd.mcap");
+        std::fs::write(&p, &absurd).unwrap();
+        let ins = inspect(&p).unwrap();
+        assert!(ins.damage.is_some(), "a 1 TiB chunk was not reported");
+        // truncated in the middle of the file
+        let p = dir.join("cut.mcap");
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let ins = inspect(&p).unwrap();
+        assert!(ins.damage.is_some(), "a truncated file was not reported");
+        assert!(ins.messages <= 3);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
