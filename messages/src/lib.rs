@@ -6,6 +6,7 @@ mod bulk;
 pub use bulk::SamplesView;
 pub mod checkpoints;
 pub mod codec;
+pub mod echo;
 pub mod fuzz;
 pub mod palette;
 pub mod pieces;

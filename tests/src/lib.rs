@@ -249,6 +249,7 @@ pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
             &ep,
             "--idle-s",
             "5",
+            "--raw",
         ])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())

@@ -100,6 +100,12 @@ enum Cmd {
         /// Stop if no first message comes within this many seconds.
         #[arg(long, default_value_t = 60.0)]
         wait_s: f64,
+        /// Print each message's topic and size only (default: its decoded fields).
+        #[arg(long)]
+        raw: bool,
+        /// Values shown of each long array (its length is always given).
+        #[arg(long, default_value_t = 8)]
+        array_items: usize,
     },
     /// Analysis of a recording (a run folder or one .mcap): the fibres' MSD, alignment and
     /// coiling, and what the fibres do to the flow (CSV, PNG, summary.md,
@@ -286,7 +292,17 @@ fn main() -> Result<()> {
             count,
             idle_s,
             wait_s,
-        } => recording::echo_cmd(&pattern, connect, listen, count, idle_s, wait_s),
+            raw,
+            array_items,
+        } => recording::echo_cmd(
+            &pattern,
+            connect,
+            listen,
+            count,
+            idle_s,
+            wait_s,
+            (!raw).then_some(array_items),
+        ),
         Cmd::Analyze {
             mcap,
             out,

@@ -253,7 +253,8 @@ pub fn inject_cmd(
     Ok(())
 }
 
-/// Prints `<topic> <bytes>` for every message under `pattern`, then a per-topic count;
+/// Prints every message under `pattern` — its decoded fields (`decoded`: the values shown
+/// of a long array), or with `None` only `<topic> <bytes>` — then a per-topic count;
 /// waits up to `wait_s` for the first message (a publisher may take a while to start),
 /// then stops after `idle_s` without one.
 pub fn echo_cmd(
@@ -263,6 +264,7 @@ pub fn echo_cmd(
     count: Option<u64>,
     idle_s: f64,
     wait_s: f64,
+    decoded: Option<usize>,
 ) -> Result<()> {
     let bus = zenoh(connect, listen)?;
     let sub = bus.subscribe(pattern)?;
@@ -271,7 +273,14 @@ pub fn echo_cmd(
     while let Ok((topic, bytes)) = sub.rx.recv_timeout(Duration::from_secs_f64(
         if n == 0 { wait_s } else { idle_s }.max(0.1),
     )) {
-        println!("{topic} {}", bytes.len());
+        match decoded {
+            // as `ros2 topic echo`: the fields, long arrays shortened
+            Some(items) => match fiberflow_messages::echo::echo_text(&topic, &bytes, items) {
+                Ok(text) => print!("topic: {topic}\n{text}"),
+                Err(e) => println!("topic: {topic}\n({} bytes: {e})\n---", bytes.len()),
+            },
+            None => println!("{topic} {}", bytes.len()),
+        }
         *by.entry(topic).or_insert(0) += 1;
         n += 1;
         if count.is_some_and(|c| n >= c) {
