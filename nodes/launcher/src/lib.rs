@@ -5,6 +5,8 @@
 
 pub mod analyze;
 pub mod coupled;
+#[cfg(test)]
+mod docs_tests;
 pub mod keys;
 pub mod launch;
 pub mod launchfile;
