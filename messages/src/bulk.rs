@@ -7,6 +7,9 @@
 //! each primitive is aligned to its own size relative to the first byte after the header;
 //! a sequence is a u32 count then its elements; a string is a u32 length including a
 //! trailing NUL, then the bytes and the NUL.
+//!
+//! Size: writer and reader of three message types kept side by side, so that each field's
+//! order and alignment is visibly the same in both directions (and as the `.msg` files).
 
 use crate::codec::GroupHeader;
 use crate::types::{FiberGroupMetrics, FiberGroupState, FlowSamples};

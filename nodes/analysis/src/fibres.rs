@@ -3,6 +3,10 @@
 //! x3–x2 plane; 95% bootstrap intervals over fibres for the MSD slope, the ramp time per
 //! layer and the final ⟨σ²⟩. Metrics are recomputed from the recorded states; steps without
 //! a state (a decimated recording) take the fibre node's metrics message.
+//!
+//! Size: one pass over a recording feeds every figure of the paper's §4, so the reader,
+//! the per-layer series and their bootstrap intervals sit together; coiling onsets, plots
+//! and the bootstrap itself are in their own files.
 
 use crate::bootstrap::{self, weighted_mean, Interval};
 use crate::plot::{line_plot, Series};

@@ -5,6 +5,10 @@
 //! coupling step split into its stages (medians over the repeats, with min–max of the
 //! step wall), and the CPU time all processes of a run used (on a saturated machine the
 //! wall follows the CPU, not the transport).
+//!
+//! Size: one file, because its parts (configurations, rounds, the log lines it reads, the
+//! paired ratios and the table) change together whenever a measurement changes; it is
+//! benchmark tooling, outside the product binary.
 
 use anyhow::{bail, Context, Result};
 use fiberflow_analysis::bootstrap::{self, Interval};

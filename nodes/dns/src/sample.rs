@@ -10,6 +10,9 @@
 //!   one-sided at the walls); the gradient is the derivative of the same interpolant.
 //!   Exact (value and gradient) for fields that are cubic in each direction; fourth order
 //!   in the value, third in the gradient.
+//!
+//! Size: the two schemes share the staggered-location and wall handling that makes them
+//! agree bit for bit on multilinear fields; the cell-ordered tables are in `sample/`.
 
 use crate::error::DnsError;
 use crate::field::Velocity;

@@ -2,6 +2,10 @@
 //! wait for the flow samples of step k, and integrate to t_{k+1}. Several small fibre
 //! nodes of one process ([`serve_many`]) step in turn on one thread: at paper size a
 //! thread each cost the process more in task switches than the fibres' physics.
+//!
+//! Size: the one-node and many-nodes loops share their per-step protocol (announce, send
+//! again on request, checkpoints) and must stay in step with each other; the fibre
+//! equations are in `fiber-model`.
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};

@@ -1,6 +1,10 @@
 //! `fiberflow launch`: runs a whole experiment from a launch file. Owns its children: one
 //! process group, SIGINT/SIGTERM forwarded with escalation, per-node logs under the run's
 //! folder, the log path printed when a node dies, no orphans.
+//!
+//! Size: the supervision loop (start, watch, stop, roll back, restart) is one state
+//! machine over the node processes; launch files, checkpoints, node specs and the run
+//! lock are in their own modules.
 
 use crate::launchfile::LaunchFile;
 use crate::nodes::{open_bus, run_nodes, NodeSpec};

@@ -3,6 +3,10 @@
 //! derives a `sensor_msgs/PointCloud2` channel per fibre group and a `sensor_msgs/Image`
 //! channel per flow slice for generic viewers;
 //! flushes a chunk at least every second so a killed recorder loses at most that much.
+//!
+//! Size: the recorder's loop, its file writer and the segment/resume handling share one
+//! state (the open segment, its channel table and flush clock); the derived channels
+//! (pointcloud, image), the O_DIRECT sink (direct) and recovery live in their own files.
 
 pub mod direct;
 pub mod image;
