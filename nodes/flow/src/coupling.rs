@@ -360,11 +360,11 @@ impl<'a> Coupling<'a> {
         let stats = self
             .stats
             .get_or_insert_with(|| RunningStats::new(&solver.grid));
-        let sampled = next % cfg.status_every == 0;
+        let sampled = next.is_multiple_of(cfg.status_every);
         if sampled {
             stats.add(&solver.grid, &solver.vel, r.t_plus);
         }
-        if (next % cfg.profiles_every == 0 || next == run.steps) && stats.samples > 0 {
+        if (next.is_multiple_of(cfg.profiles_every) || next == run.steps) && stats.samples > 0 {
             let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
             let msg = profiles_message(&p, next, t_plus);
             self.out
@@ -400,7 +400,7 @@ impl<'a> Coupling<'a> {
         on_status: &mut impl FnMut(&FlowStatus),
     ) -> Result<(), FlowError> {
         let next = k + 1;
-        if next % self.cfg.status_every == 0 || next == self.run.steps {
+        if next.is_multiple_of(self.cfg.status_every) || next == self.run.steps {
             self.out
                 .send(self.t.flow_status(), Arc::new(encode(status)))?;
             on_status(status);
