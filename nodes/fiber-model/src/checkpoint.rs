@@ -14,7 +14,6 @@
 use crate::fibre::Segment;
 use crate::group::FibreGroup;
 use nalgebra::Vector3;
-use std::io::Write;
 use std::path::Path;
 
 const MAGIC: &[u8; 8] = b"FFGRPCK2";
@@ -243,27 +242,15 @@ impl GroupSnapshot {
     }
 }
 
-/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
-    let io = |source| CheckpointError::Io {
-        path: path.display().to_string(),
-        source,
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = std::path::PathBuf::from(tmp);
-    {
-        let mut f = std::fs::File::create(&tmp).map_err(io)?;
-        f.write_all(bytes).map_err(io)?;
-        f.sync_all().map_err(io)?;
-    }
-    std::fs::rename(&tmp, path).map_err(io)?;
-    if let Some(dir) = path.parent() {
-        if let Ok(d) = std::fs::File::open(dir) {
-            let _ = d.sync_all();
+/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one
+/// (the one implementation: `fiberflow_messages::checkpoints::write_atomic`).
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
+    fiberflow_messages::checkpoints::write_atomic(path, bytes).map_err(|source| {
+        CheckpointError::Io {
+            path: path.display().to_string(),
+            source,
         }
-    }
-    Ok(())
+    })
 }
 
 fn fnv1a(b: &[u8]) -> u64 {
