@@ -563,6 +563,64 @@ fn replay_republishes_the_recording() {
     );
 }
 
+/// A replay into a listener of one topic starts once that listener is heard (it used to
+/// wait out `--wait-s` for a subscriber on every recorded topic, then warn), and
+/// `--topics` replays only the topics it matches.
+#[test]
+fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
+    let _one = one_run_at_a_time();
+    let out = scratch("replay-one");
+    launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
+    let state = "fiberflow/analytic-shear/fibers/case1/state";
+    // an echo of one topic; the replay offers all of them, or (second round) only that one
+    for only in [None, Some(state)] {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let ep = format!("tcp/127.0.0.1:{port}");
+        let echo = Command::new(fiberflow())
+            .args(["echo", state, "--listen", &ep, "--idle-s", "5", "--raw"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(800));
+        let mut replay = Command::new(fiberflow());
+        replay
+            .arg("replay")
+            .arg(&out)
+            .args(["--speed", "0", "--connect", &ep, "--wait-s", "60"]);
+        if let Some(p) = only {
+            replay.args(["--topics", p]);
+        }
+        let r = replay.output().unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        let said = String::from_utf8_lossy(&r.stdout);
+        assert!(r.status.success(), "{err}");
+        assert!(
+            err.contains("waiting up to 60 s for a subscriber to"),
+            "{err}"
+        );
+        assert!(
+            !err.contains("no subscriber after"),
+            "it waited for the others: {err}"
+        );
+        let text = String::from_utf8_lossy(&echo.wait_with_output().unwrap().stdout).to_string();
+        assert!(text.contains(&format!("total {state} 201")), "{text}");
+        let replayed: u64 = said
+            .split_whitespace()
+            .nth(1)
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0);
+        match only {
+            Some(_) => assert_eq!(replayed, 201, "{said}"),
+            None => assert!(replayed > 201, "{said}"),
+        }
+    }
+}
+
 /// Writes certificates (launch/make-certs.sh) and a two-host version of the analytic-shear
 /// launch whose worker uses the identity `worker_cert`; returns the launch file.
 fn two_host_launch(

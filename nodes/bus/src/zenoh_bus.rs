@@ -367,6 +367,35 @@ impl ZenohBus {
         topics: &[String],
         timeout: std::time::Duration,
     ) -> Result<Vec<String>, BusError> {
+        self.await_matching(topics, timeout, false)
+    }
+
+    /// Waits until at least one of `topics` has a subscriber, then `settle` longer for the
+    /// declarations that come with it (a subscriber process declares its topics together),
+    /// at most `timeout` in all. Returns the topics that still have none (all of them if
+    /// none was heard in time).
+    pub fn await_any_subscriber(
+        &self,
+        topics: &[String],
+        timeout: std::time::Duration,
+        settle: std::time::Duration,
+    ) -> Result<Vec<String>, BusError> {
+        let missing = self.await_matching(topics, timeout, true)?;
+        if missing.len() == topics.len() {
+            return Ok(missing);
+        }
+        std::thread::sleep(settle);
+        self.await_matching(topics, std::time::Duration::ZERO, false)
+    }
+
+    /// The topics without a subscriber once every one has one (`any`: once one has one),
+    /// or at `timeout`.
+    fn await_matching(
+        &self,
+        topics: &[String],
+        timeout: std::time::Duration,
+        any: bool,
+    ) -> Result<Vec<String>, BusError> {
         let publishers = topics
             .iter()
             .map(|t| {
@@ -384,7 +413,12 @@ impl ZenohBus {
                     missing.push(t.clone());
                 }
             }
-            if missing.is_empty() || std::time::Instant::now() >= deadline {
+            let heard_enough = if any {
+                missing.len() < topics.len()
+            } else {
+                missing.is_empty()
+            };
+            if heard_enough || std::time::Instant::now() >= deadline {
                 return Ok(missing);
             }
             std::thread::sleep(std::time::Duration::from_millis(50));

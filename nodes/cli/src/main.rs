@@ -78,10 +78,16 @@ enum Cmd {
         /// zenoh endpoint to listen on (default: an ephemeral loopback port).
         #[arg(long)]
         listen: Vec<String>,
-        /// Seconds to wait for the run's subscribers before replaying (a session that
-        /// reaches no peer in that time is tried once more, then it is an error).
+        /// Seconds to wait for a subscriber before replaying: of any recorded topic (then
+        /// a moment for the rest of its declarations), or of every topic `--topics` picks
+        /// (a session that reaches no peer in that time is tried once more, then it is
+        /// an error).
         #[arg(long, default_value_t = 30.0)]
         wait_s: f64,
+        /// Replay only the topics matching this key expression (repeatable), e.g.
+        /// `--topics 'fiberflow/quick/fibers/case1/*'`.
+        #[arg(long)]
+        topics: Vec<String>,
     },
     /// Print what arrives on the bus (zenoh) under a topic pattern.
     Echo {
@@ -284,7 +290,8 @@ fn main() -> Result<()> {
             connect,
             listen,
             wait_s,
-        } => recording::replay_cmd(&mcap, speed, connect, listen, wait_s),
+            topics,
+        } => recording::replay_cmd(&mcap, speed, connect, listen, wait_s, &topics),
         Cmd::Echo {
             pattern,
             connect,

@@ -93,20 +93,48 @@ fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
 /// run). A session that reached no peer at all by then is opened once more (on a loaded host a
 /// first connection attempt has stalled for good), and if that one reaches none either it
 /// is an error naming the endpoints: sending into nothing would only look like success.
+/// Whom a publishing command waits for before it starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Await {
+    /// A subscriber on every topic (the topics were asked for).
+    Every,
+    /// A subscriber on any topic, then a moment for the rest of its declarations (a
+    /// viewer or `echo` of one topic is all there may be).
+    Any,
+}
+
 fn session_with_subscribers(
     connect: &[String],
     listen: &[String],
     topics: &[String],
     wait_s: f64,
     doing: &str,
+    need: Await,
 ) -> Result<ZenohBus> {
     if !(wait_s > 0.0 && wait_s.is_finite()) {
         bail!("--wait-s must be > 0 (got {wait_s})");
     }
     let wait = Duration::from_secs_f64(wait_s);
+    eprintln!(
+        "waiting up to {wait_s:.0} s for a subscriber to {} of {} topic(s) before {doing}",
+        if need == Await::Every { "each" } else { "any" },
+        topics.len()
+    );
     for attempt in 1..=2 {
         let bus = zenoh(connect.to_vec(), listen.to_vec())?;
-        let unheard = bus.await_subscribers(topics, wait)?;
+        let unheard = match need {
+            Await::Every => bus.await_subscribers(topics, wait)?,
+            Await::Any => bus.await_any_subscriber(topics, wait, Duration::from_millis(500))?,
+        };
+        if need == Await::Any && unheard.len() < topics.len() {
+            if !unheard.is_empty() {
+                tracing::info!(
+                    without_subscriber = unheard.len(),
+                    "{doing} to the subscribers there are (topics nobody subscribes to go nowhere)"
+                );
+            }
+            return Ok(bus);
+        }
         if unheard.is_empty() {
             return Ok(bus);
         }
@@ -135,13 +163,20 @@ fn session_with_subscribers(
     )
 }
 
+/// `replay`: republishes a recording's messages (all, or those on topics matching one of
+/// `only`, zenoh key expressions) in their recorded order and timing.
 pub fn replay_cmd(
     path: &Path,
     speed: f64,
     connect: Vec<String>,
     listen: Vec<String>,
     wait_s: f64,
+    only: &[String],
 ) -> Result<()> {
+    let wanted = |topic: &str| {
+        !topic.ends_with("/points") // derived by the recorder, not a bus topic
+            && (only.is_empty() || only.iter().any(|p| fiberflow_bus::matches(p, topic)))
+    };
     if !(speed >= 0.0 && speed.is_finite()) {
         bail!("--speed must be >= 0 (got {speed})");
     }
@@ -154,12 +189,21 @@ pub fn replay_cmd(
         let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
         for m in mcap::MessageStream::new(&bytes)? {
             let topic = &m?.channel.topic;
-            if !topic.ends_with("/points") && !topics.contains(topic) {
+            if wanted(topic) && !topics.contains(topic) {
                 topics.push(topic.clone());
             }
         }
     }
-    let bus = session_with_subscribers(&connect, &listen, &topics, wait_s, "replaying")?;
+    if topics.is_empty() {
+        bail!("no recorded topic matches --topics {}", only.join(" "));
+    }
+    // topics asked for by name must each be heard; otherwise whoever listens
+    let need = if only.is_empty() {
+        Await::Any
+    } else {
+        Await::Every
+    };
+    let bus = session_with_subscribers(&connect, &listen, &topics, wait_s, "replaying", need)?;
     std::thread::sleep(Duration::from_millis(500));
     let start = Instant::now();
     let mut first: Option<u64> = None;
@@ -169,8 +213,8 @@ pub fn replay_cmd(
         let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
         for m in mcap::MessageStream::new(&bytes)? {
             let m = m?;
-            if m.channel.topic.ends_with("/points") {
-                continue; // derived by the recorder, not a bus topic
+            if !wanted(&m.channel.topic) {
+                continue;
             }
             let t0 = *first.get_or_insert(m.log_time);
             if speed > 0.0 {
@@ -208,7 +252,7 @@ pub fn inject_cmd(
         .map(|t| format!("fiberflow/{run}/{t}"))
         .collect();
     // what is sent before the run's subscriptions are known here would go nowhere
-    let bus = session_with_subscribers(&connect, &[], &full, wait_s, "injecting")?;
+    let bus = session_with_subscribers(&connect, &[], &full, wait_s, "injecting", Await::Every)?;
     // one topic's first subscriber may be known before the others' (every node's
     // declarations arrive over its own link)
     std::thread::sleep(Duration::from_millis(500));
