@@ -1,6 +1,5 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
-mod huge_pages;
 mod recording;
 
 use fiberflow_launcher::{analyze, keys, launch, nodes, spinup_cmd};
@@ -8,9 +7,6 @@ use fiberflow_launcher::{analyze, keys, launch, nodes, spinup_cmd};
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
-
-#[global_allocator]
-static ALLOC: huge_pages::HugePageAlloc = huge_pages::HugePageAlloc;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -202,11 +198,11 @@ enum Cmd {
 }
 
 fn main() -> Result<()> {
-    let huge_pages_warning = huge_pages::configure_from_env();
     // Every coupling step allocates and frees message buffers of several MB. glibc serves
     // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
     // its heap after each free; keep them in the heap instead, so a step reuses the last
-    // step's memory.
+    // step's memory (measured: 6% less wall and half the system time at 6 × 10⁴ fibres,
+    // docs/performance.md, "Allocator settings").
     // SAFETY: mallopt only tunes the allocator; called before any thread starts
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
@@ -227,9 +223,6 @@ fn main() -> Result<()> {
         // colour on a terminal only: node logs are files
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
-    if let Some(why) = huge_pages_warning {
-        tracing::warn!("{why}");
-    }
     // the shared pool's threads named, so per-thread CPU (the flow node's timing line,
     // `top -H`, perf) tells the DNS and sampling work from the bus's threads
     if let Err(e) = rayon::ThreadPoolBuilder::new()
