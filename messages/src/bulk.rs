@@ -11,9 +11,20 @@
 //! Size: writer and reader of three message types kept side by side, so that each field's
 //! order and alignment is visibly the same in both directions (and as the `.msg` files).
 
-use crate::codec::GroupHeader;
 use crate::types::{FiberGroupMetrics, FiberGroupState, FlowSamples};
 use std::mem::MaybeUninit;
+
+/// The fields every group message (FlowSamples, FiberGroupState, FiberGroupMetrics) starts
+/// with, in wire order.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct GroupHeader {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    pub first_fiber: u32,
+    pub group_fibers: u32,
+}
 
 /// The CDR little-endian encapsulation header.
 const HEADER: [u8; 4] = [0, 1, 0, 0];

@@ -184,17 +184,7 @@ pub fn decode_state_into(
     Ok(())
 }
 
-/// The fields every group message (FlowSamples, FiberGroupState, FiberGroupMetrics) starts
-/// with, in wire order.
-#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
-pub struct GroupHeader {
-    pub schema_version: u32,
-    pub group: String,
-    pub step: u64,
-    pub t_plus: f64,
-    pub first_fiber: u32,
-    pub group_fibers: u32,
-}
+pub use crate::bulk::GroupHeader;
 
 /// Reads only the leading [`GroupHeader`] of a group message (its arrays are neither
 /// walked nor copied): what a receiver needs to decide whether it wants the message.

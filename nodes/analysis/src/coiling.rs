@@ -4,7 +4,7 @@
 //! measurable — and per case (and initial layer) the share of fibres that got there and the
 //! median and quartiles of their onset times.
 
-use crate::fibres::GroupSeries;
+use crate::series::GroupSeries;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 

@@ -17,18 +17,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Per-step, per-fibre metrics of one group.
-#[derive(Debug, Clone, Default)]
-pub struct GroupSeries {
-    pub t_plus: Vec<f64>,
-    /// [step][fibre] centre of mass.
-    pub com: Vec<Vec<[f64; 3]>>,
-    pub z1: Vec<Vec<f64>>,
-    pub sigma2: Vec<Vec<f64>>,
-    pub layer: Vec<u8>,
-    pub density_ratio: f64,
-    pub segment_length: f64,
-}
+pub use crate::series::GroupSeries;
 
 /// Numbers for the summary table.
 #[derive(Debug, Clone, Default)]

@@ -8,6 +8,7 @@ pub mod flow_validation;
 pub mod modulation;
 pub mod plot;
 pub mod reference;
+pub mod series;
 
 #[derive(Debug, thiserror::Error)]
 pub enum AnalysisError {

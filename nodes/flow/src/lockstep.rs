@@ -4,7 +4,7 @@
 
 use crate::error::FlowError;
 use crate::outgoing::heartbeat;
-use crate::serve::RunInfo;
+use crate::run::RunInfo;
 use fiberflow_bus::{BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{lifecycle, FiberGroupState, FlowSamples, Heartbeat};
@@ -215,7 +215,7 @@ pub(crate) fn admit(s: &FiberGroupState, k: u64, run: &RunInfo) -> Admit {
 #[cfg(test)]
 mod fuzz {
     use super::*;
-    use crate::serve::RunInfo;
+    use crate::run::RunInfo;
     use fiberflow_messages::fuzz::{random_payload, Rng};
     use fiberflow_messages::pieces::Piece;
 

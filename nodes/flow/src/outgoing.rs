@@ -3,7 +3,7 @@
 
 use crate::config::FlowNodeConfig;
 use crate::error::FlowError;
-use crate::serve::RunInfo;
+use crate::run::RunInfo;
 use fiberflow_bus::{BusHandle, Inbox, Outbox};
 use fiberflow_dns::stats::{ProfileRow, Profiles};
 use fiberflow_dns::Solver;

@@ -7,46 +7,16 @@ use crate::coupling::Coupling;
 use crate::error::FlowError;
 use crate::lockstep::States;
 use crate::outgoing::heartbeat;
+pub use crate::run::{RunInfo, ServeSummary};
 use crate::sampling::Field;
-use fiberflow_bus::{BusHandle, DropCounter, Inbox};
+use fiberflow_bus::{BusHandle, Inbox};
 use fiberflow_dns::Solver;
-use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FlowStatus, Heartbeat, RunAnnouncement, SCHEMA_VERSION,
 };
 use std::collections::BTreeSet;
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
-
-/// Run-level facts the launcher hands to every node.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RunInfo {
-    pub run_id: String,
-    pub config_digest: String,
-    pub groups: Vec<String>,
-    /// Nodes that must join before the run starts (groups and, if any, the recorder).
-    pub expected_nodes: Vec<String>,
-    pub steps: u64,
-    pub box_plus: [f64; 3],
-    /// Seconds to wait for a group's state at one step before giving up.
-    pub step_timeout_s: f64,
-    /// First coupling step: 0, or the step of the checkpoint the run resumes from.
-    pub start_step: u64,
-    /// The checkpoint folder the run resumes from (its step is `start_step`).
-    pub resume_dir: Option<PathBuf>,
-    /// Coupled checkpoints: every this many steps (0 = never) under this folder.
-    pub checkpoint_every: u64,
-    pub checkpoint_root: Option<PathBuf>,
-    /// Every fibre node's share of its group (one piece per unsharded group): the flow
-    /// node waits for a state of each at every step, samples each on its own.
-    pub pieces: Vec<Piece>,
-    /// Where every step's wall and stages go as CSV at the end of the run (None: kept
-    /// nowhere).
-    pub step_times: Option<PathBuf>,
-    /// Two-way coupling: the fibres' forces of every state go back to the fluid.
-    pub two_way: bool,
-}
 
 /// Refuses a coupling time step the DNS cannot take from its starting field: the Courant
 /// sum max(|u|/Δx + |v|/Δy + |w|/Δz)·Δt must stay below the RK3 limit √3.
@@ -67,13 +37,6 @@ fn check_stability(solver: &Solver, dt_plus: f64) -> Result<(), FlowError> {
         )));
     }
     Ok(())
-}
-
-/// What the loop did.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ServeSummary {
-    pub steps: u64,
-    pub drops: DropCounter,
 }
 
 /// Runs the coupling loop until `run.steps` steps are served: join, announce, then for

@@ -1,0 +1,42 @@
+//! What a run is, as every node is told it by the launcher, and what the flow node's loop
+//! reports at its end.
+
+use fiberflow_bus::DropCounter;
+use fiberflow_messages::pieces::Piece;
+use std::path::PathBuf;
+
+/// Run-level facts the launcher hands to every node.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunInfo {
+    pub run_id: String,
+    pub config_digest: String,
+    pub groups: Vec<String>,
+    /// Nodes that must join before the run starts (groups and, if any, the recorder).
+    pub expected_nodes: Vec<String>,
+    pub steps: u64,
+    pub box_plus: [f64; 3],
+    /// Seconds to wait for a group's state at one step before giving up.
+    pub step_timeout_s: f64,
+    /// First coupling step: 0, or the step of the checkpoint the run resumes from.
+    pub start_step: u64,
+    /// The checkpoint folder the run resumes from (its step is `start_step`).
+    pub resume_dir: Option<PathBuf>,
+    /// Coupled checkpoints: every this many steps (0 = never) under this folder.
+    pub checkpoint_every: u64,
+    pub checkpoint_root: Option<PathBuf>,
+    /// Every fibre node's share of its group (one piece per unsharded group): the flow
+    /// node waits for a state of each at every step, samples each on its own.
+    pub pieces: Vec<Piece>,
+    /// Where every step's wall and stages go as CSV at the end of the run (None: kept
+    /// nowhere).
+    pub step_times: Option<PathBuf>,
+    /// Two-way coupling: the fibres' forces of every state go back to the fluid.
+    pub two_way: bool,
+}
+
+/// What the loop did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServeSummary {
+    pub steps: u64,
+    pub drops: DropCounter,
+}
