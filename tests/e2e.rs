@@ -236,7 +236,8 @@ fn wait_for(path: &std::path::Path, secs: u64) -> String {
 }
 
 /// 10,000 random byte strings on every topic during a run: no node crashes, the fibre states
-/// are bitwise identical to a clean run's, and the recorder counts 10,000 drops per topic.
+/// are bitwise identical to a clean run's (none missing), and the recorder counts 10,000
+/// drops per topic.
 #[test]
 fn garbage_on_every_topic_is_dropped_and_counted() {
     let _one = one_run_at_a_time();
@@ -338,6 +339,12 @@ fn inject_into_a_run(name: &str, structured: bool) {
             b.len()
         );
     }
+    // and none is missing: every state of the clean run up to the last step is recorded
+    let missing: Vec<_> = a.keys().filter(|k| !b.contains_key(*k)).collect();
+    assert!(
+        missing.is_empty(),
+        "states missing from the run under injection (steps up to {last}): {missing:?}"
+    );
     let drops = &md["fiberflow.drops"];
     for t in topics {
         let key = format!("fiberflow/analytic-shear/{t}");
