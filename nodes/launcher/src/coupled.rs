@@ -105,8 +105,10 @@ pub fn finish_segments(out_dir: &Path) -> Result<Vec<PathBuf>> {
         return Ok(fixed);
     };
     for seg in segs {
-        let bytes = std::fs::read(&seg).with_context(|| format!("reading {}", seg.display()))?;
-        if matches!(mcap::Summary::read(&bytes), Ok(Some(_))) {
+        // its footer is all a finished segment needs read (they reach gigabytes)
+        if fiberflow_recorder::recover::is_finished(&seg)
+            .with_context(|| format!("reading {}", seg.display()))?
+        {
             continue;
         }
         let tmp = seg.with_extension("mcap.finishing");

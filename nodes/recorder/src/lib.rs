@@ -230,26 +230,20 @@ type Key = (String, u64, u32);
 pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<Key> {
     let mut seen = BTreeSet::new();
     for p in segments {
-        let Ok(bytes) = std::fs::read(p) else {
-            continue;
-        };
-        let Ok(stream) = mcap::MessageStream::new(&bytes) else {
-            continue;
-        };
-        for m in stream {
-            let Ok(m) = m else { break };
-            let Some(type_name) = type_of(&m.channel.topic) else {
-                continue;
+        // streamed (recordings reach gigabytes); a damaged tail ends the file
+        let _ = recover::for_each_message(p, |topic, data| {
+            let Some(type_name) = type_of(topic) else {
+                return;
             };
             if let Ok(sanity::Stamp {
                 step: Some(step),
                 first_fiber,
                 ..
-            }) = sanity::check_payload(type_name, &m.data)
+            }) = sanity::check_payload(type_name, data)
             {
-                seen.insert((m.channel.topic.clone(), step, first_fiber));
+                seen.insert((topic.to_string(), step, first_fiber));
             }
-        }
+        });
     }
     seen
 }

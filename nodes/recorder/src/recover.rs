@@ -58,6 +58,66 @@ pub fn inspect(path: &Path) -> Result<Inspection, std::io::Error> {
     Ok(out)
 }
 
+/// Calls `f(topic, payload)` for every message of the file in order, streaming it through
+/// mcap's reader as [`inspect`] does (no whole-file read); a damaged or truncated tail ends
+/// the walk, and the reason is returned (None: the file was read to its end).
+pub fn for_each_message(
+    path: &Path,
+    mut f: impl FnMut(&str, &[u8]),
+) -> Result<Option<String>, std::io::Error> {
+    use mcap::records::Record;
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default().with_record_length_limit(RECORD_LIMIT_BYTES),
+    );
+    while let Some(event) = reader.next_event() {
+        match event {
+            Ok(LinearReadEvent::ReadRequest(need)) => {
+                let read = file.read(reader.insert(need))?;
+                reader.notify_read(read);
+            }
+            Ok(LinearReadEvent::Record { data, opcode }) => {
+                match mcap::parse_record(opcode, data) {
+                    Ok(Record::Channel(c)) => {
+                        topics.insert(c.id, c.topic.clone());
+                    }
+                    Ok(Record::Message { header, data }) => {
+                        if let Some(t) = topics.get(&header.channel_id) {
+                            f(t, &data);
+                        }
+                    }
+                    Ok(_) => {}
+                    Err(e) => return Ok(Some(e.to_string())),
+                }
+            }
+            Err(e) => return Ok(Some(e.to_string())),
+        }
+    }
+    Ok(None)
+}
+
+/// True if the file ends with an MCAP footer record and the closing magic: its writer
+/// finished it. Reads the last 37 bytes only.
+pub fn is_finished(path: &Path) -> Result<bool, std::io::Error> {
+    use std::io::{Read, Seek, SeekFrom};
+    // footer: opcode, u64 length (20), summary start, summary offset start, summary crc
+    const FOOTER_BYTES: u64 = 1 + 8 + 20;
+    let mut file = std::fs::File::open(path)?;
+    let len = file.metadata()?.len();
+    if len < FOOTER_BYTES + 8 + 8 {
+        return Ok(false);
+    }
+    file.seek(SeekFrom::Start(len - FOOTER_BYTES - 8))?;
+    let mut tail = [0u8; 37];
+    file.read_exact(&mut tail)?;
+    Ok(tail[0] == 0x02
+        && u64::from_le_bytes(tail[1..9].try_into().unwrap_or_default()) == 20
+        && tail[29..] == *mcap::MAGIC)
+}
+
 fn visit(
     r: mcap::records::Record<'_>,
     out: &mut Inspection,
@@ -190,6 +250,15 @@ mod tests {
         let ins = inspect(&p).unwrap();
         assert!(ins.damage.is_some(), "a truncated file was not reported");
         assert!(ins.messages <= 3);
+        assert!(is_finished(&good).unwrap());
+        assert!(!is_finished(&p).unwrap());
+        let mut seen = Vec::new();
+        assert_eq!(
+            for_each_message(&good, |t, d| seen.push((t.to_string(), d.len()))).unwrap(),
+            None
+        );
+        assert_eq!(seen, vec![("t/x".to_string(), 100); 3]);
+        assert!(for_each_message(&p, |_, _| {}).unwrap().is_some());
         std::fs::remove_dir_all(&dir).ok();
     }
 }
