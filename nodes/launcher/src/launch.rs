@@ -69,37 +69,11 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         sets,
         resume,
     } = opts;
-    // a spin-up file has only a [flow] table with [flow.spinup]
-    let raw =
-        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
-    let value: toml::Value =
-        toml::from_str(&raw).with_context(|| format!("parsing {}", file.display()))?;
-    if value.get("run").is_none() && value.get("flow").and_then(|f| f.get("spinup")).is_some() {
-        if !sets.is_empty() || resume.is_some() {
-            bail!("--set and --resume are for coupled launch files, not spin-up files");
-        }
-        let stem = file
-            .file_stem()
-            .map(|s| s.to_string_lossy().to_string())
-            .unwrap_or_else(|| "spinup".into());
-        let out = out.unwrap_or_else(|| PathBuf::from("recordings").join(stem));
-        crate::spinup_cmd::run(file, &out)?;
-        return Ok(LaunchOutcome {
-            out_dir: out,
-            mcap: None,
-            launch: None,
-        });
+    if let Some(done) = launch_spinup_file(file, &out, &sets, resume.is_some())? {
+        return Ok(done);
     }
     let (lf, text) = LaunchFile::load_with(file, &sets)?;
-    let out_dir = match (&resume, out) {
-        (Some(r), Some(o)) if r != &o => bail!(
-            "--resume {} and --out {} name different folders",
-            r.display(),
-            o.display()
-        ),
-        (Some(r), _) => r.clone(),
-        (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id)),
-    };
+    let out_dir = run_folder(&lf, resume.as_deref(), out)?;
     // nothing in the folder is touched before its lock is ours: a live run there (a second
     // launch with the same --out, or --resume of a run still going) is refused
     if resume.is_some() && !out_dir.is_dir() {
@@ -109,20 +83,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     let _folder_lock = crate::run_lock::FolderLock::acquire(&out_dir)?;
     let digest = crate::nodes::digest(&text);
     if resume.is_some() {
-        let saved = out_dir.join("launch.toml");
-        let before = std::fs::read_to_string(&saved).with_context(|| {
-            format!(
-                "--resume {}: no launch.toml there (not a run folder?)",
-                out_dir.display()
-            )
-        })?;
-        if crate::nodes::digest(&before) != digest {
-            bail!(
-                "--resume {}: the run was launched with another configuration ({}); pass the same launch file and --set options",
-                out_dir.display(),
-                saved.display()
-            );
-        }
+        same_configuration(&out_dir, &digest)?;
     }
     std::fs::create_dir_all(out_dir.join("logs"))
         .with_context(|| format!("creating {}", out_dir.display()))?;
@@ -145,26 +106,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
-    let mut nodes = vec!["flow".to_string()];
-    nodes.extend(lf.fibre_nodes()?);
-    if lf.recorder.enabled {
-        nodes.push("recorder".into());
-    }
-    match (&lf.network, &host) {
-        (Some(net), None) => bail!(
-            "this launch file spans several hosts ({}): pass --host NAME",
-            net.host_names()
-        ),
-        (Some(_), Some(h)) => {
-            if transport != "zenoh" {
-                bail!("multi-host runs use zenoh (got --transport {transport})");
-            }
-            let mine = &lf.host(h)?.nodes;
-            nodes.retain(|n| mine.contains(n));
-        }
-        (None, Some(_)) => bail!("--host is only for launch files with a [network] section"),
-        (None, None) => {}
-    }
+    let nodes = nodes_here(&lf, host.as_deref(), &transport)?;
     let records_here = nodes.iter().any(|n| n == "recorder");
     let launch_file_name = file
         .file_name()
@@ -195,24 +137,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             fiberflow_messages::segments::segment_name(base.segment)
         );
     }
-    // over iceoryx2 the run's topics are services of this host, found by name: a second
-    // live run with this id would mix with it, so it waits (`run_lock`)
-    let _run_lock = if transport == "iceoryx2" {
-        let id = lf.run.id.clone();
-        Some(crate::run_lock::RunLock::acquire_in(
-            &crate::run_lock::default_dir(),
-            &id,
-            &stop,
-            || {
-                println!(
-                    "waiting: a run with the id {id:?} is live on this host over iceoryx2 \
-                     (its topics are the host's; set run.id to run both at once)"
-                )
-            },
-        )?)
-    } else {
-        None
-    };
+    let _run_lock = iceoryx2_run_lock(&transport, &lf.run.id, &stop)?;
     println!(
         "run {} ({} steps, dt+ = {}), transport {transport}, output {}",
         lf.run.id,
@@ -235,51 +160,176 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     result?;
     let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.clone());
     if let Some(m) = &mcap {
-        let segs = fiberflow_messages::segments::segment_paths(m)?;
-        let names: Vec<String> = segs
-            .iter()
-            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
-            .collect();
-        println!("recording: {} ({})", m.display(), names.join(", "));
-        if lf.run.analyze {
-            let table = crate::analyze::fibres(
-                m,
-                &out_dir.join("analysis"),
-                &fiberflow_analysis::coiling::DEFAULT_THRESHOLDS,
-            )?;
-            println!("{table}");
-            // two-way: what the fibres did to the flow (against nothing: `fiberflow analyze
-            // --unladen` compares with another run)
-            if lf.run.coupling == crate::launchfile::Coupling::TwoWay {
-                if let Some(md) =
-                    crate::analyze::modulation(m, None, 0.0, 10, &out_dir.join("analysis"))?
-                {
-                    println!("{md}");
-                }
-            }
-            let rrd = out_dir.join("run.rrd");
-            let s = fiberflow_viewer::view(
-                m,
-                &fiberflow_viewer::Sink::Save(rrd.clone()),
-                &fiberflow_viewer::ViewOptions::default(),
-            )
-            .with_context(|| format!("writing {}", rrd.display()))?;
-            println!(
-                "Rerun scene: {} ({} of {} fibres shown, {} coiling events, {} flow slices; rerun {})",
-                rrd.display(),
-                s.shown,
-                s.fibres,
-                s.events,
-                s.slices,
-                rrd.display()
-            );
-        }
+        after_the_run(&lf, m, &out_dir)?;
     }
     Ok(LaunchOutcome {
         out_dir,
         mcap,
         launch: Some(lf),
     })
+}
+
+/// Over iceoryx2 the run's topics are services of this host, found by name: a second live
+/// run with this id would mix with it, so it waits for the id's lock (`run_lock`).
+fn iceoryx2_run_lock(
+    transport: &str,
+    id: &str,
+    stop: &AtomicBool,
+) -> Result<Option<crate::run_lock::RunLock>> {
+    Ok(if transport == "iceoryx2" {
+        let id = id.to_string();
+        Some(crate::run_lock::RunLock::acquire_in(
+            &crate::run_lock::default_dir(),
+            &id,
+            stop,
+            || {
+                println!(
+                    "waiting: a run with the id {id:?} is live on this host over iceoryx2 \
+                     (its topics are the host's; set run.id to run both at once)"
+                )
+            },
+        )?)
+    } else {
+        None
+    })
+}
+
+/// A resume must run the configuration the run in `out_dir` was launched with (its
+/// `launch.toml`'s digest).
+fn same_configuration(out_dir: &Path, digest: &str) -> Result<()> {
+    let saved = out_dir.join("launch.toml");
+    let before = std::fs::read_to_string(&saved).with_context(|| {
+        format!(
+            "--resume {}: no launch.toml there (not a run folder?)",
+            out_dir.display()
+        )
+    })?;
+    if crate::nodes::digest(&before) != digest {
+        bail!(
+            "--resume {}: the run was launched with another configuration ({}); pass the same launch file and --set options",
+            out_dir.display(),
+            saved.display()
+        );
+    }
+    Ok(())
+}
+
+/// A spin-up file (only a `[flow]` table with `[flow.spinup]`) runs the spin-up; None for
+/// a coupled launch file.
+fn launch_spinup_file(
+    file: &Path,
+    out: &Option<PathBuf>,
+    sets: &[String],
+    resuming: bool,
+) -> Result<Option<LaunchOutcome>> {
+    // a spin-up file has only a [flow] table with [flow.spinup]
+    let raw =
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?;
+    let value: toml::Value =
+        toml::from_str(&raw).with_context(|| format!("parsing {}", file.display()))?;
+    if value.get("run").is_none() && value.get("flow").and_then(|f| f.get("spinup")).is_some() {
+        if !sets.is_empty() || resuming {
+            bail!("--set and --resume are for coupled launch files, not spin-up files");
+        }
+        let stem = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_else(|| "spinup".into());
+        let out = out
+            .clone()
+            .unwrap_or_else(|| PathBuf::from("recordings").join(stem));
+        crate::spinup_cmd::run(file, &out)?;
+        return Ok(Some(LaunchOutcome {
+            out_dir: out,
+            mcap: None,
+            launch: None,
+        }));
+    }
+    Ok(None)
+}
+
+/// The run folder: `--resume DIR`, `--out DIR` (they must agree), or `recordings/<run id>`.
+fn run_folder(lf: &LaunchFile, resume: Option<&Path>, out: Option<PathBuf>) -> Result<PathBuf> {
+    Ok(match (resume, out) {
+        (Some(r), Some(o)) if r != o.as_path() => bail!(
+            "--resume {} and --out {} name different folders",
+            r.display(),
+            o.display()
+        ),
+        (Some(r), _) => r.to_path_buf(),
+        (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id)),
+    })
+}
+
+/// The nodes this launcher runs: the flow node, every fibre node and the recorder, or a
+/// multi-host launch file's share for `--host`.
+fn nodes_here(lf: &LaunchFile, host: Option<&str>, transport: &str) -> Result<Vec<String>> {
+    let mut nodes = vec!["flow".to_string()];
+    nodes.extend(lf.fibre_nodes()?);
+    if lf.recorder.enabled {
+        nodes.push("recorder".into());
+    }
+    match (&lf.network, host) {
+        (Some(net), None) => bail!(
+            "this launch file spans several hosts ({}): pass --host NAME",
+            net.host_names()
+        ),
+        (Some(_), Some(h)) => {
+            if transport != "zenoh" {
+                bail!("multi-host runs use zenoh (got --transport {transport})");
+            }
+            let mine = &lf.host(h)?.nodes;
+            nodes.retain(|n| mine.contains(n));
+        }
+        (None, Some(_)) => bail!("--host is only for launch files with a [network] section"),
+        (None, None) => {}
+    }
+    Ok(nodes)
+}
+
+/// After the run: names the recording's segments, and with `run.analyze` writes the
+/// analysis (two-way: what the fibres did to the flow) and the Rerun scene.
+fn after_the_run(lf: &LaunchFile, m: &Path, out_dir: &Path) -> Result<()> {
+    let segs = fiberflow_messages::segments::segment_paths(m)?;
+    let names: Vec<String> = segs
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
+        .collect();
+    println!("recording: {} ({})", m.display(), names.join(", "));
+    if lf.run.analyze {
+        let table = crate::analyze::fibres(
+            m,
+            &out_dir.join("analysis"),
+            &fiberflow_analysis::coiling::DEFAULT_THRESHOLDS,
+        )?;
+        println!("{table}");
+        // two-way: what the fibres did to the flow (against nothing: `fiberflow analyze
+        // --unladen` compares with another run)
+        if lf.run.coupling == crate::launchfile::Coupling::TwoWay {
+            if let Some(md) =
+                crate::analyze::modulation(m, None, 0.0, 10, &out_dir.join("analysis"))?
+            {
+                println!("{md}");
+            }
+        }
+        let rrd = out_dir.join("run.rrd");
+        let s = fiberflow_viewer::view(
+            m,
+            &fiberflow_viewer::Sink::Save(rrd.clone()),
+            &fiberflow_viewer::ViewOptions::default(),
+        )
+        .with_context(|| format!("writing {}", rrd.display()))?;
+        println!(
+            "Rerun scene: {} ({} of {} fibres shown, {} coiling events, {} flow slices; rerun {})",
+            rrd.display(),
+            s.shown,
+            s.fibres,
+            s.events,
+            s.slices,
+            rrd.display()
+        );
+    }
+    Ok(())
 }
 
 /// Progress bar fed by flow status messages.
