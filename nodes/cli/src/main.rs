@@ -1,8 +1,9 @@
 //! `fiberflow`: the command-line front door (launch, node, spinup, replay, inspect, inject).
 
+mod commands;
 mod recording;
 
-use fiberflow_launcher::{analyze, keys, launch, nodes, spinup_cmd};
+use fiberflow_launcher::{launch, nodes, spinup_cmd};
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
@@ -197,7 +198,9 @@ enum Cmd {
     },
 }
 
-fn main() -> Result<()> {
+/// What every command's process starts with: the allocator's settings, logging, the
+/// named thread pool.
+fn set_up_process() {
     // Every coupling step allocates and frees message buffers of several MB. glibc serves
     // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
     // its heap after each free; keep them in the heap instead, so a step reuses the last
@@ -231,6 +234,11 @@ fn main() -> Result<()> {
     {
         tracing::debug!(error = %e, "the thread pool was already built");
     }
+}
+
+/// Argument parsing, then one call per command (the match is the dispatch table).
+fn main() -> Result<()> {
+    set_up_process();
     let cli = Cli::parse();
     // commands that print behave like other command-line tools when piped into `head`:
     // exit quietly on EPIPE. Not the launcher and its nodes: a peer closing a network
@@ -249,31 +257,16 @@ fn main() -> Result<()> {
             host,
             sets,
             resume,
-        } => {
-            let opts = launch::LaunchOptions {
+        } => commands::launch_cmd(
+            &file,
+            launch::LaunchOptions {
                 out,
                 transport,
                 host,
                 sets,
                 resume,
-            };
-            let o = launch::launch(&file, opts)
-                .with_context(|| format!("launch {} failed", file.display()))?;
-            if let (Some(lf), Some(m)) = (&o.launch, &o.mcap) {
-                let rrd = m.join("run.rrd");
-                let how = if rrd.exists() {
-                    format!("rerun {}", rrd.display())
-                } else {
-                    format!("fiberflow view {} --spawn", m.display())
-                };
-                println!(
-                    "run {} finished: {} (view: {how})",
-                    lf.run.id,
-                    o.out_dir.display()
-                );
-            }
-            Ok(())
-        }
+            },
+        ),
         Cmd::Node { spec } => nodes::node_cmd(&spec),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
@@ -310,25 +303,14 @@ fn main() -> Result<()> {
             unladen,
             transient_plus,
             batches,
-        } => {
-            let out = out.unwrap_or_else(|| {
-                if mcap.is_dir() {
-                    mcap.join("analysis")
-                } else {
-                    mcap.parent()
-                        .unwrap_or(std::path::Path::new("."))
-                        .join("analysis")
-                }
-            });
-            let table = analyze::fibres(&mcap, &out, &coil_thresholds)?;
-            println!("{table}");
-            if let Some(md) =
-                analyze::modulation(&mcap, unladen.as_deref(), transient_plus, batches, &out)?
-            {
-                println!("{md}");
-            }
-            Ok(())
-        }
+        } => commands::analyze_cmd(
+            &mcap,
+            out,
+            &coil_thresholds,
+            unladen.as_deref(),
+            transient_plus,
+            batches,
+        ),
         Cmd::View {
             mcap,
             save,
@@ -338,65 +320,22 @@ fn main() -> Result<()> {
             per_case,
             most_coiled,
             coil_thresholds,
-        } => {
-            let sink = match (save, spawn, connect) {
-                (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
-                (None, _, Some(u)) => fiberflow_viewer::Sink::Connect(u),
-                (None, _, None) => fiberflow_viewer::Sink::Spawn,
-                _ => anyhow::bail!("choose one of --save, --spawn, --connect"),
-            };
-            let opts = fiberflow_viewer::ViewOptions {
-                every,
-                sampling: fiberflow_viewer::select::Sampling {
-                    per_case,
-                    most_coiled,
-                },
-                coil_thresholds,
-            };
-            let s = fiberflow_viewer::view(&mcap, &sink, &opts)
-                .with_context(|| format!("viewing {}", mcap.display()))?;
-            tracing::info!(
-                groups = s.groups,
-                fibres = s.fibres,
-                shown = s.shown,
-                coiling_events = s.events,
-                flow_slices = s.slices,
-                "scene written"
-            );
-            Ok(())
-        }
-        Cmd::Keys { write } => {
-            match write {
-                Some(file) => {
-                    let changed = keys::write_into(&file)?;
-                    println!(
-                        "{}: {}",
-                        file.display(),
-                        if changed {
-                            "updated"
-                        } else {
-                            "already up to date"
-                        }
-                    );
-                }
-                None => print!("{}", keys::markdown()?),
-            }
-            Ok(())
-        }
+        } => commands::view_cmd(
+            &mcap,
+            save,
+            spawn,
+            connect,
+            every,
+            per_case,
+            most_coiled,
+            coil_thresholds,
+        ),
+        Cmd::Keys { write } => commands::keys_cmd(write),
         Cmd::FlowReport {
             stats,
             reference,
             out,
-        } => {
-            let out = out.unwrap_or_else(|| {
-                stats
-                    .parent()
-                    .unwrap_or(std::path::Path::new("."))
-                    .join("validation")
-            });
-            println!("{}", analyze::flow(&stats, &reference, &out)?);
-            Ok(())
-        }
+        } => commands::flow_report_cmd(&stats, &reference, out),
         Cmd::Inject {
             run,
             connect,

@@ -1,0 +1,121 @@
+//! The bodies of the `fiberflow` commands that do more than call one library function.
+
+use anyhow::{Context, Result};
+use fiberflow_launcher::{analyze, keys, launch};
+use std::path::{Path, PathBuf};
+
+/// `fiberflow launch`: runs the launch file and says where to look.
+pub fn launch_cmd(file: &Path, opts: launch::LaunchOptions) -> Result<()> {
+    let o =
+        launch::launch(file, opts).with_context(|| format!("launch {} failed", file.display()))?;
+    if let (Some(lf), Some(m)) = (&o.launch, &o.mcap) {
+        let rrd = m.join("run.rrd");
+        let how = if rrd.exists() {
+            format!("rerun {}", rrd.display())
+        } else {
+            format!("fiberflow view {} --spawn", m.display())
+        };
+        println!(
+            "run {} finished: {} (view: {how})",
+            lf.run.id,
+            o.out_dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// `fiberflow analyze`: the fibre analysis and, for a two-way run, the flow's modulation.
+pub fn analyze_cmd(
+    mcap: &Path,
+    out: Option<PathBuf>,
+    coil_thresholds: &[f64],
+    unladen: Option<&Path>,
+    transient_plus: f64,
+    batches: usize,
+) -> Result<()> {
+    let out = out.unwrap_or_else(|| {
+        if mcap.is_dir() {
+            mcap.join("analysis")
+        } else {
+            mcap.parent()
+                .unwrap_or(std::path::Path::new("."))
+                .join("analysis")
+        }
+    });
+    let table = analyze::fibres(mcap, &out, coil_thresholds)?;
+    println!("{table}");
+    if let Some(md) = analyze::modulation(mcap, unladen, transient_plus, batches, &out)? {
+        println!("{md}");
+    }
+    Ok(())
+}
+
+/// `fiberflow view`: the Rerun scene of a recording, saved, spawned or streamed.
+pub fn view_cmd(
+    mcap: &Path,
+    save: Option<PathBuf>,
+    spawn: bool,
+    connect: Option<String>,
+    every: u64,
+    per_case: usize,
+    most_coiled: usize,
+    coil_thresholds: Vec<f64>,
+) -> Result<()> {
+    let sink = match (save, spawn, connect) {
+        (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
+        (None, _, Some(u)) => fiberflow_viewer::Sink::Connect(u),
+        (None, _, None) => fiberflow_viewer::Sink::Spawn,
+        _ => anyhow::bail!("choose one of --save, --spawn, --connect"),
+    };
+    let opts = fiberflow_viewer::ViewOptions {
+        every,
+        sampling: fiberflow_viewer::select::Sampling {
+            per_case,
+            most_coiled,
+        },
+        coil_thresholds,
+    };
+    let s = fiberflow_viewer::view(mcap, &sink, &opts)
+        .with_context(|| format!("viewing {}", mcap.display()))?;
+    tracing::info!(
+        groups = s.groups,
+        fibres = s.fibres,
+        shown = s.shown,
+        coiling_events = s.events,
+        flow_slices = s.slices,
+        "scene written"
+    );
+    Ok(())
+}
+
+/// `fiberflow keys`: the launch-file key reference, printed or written into a file.
+pub fn keys_cmd(write: Option<PathBuf>) -> Result<()> {
+    match write {
+        Some(file) => {
+            let changed = keys::write_into(&file)?;
+            println!(
+                "{}: {}",
+                file.display(),
+                if changed {
+                    "updated"
+                } else {
+                    "already up to date"
+                }
+            );
+        }
+        None => print!("{}", keys::markdown()?),
+    }
+    Ok(())
+}
+
+/// `fiberflow flow-report`: DNS statistics against the reference data.
+pub fn flow_report_cmd(stats: &Path, reference: &Path, out: Option<PathBuf>) -> Result<()> {
+    let out = out.unwrap_or_else(|| {
+        stats
+            .parent()
+            .unwrap_or(std::path::Path::new("."))
+            .join("validation")
+    });
+    println!("{}", analyze::flow(stats, reference, &out)?);
+    Ok(())
+}
