@@ -592,12 +592,7 @@ fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
     let state = "fiberflow/analytic-shear/fibers/case1/state";
     // an echo of one topic; the replay offers all of them, or (second round) only that one
     for only in [None, Some(state)] {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .unwrap()
-            .local_addr()
-            .unwrap()
-            .port();
-        let ep = format!("tcp/127.0.0.1:{port}");
+        let ep = loopback_endpoint();
         let echo = Command::new(fiberflow())
             .args(["echo", state, "--listen", &ep, "--idle-s", "5", "--raw"])
             .stdout(std::process::Stdio::piped())

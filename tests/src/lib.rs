@@ -231,16 +231,20 @@ pub fn pids_with(needle: &str) -> Vec<i32> {
     out
 }
 
+/// A zenoh endpoint on a loopback port that was free a moment ago.
+pub fn loopback_endpoint() -> String {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free loopback port")
+        .port();
+    format!("tcp/127.0.0.1:{port}")
+}
+
 /// Replays a recording (`replay PATH --speed 0`) to an `echo` listener on a free loopback
 /// port and returns what `echo` printed (a `total <topic> <count>` line per topic).
 pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
     use std::process::Stdio;
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let ep = format!("tcp/127.0.0.1:{port}");
+    let ep = loopback_endpoint();
     let echo = Command::new(fiberflow())
         .args([
             "echo",

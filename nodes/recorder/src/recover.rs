@@ -21,55 +21,17 @@ pub struct Inspection {
 /// file is damage, not an allocation (a full state of 3 × 10⁵ fibres is ≈ 0.3 GB).
 pub const RECORD_LIMIT_BYTES: usize = 1 << 30;
 
-/// Reads every record in order, streaming the file through mcap's own reader (chunks are
-/// decompressed by the crate, a piece at a time; no record longer than
-/// [`RECORD_LIMIT_BYTES`] is buffered), tolerating a truncated or damaged tail.
-pub fn inspect(path: &Path) -> Result<Inspection, std::io::Error> {
-    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    use std::io::Read;
-    let mut file = std::fs::File::open(path)?;
-    let mut out = Inspection::default();
-    let mut chans: BTreeMap<u16, (String, u16)> = BTreeMap::new();
-    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default().with_record_length_limit(RECORD_LIMIT_BYTES),
-    );
-    while let Some(event) = reader.next_event() {
-        match event {
-            Ok(LinearReadEvent::ReadRequest(need)) => {
-                let read = file.read(reader.insert(need))?;
-                reader.notify_read(read);
-            }
-            Ok(LinearReadEvent::Record { data, opcode }) => {
-                match mcap::parse_record(opcode, data) {
-                    Ok(r) => visit(r, &mut out, &mut chans, &mut schemas),
-                    Err(e) => {
-                        out.damage = Some(e.to_string());
-                        break;
-                    }
-                }
-            }
-            Err(e) => {
-                out.damage = Some(e.to_string());
-                break;
-            }
-        }
-    }
-    Ok(out)
-}
-
-/// Calls `f(topic, payload)` for every message of the file in order, streaming it through
-/// mcap's reader as [`inspect`] does (no whole-file read); a damaged or truncated tail ends
-/// the walk, and the reason is returned (None: the file was read to its end).
-pub fn for_each_message(
+/// Calls `f` with every record of the file in order (the records inside chunks, not the
+/// chunks), streaming it through mcap's own reader: chunks are decompressed by the crate a
+/// piece at a time and no record longer than [`RECORD_LIMIT_BYTES`] is buffered. A damaged
+/// or truncated tail ends the walk; its reason is returned (None: read to the end).
+fn for_each_record(
     path: &Path,
-    mut f: impl FnMut(&str, &[u8]),
+    mut f: impl FnMut(mcap::records::Record<'_>),
 ) -> Result<Option<String>, std::io::Error> {
-    use mcap::records::Record;
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
     use std::io::Read;
     let mut file = std::fs::File::open(path)?;
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default().with_record_length_limit(RECORD_LIMIT_BYTES),
     );
@@ -81,15 +43,7 @@ pub fn for_each_message(
             }
             Ok(LinearReadEvent::Record { data, opcode }) => {
                 match mcap::parse_record(opcode, data) {
-                    Ok(Record::Channel(c)) => {
-                        topics.insert(c.id, c.topic.clone());
-                    }
-                    Ok(Record::Message { header, data }) => {
-                        if let Some(t) = topics.get(&header.channel_id) {
-                            f(t, &data);
-                        }
-                    }
-                    Ok(_) => {}
+                    Ok(r) => f(r),
                     Err(e) => return Ok(Some(e.to_string())),
                 }
             }
@@ -97,6 +51,38 @@ pub fn for_each_message(
         }
     }
     Ok(None)
+}
+
+/// Reads every record in order ([`for_each_record`]: streamed, bounded), tolerating a
+/// truncated or damaged tail.
+pub fn inspect(path: &Path) -> Result<Inspection, std::io::Error> {
+    let mut out = Inspection::default();
+    let mut chans: BTreeMap<u16, (String, u16)> = BTreeMap::new();
+    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
+    let damage = for_each_record(path, |r| visit(r, &mut out, &mut chans, &mut schemas))?;
+    out.damage = damage;
+    Ok(out)
+}
+
+/// Calls `f(topic, payload)` for every message of the file in order ([`for_each_record`]:
+/// streamed, no whole-file read); returns why reading stopped early, if it did.
+pub fn for_each_message(
+    path: &Path,
+    mut f: impl FnMut(&str, &[u8]),
+) -> Result<Option<String>, std::io::Error> {
+    use mcap::records::Record;
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
+    for_each_record(path, |r| match r {
+        Record::Channel(c) => {
+            topics.insert(c.id, c.topic.clone());
+        }
+        Record::Message { header, data } => {
+            if let Some(t) = topics.get(&header.channel_id) {
+                f(t, &data);
+            }
+        }
+        _ => {}
+    })
 }
 
 /// True if the file ends with an MCAP footer record and the closing magic: its writer
