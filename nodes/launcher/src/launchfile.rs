@@ -301,25 +301,6 @@ fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Val
     }
 }
 
-/// `flow.steps` and `flow.dt_plus` are the flow node's own keys, which a launch file sets
-/// from `run.steps` and `run.dt_plus`: a value given under `[flow]` would be silently
-/// replaced, so it is an error that names the key to use.
-fn refuse_run_keys_under_flow(text: &str) -> Result<()> {
-    // a file that is not TOML gets its error, with the file's name, from the parse after
-    let Ok(doc) = toml::from_str::<toml::Table>(text) else {
-        return Ok(());
-    };
-    let Some(flow) = doc.get("flow").and_then(toml::Value::as_table) else {
-        return Ok(());
-    };
-    for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
-        if flow.contains_key(key) {
-            bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
-        }
-    }
-    Ok(())
-}
-
 /// Keys that were renamed (user-facing keys spell "fiber", as `[[fibers]]` does): the old
 /// name is an error that names the new one.
 const RENAMED_RUN_KEYS: [(&str, &str); 2] = [
@@ -327,17 +308,28 @@ const RENAMED_RUN_KEYS: [(&str, &str); 2] = [
     ("fibre_scheduling", "fiber_scheduling"),
 ];
 
-fn refuse_renamed_keys(text: &str) -> Result<()> {
+/// Keys a launch file must not have, each an error that names the key to use instead:
+/// renamed `[run]` keys, and `flow.steps` / `flow.dt_plus`, the flow node's own keys,
+/// which a launch file sets from `run.steps` / `run.dt_plus` (a value under `[flow]`
+/// would be silently replaced).
+fn refuse_misplaced_keys(text: &str) -> Result<()> {
     // a file that is not TOML gets its error, with the file's name, from the parse after
     let Ok(doc) = toml::from_str::<toml::Table>(text) else {
         return Ok(());
     };
-    let Some(run) = doc.get("run").and_then(toml::Value::as_table) else {
-        return Ok(());
-    };
-    for (old, new) in RENAMED_RUN_KEYS {
-        if run.contains_key(old) {
-            bail!("run.{old} was renamed: use run.{new}");
+    let table = |name: &str| doc.get(name).and_then(toml::Value::as_table);
+    if let Some(flow) = table("flow") {
+        for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
+            if flow.contains_key(key) {
+                bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
+            }
+        }
+    }
+    if let Some(run) = table("run") {
+        for (old, new) in RENAMED_RUN_KEYS {
+            if run.contains_key(old) {
+                bail!("run.{old} was renamed: use run.{new}");
+            }
         }
     }
     Ok(())
@@ -362,8 +354,7 @@ impl LaunchFile {
                 sets.join(" ")
             );
         }
-        refuse_run_keys_under_flow(&text)?;
-        refuse_renamed_keys(&text)?;
+        refuse_misplaced_keys(&text)?;
         let mut lf: LaunchFile = toml::from_str(&text).with_context(|| {
             if sets.is_empty() {
                 format!("parsing launch file {}", path.display())
