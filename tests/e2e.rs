@@ -12,7 +12,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 #[test]
 fn large_messages_in_shared_memory_give_identical_states() {
     let _one = one_run_at_a_time();
-    let file = root().join("launch/analytic-shear.toml");
+    let file = root().join("launch/validation/analytic-shear.toml");
     let sets = ["run.steps=40", "fibers.case1.placement.per_layer=300"];
     let a = scratch("large-inproc");
     launch_with(&file, &a, "inproc", &sets);
@@ -58,7 +58,7 @@ fn large_messages_in_shared_memory_give_identical_states() {
 #[test]
 fn transports_give_bitwise_identical_states() {
     let _one = one_run_at_a_time();
-    let file = root().join("launch/analytic-shear.toml");
+    let file = root().join("launch/validation/analytic-shear.toml");
     let a = scratch("inproc");
     launch(&file, &a, "inproc");
     let sa = states(&a.join("run.mcap"));
@@ -131,7 +131,11 @@ fn recording_decodes_with_independent_reader() {
         "python3 with `mcap` and `mcap-ros2-support` is required (pip install mcap mcap-ros2-support)"
     );
     let out = scratch("python");
-    launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
+    launch(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &out,
+        "inproc",
+    );
     let text = decode_all(&out.join("run.mcap"));
     for t in [
         "FiberGroupState",
@@ -153,7 +157,8 @@ fn recording_decodes_with_independent_reader() {
 const UNTIL_STOPPED: u64 = 100_000_000;
 
 fn long_launch(dir: &std::path::Path, steps: u64) -> std::path::PathBuf {
-    let text = std::fs::read_to_string(root().join("launch/analytic-shear.toml")).unwrap();
+    let text =
+        std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml")).unwrap();
     let text = text
         .replace("steps = 200", &format!("steps = {steps}"))
         .replace("dt_plus = 0.5", "dt_plus = 0.05");
@@ -539,7 +544,11 @@ fn shortened_quick_run_produces_sane_analysis() {
 fn replay_republishes_the_recording() {
     let _one = one_run_at_a_time();
     let out = scratch("replay");
-    launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
+    launch(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &out,
+        "inproc",
+    );
     // the run folder (its segments in order); here one segment
     let text = replay_and_echo(&out, "analytic-shear");
     // every state of both groups arrives, in step order per group
@@ -588,7 +597,11 @@ fn replay_republishes_the_recording() {
 fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
     let _one = one_run_at_a_time();
     let out = scratch("replay-one");
-    launch(&root().join("launch/analytic-shear.toml"), &out, "inproc");
+    launch(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &out,
+        "inproc",
+    );
     let state = "fiberflow/analytic-shear/fibers/case1/state";
     // an echo of one topic; the replay offers all of them, or (second round) only that one
     for only in [None, Some(state)] {
@@ -634,26 +647,27 @@ fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
     }
 }
 
-/// Writes certificates (launch/make-certs.sh) and a two-host version of the analytic-shear
+/// Writes certificates (launch/multi-host/make-certs.sh) and a two-host version of the analytic-shear
 /// launch whose worker uses the identity `worker_cert`; returns the launch file.
 fn two_host_launch(
     dir: &std::path::Path,
     worker_cert: &str,
     extra_flow: &str,
 ) -> std::path::PathBuf {
-    let st = Command::new(root().join("launch/make-certs.sh"))
+    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
         .arg(dir.join("certs"))
         .args(["head", "worker", "intruder"])
         .stdout(Stdio::null())
         .status()
-        .expect("running launch/make-certs.sh (needs openssl)");
+        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
     assert!(st.success(), "make-certs.sh failed");
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
         .unwrap()
         .port();
-    let base = std::fs::read_to_string(root().join("launch/analytic-shear.toml")).unwrap();
+    let base =
+        std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml")).unwrap();
     let text = base.replacen(
         "[flow.source]",
         &format!("[flow]\n{extra_flow}\n\n[flow.source]"),
@@ -719,7 +733,7 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
     }
     let inproc = scratch("two-hosts-ref");
     launch(
-        &root().join("launch/analytic-shear.toml"),
+        &root().join("launch/validation/analytic-shear.toml"),
         &inproc,
         "inproc",
     );

@@ -287,7 +287,7 @@ fn deterministic_failure_is_not_restarted() {
 fn a_live_run_folder_is_not_launched_or_resumed_into() {
     let _one = one_run_at_a_time();
     let out = scratch("live-folder");
-    let file = root().join("launch/analytic-shear.toml");
+    let file = root().join("launch/validation/analytic-shear.toml");
     let sets = [
         "run.steps=100000000",
         "recorder.enabled=false",

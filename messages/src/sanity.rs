@@ -11,7 +11,7 @@ pub trait Sane {
     fn check(&self) -> Result<(), String>;
 }
 
-fn finite(name: &str, xs: &[f64]) -> Result<(), String> {
+pub(crate) fn finite(name: &str, xs: &[f64]) -> Result<(), String> {
     finite_all(name, xs.iter().copied())
 }
 
@@ -376,44 +376,5 @@ mod tests {
         let mut no_centres = lean.clone();
         no_centres.centre.pop();
         assert!(no_centres.check().unwrap_err().contains("centre"));
-    }
-
-    /// The one-pass finiteness check gives the early-exit search's verdict, and the error
-    /// names the first value that is not finite: 20,000 random arrays of 0..300 values
-    /// (normal, subnormal, ±MAX, ±0) with NaN, ±∞ or nothing planted at random places.
-    #[test]
-    fn one_pass_finiteness_agrees_with_the_search() {
-        let mut r = crate::fuzz::Rng::new(11);
-        let specials = [
-            f64::NAN,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::MAX,
-            -f64::MAX,
-            f64::MIN_POSITIVE / 8.0,
-            -0.0,
-        ];
-        let mut bad_seen = 0;
-        for _ in 0..20_000 {
-            let n = r.below(300) as usize;
-            let mut xs: Vec<f64> = (0..n).map(|_| (r.float() - 0.5) * 1e6).collect();
-            for _ in 0..r.below(3) {
-                if n > 0 {
-                    let i = r.below(n as u64) as usize;
-                    xs[i] = specials[r.below(specials.len() as u64) as usize];
-                }
-            }
-            let first_bad = xs.iter().position(|x| !x.is_finite());
-            assert_eq!(all_finite(xs.iter().copied()), first_bad.is_none());
-            match (finite("xs", &xs), first_bad) {
-                (Ok(()), None) => {}
-                (Err(e), Some(i)) => {
-                    assert_eq!(e, format!("xs[{i}] is not finite"));
-                    bad_seen += 1;
-                }
-                (got, want) => panic!("{got:?} for first non-finite value {want:?}"),
-            }
-        }
-        assert!(bad_seen > 1000, "too few arrays carried a non-finite value");
     }
 }

@@ -101,7 +101,7 @@ pub struct FlowSamples {
 }
 
 /// State of a fibre group at `step` (positions unwrapped). At the steps the recording keeps
-/// (`recorder.states_every`, and the last) it is complete; at the others it is *lean*:
+/// (`recorder.states_every_steps`, and the last) it is complete; at the others it is *lean*:
 /// `axis`, `velocity` and `angular_velocity` are empty and it carries only what the flow
 /// node samples at (the centres), a quarter of the bytes. A recorder never writes a lean
 /// state.

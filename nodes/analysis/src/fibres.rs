@@ -125,7 +125,7 @@ struct Reading {
 /// Reads a recording's fibre groups, ordered by step. `mcap_path` is a run folder (all
 /// its segments, in order) or one `.mcap` file. Each state is reduced to per-fibre metrics
 /// as it is read (so memory grows with fibres x steps, not segments); steps without a state
-/// (a recording with `states_every` > 1) take the fibre node's own metrics message.
+/// (a recording with `states_every_steps` > 1) take the fibre node's own metrics message.
 /// Messages that fail their consistency checks are skipped.
 pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, AnalysisError> {
     use fiberflow_messages::sanity::Sane;
@@ -476,9 +476,7 @@ pub fn analyse(
         )));
     }
     let mut summaries = Vec::new();
-    let mut msd_series = Vec::new();
-    let mut z1_series = Vec::new();
-    let mut s2_series = Vec::new();
+    let mut ensemble = Ensemble::default();
     for (ci, (name, g)) in groups.iter().enumerate() {
         let table = MsdTable::new(g);
         let msd = table.msd(None, 0.0, f64::INFINITY);
@@ -493,144 +491,9 @@ pub fn analyse(
             .zip(&g.sigma2)
             .map(|(t, v)| (*t, mean_std(v).0))
             .collect();
-        // CSVs
-        let mut csv = String::from("lag_t_plus,msd23_plus\n");
-        for (t, m) in &msd {
-            let _ = writeln!(csv, "{t:.4},{m:.6e}");
-        }
-        write(out, &format!("{name}_msd23.csv"), &csv)?;
-        let mut csv = String::from("t_plus,layer,mean_abs_z1,std_abs_z1\n");
-        for (lname, l) in [
-            ("all", None),
-            ("near_wall", Some(0u8)),
-            ("next", Some(1)),
-            ("middle", Some(2)),
-        ] {
-            for (t, m, s) in abs_z1(g, l) {
-                let _ = writeln!(csv, "{t:.4},{lname},{m:.6},{s:.6}");
-            }
-        }
-        write(out, &format!("{name}_abs_z1.csv"), &csv)?;
-        let mut csv = String::from("t_plus,fibre,layer,z1,sigma2,x1,x2,x3\n");
-        let nf = g.z1.first().map_or(0, |z| z.len());
-        let stride = (nf * g.t_plus.len()).div_ceil(MAX_FIBRE_ROWS).max(1);
-        for (k, t) in g.t_plus.iter().enumerate().step_by(stride) {
-            for f in 0..g.z1[k].len() {
-                let c = g.com[k][f];
-                let _ = writeln!(
-                    csv,
-                    "{t:.4},{f},{},{:.6},{:.6},{:.4},{:.4},{:.4}",
-                    g.layer.get(f).copied().unwrap_or(0),
-                    g.z1[k][f],
-                    g.sigma2[k][f],
-                    c[0],
-                    c[1],
-                    c[2]
-                );
-            }
-        }
-        write(out, &format!("{name}_fibres.csv"), &csv)?;
-        // per-case figures
-        let layers: Vec<Series> = [("near wall", 0u8), ("next", 1), ("middle", 2)]
-            .iter()
-            .flat_map(|(ln, l)| {
-                let s = abs_z1(g, Some(*l));
-                let c = *l as usize;
-                vec![
-                    Series {
-                        label: format!("<|z1|> {ln}"),
-                        points: s.iter().map(|x| (x.0, x.1)).collect(),
-                        colour: c,
-                        markers: false,
-                    },
-                    Series {
-                        label: String::new(),
-                        points: s.iter().map(|x| (x.0, x.1 + x.2)).collect(),
-                        colour: c,
-                        markers: true,
-                    },
-                ]
-            })
-            .collect();
-        line_plot(
-            &out.join(format!("{name}_abs_z1_layers.png")),
-            &format!("{name}: alignment <|z1|> per initial layer (markers: +sigma)"),
-            "t+",
-            "|z1|",
-            &layers,
-            false,
-            false,
-        )?;
-        let signed: Vec<Series> = spread(&in_layer(g, 0), MAX_PLOTTED_FIBRES)
-            .into_iter()
-            .map(|f| Series {
-                label: String::new(),
-                points: g
-                    .t_plus
-                    .iter()
-                    .zip(&g.z1)
-                    .map(|(t, z)| (*t, z[f]))
-                    .collect(),
-                colour: f,
-                markers: false,
-            })
-            .collect();
-        if !signed.is_empty() {
-            line_plot(
-                &out.join(format!("{name}_signed_z1_near_wall.png")),
-                &format!(
-                    "{name}: signed z1, {} of the {} fibres starting near the walls",
-                    signed.len(),
-                    in_layer(g, 0).len()
-                ),
-                "t+",
-                "z1",
-                &signed,
-                false,
-                false,
-            )?;
-        }
-        let all_fibres: Vec<usize> = (0..g.com[0].len()).collect();
-        let traj: Vec<Series> = spread(&all_fibres, MAX_PLOTTED_FIBRES)
-            .into_iter()
-            .map(|f| Series {
-                label: String::new(),
-                points: g.com.iter().map(|c| (c[f][2], c[f][1])).collect(),
-                colour: f,
-                markers: false,
-            })
-            .collect();
-        line_plot(
-            &out.join(format!("{name}_trajectories_x3x2.png")),
-            &format!(
-                "{name}: centre-of-mass trajectories in the x3-x2 plane ({} of {} fibres)",
-                traj.len(),
-                all_fibres.len()
-            ),
-            "x3+",
-            "x2+",
-            &traj,
-            false,
-            false,
-        )?;
-        msd_series.push(Series {
-            label: format!("{name} (slope {slope:.3})"),
-            points: msd.clone(),
-            colour: ci,
-            markers: false,
-        });
-        z1_series.push(Series {
-            label: name.clone(),
-            points: all.iter().map(|x| (x.0, x.1)).collect(),
-            colour: ci,
-            markers: false,
-        });
-        s2_series.push(Series {
-            label: name.clone(),
-            points: s2.clone(),
-            colour: ci,
-            markers: false,
-        });
+        write_group_csvs(out, name, g, &msd)?;
+        plot_group(out, name, g)?;
+        ensemble.add(name, ci, slope, &msd, &all, &s2);
         summaries.push(GroupSummary {
             group: name.clone(),
             fibres: g.z1[0].len(),
@@ -647,33 +510,7 @@ pub fn analyse(
             final_sigma2_ci,
         });
     }
-    line_plot(
-        &out.join("msd23.png"),
-        "Ensemble MSD_23 (eq. 20)",
-        "lag t+",
-        "MSD_23+",
-        &msd_series,
-        true,
-        true,
-    )?;
-    line_plot(
-        &out.join("abs_z1.png"),
-        "Alignment <|z1|> (all fibres)",
-        "t+",
-        "|z1|",
-        &z1_series,
-        false,
-        false,
-    )?;
-    line_plot(
-        &out.join("sigma2.png"),
-        "Coiling <sigma^2>",
-        "t+",
-        "sigma^2",
-        &s2_series,
-        false,
-        false,
-    )?;
+    ensemble.plot(out)?;
     let (coiling_table, onsets_csv) = crate::coiling::report(&groups, thresholds);
     write(out, "coiling_onsets.csv", &onsets_csv)?;
     write(out, "coiling_onsets.md", &coiling_table)?;
@@ -681,6 +518,207 @@ pub fn analyse(
         summaries,
         coiling_table,
     })
+}
+
+/// One group's CSVs: MSD_23 over lag, <|z1|> per layer over time, and per-fibre rows
+/// (decimated to at most `MAX_FIBRE_ROWS`).
+fn write_group_csvs(
+    out: &Path,
+    name: &str,
+    g: &GroupSeries,
+    msd: &[(f64, f64)],
+) -> Result<(), AnalysisError> {
+    let mut csv = String::from("lag_t_plus,msd23_plus\n");
+    for (t, m) in msd {
+        let _ = writeln!(csv, "{t:.4},{m:.6e}");
+    }
+    write(out, &format!("{name}_msd23.csv"), &csv)?;
+    let mut csv = String::from("t_plus,layer,mean_abs_z1,std_abs_z1\n");
+    for (lname, l) in [
+        ("all", None),
+        ("near_wall", Some(0u8)),
+        ("next", Some(1)),
+        ("middle", Some(2)),
+    ] {
+        for (t, m, s) in abs_z1(g, l) {
+            let _ = writeln!(csv, "{t:.4},{lname},{m:.6},{s:.6}");
+        }
+    }
+    write(out, &format!("{name}_abs_z1.csv"), &csv)?;
+    let mut csv = String::from("t_plus,fibre,layer,z1,sigma2,x1,x2,x3\n");
+    let nf = g.z1.first().map_or(0, |z| z.len());
+    let stride = (nf * g.t_plus.len()).div_ceil(MAX_FIBRE_ROWS).max(1);
+    for (k, t) in g.t_plus.iter().enumerate().step_by(stride) {
+        for f in 0..g.z1[k].len() {
+            let c = g.com[k][f];
+            let _ = writeln!(
+                csv,
+                "{t:.4},{f},{},{:.6},{:.6},{:.4},{:.4},{:.4}",
+                g.layer.get(f).copied().unwrap_or(0),
+                g.z1[k][f],
+                g.sigma2[k][f],
+                c[0],
+                c[1],
+                c[2]
+            );
+        }
+    }
+    write(out, &format!("{name}_fibres.csv"), &csv)?;
+    Ok(())
+}
+
+/// One group's figures: <|z1|> per initial layer, signed z1 of near-wall fibres, and
+/// centre-of-mass trajectories in the x3–x2 plane.
+fn plot_group(out: &Path, name: &str, g: &GroupSeries) -> Result<(), AnalysisError> {
+    let layers: Vec<Series> = [("near wall", 0u8), ("next", 1), ("middle", 2)]
+        .iter()
+        .flat_map(|(ln, l)| {
+            let s = abs_z1(g, Some(*l));
+            let c = *l as usize;
+            vec![
+                Series {
+                    label: format!("<|z1|> {ln}"),
+                    points: s.iter().map(|x| (x.0, x.1)).collect(),
+                    colour: c,
+                    markers: false,
+                },
+                Series {
+                    label: String::new(),
+                    points: s.iter().map(|x| (x.0, x.1 + x.2)).collect(),
+                    colour: c,
+                    markers: true,
+                },
+            ]
+        })
+        .collect();
+    line_plot(
+        &out.join(format!("{name}_abs_z1_layers.png")),
+        &format!("{name}: alignment <|z1|> per initial layer (markers: +sigma)"),
+        "t+",
+        "|z1|",
+        &layers,
+        false,
+        false,
+    )?;
+    let signed: Vec<Series> = spread(&in_layer(g, 0), MAX_PLOTTED_FIBRES)
+        .into_iter()
+        .map(|f| Series {
+            label: String::new(),
+            points: g
+                .t_plus
+                .iter()
+                .zip(&g.z1)
+                .map(|(t, z)| (*t, z[f]))
+                .collect(),
+            colour: f,
+            markers: false,
+        })
+        .collect();
+    if !signed.is_empty() {
+        line_plot(
+            &out.join(format!("{name}_signed_z1_near_wall.png")),
+            &format!(
+                "{name}: signed z1, {} of the {} fibres starting near the walls",
+                signed.len(),
+                in_layer(g, 0).len()
+            ),
+            "t+",
+            "z1",
+            &signed,
+            false,
+            false,
+        )?;
+    }
+    let all_fibres: Vec<usize> = (0..g.com[0].len()).collect();
+    let traj: Vec<Series> = spread(&all_fibres, MAX_PLOTTED_FIBRES)
+        .into_iter()
+        .map(|f| Series {
+            label: String::new(),
+            points: g.com.iter().map(|c| (c[f][2], c[f][1])).collect(),
+            colour: f,
+            markers: false,
+        })
+        .collect();
+    line_plot(
+        &out.join(format!("{name}_trajectories_x3x2.png")),
+        &format!(
+            "{name}: centre-of-mass trajectories in the x3-x2 plane ({} of {} fibres)",
+            traj.len(),
+            all_fibres.len()
+        ),
+        "x3+",
+        "x2+",
+        &traj,
+        false,
+        false,
+    )?;
+    Ok(())
+}
+
+/// The all-groups figures (MSD_23, <|z1|>, <σ²>), one curve per group.
+#[derive(Default)]
+struct Ensemble {
+    msd: Vec<Series>,
+    z1: Vec<Series>,
+    s2: Vec<Series>,
+}
+
+impl Ensemble {
+    fn add(
+        &mut self,
+        name: &str,
+        colour: usize,
+        slope: f64,
+        msd: &[(f64, f64)],
+        all: &[(f64, f64, f64)],
+        s2: &[(f64, f64)],
+    ) {
+        let series = |label: String, points: Vec<(f64, f64)>| Series {
+            label,
+            points,
+            colour,
+            markers: false,
+        };
+        self.msd
+            .push(series(format!("{name} (slope {slope:.3})"), msd.to_vec()));
+        self.z1.push(series(
+            name.to_string(),
+            all.iter().map(|x| (x.0, x.1)).collect(),
+        ));
+        self.s2.push(series(name.to_string(), s2.to_vec()));
+    }
+
+    fn plot(&self, out: &Path) -> Result<(), AnalysisError> {
+        let (msd_series, z1_series, s2_series) = (&self.msd, &self.z1, &self.s2);
+        line_plot(
+            &out.join("msd23.png"),
+            "Ensemble MSD_23 (eq. 20)",
+            "lag t+",
+            "MSD_23+",
+            msd_series,
+            true,
+            true,
+        )?;
+        line_plot(
+            &out.join("abs_z1.png"),
+            "Alignment <|z1|> (all fibres)",
+            "t+",
+            "|z1|",
+            z1_series,
+            false,
+            false,
+        )?;
+        line_plot(
+            &out.join("sigma2.png"),
+            "Coiling <sigma^2>",
+            "t+",
+            "sigma^2",
+            s2_series,
+            false,
+            false,
+        )?;
+        Ok(())
+    }
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> Result<(), AnalysisError> {

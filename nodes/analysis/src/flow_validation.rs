@@ -92,6 +92,8 @@ pub fn compare(ours: &Ours, r: &Reference) -> Comparison {
 
 /// Writes `flow_u_mean.png`, `flow_rms.png`, `flow_vorticity_rms.png` and returns a
 /// markdown table against each reference.
+///
+/// Long (≈130 lines): three figures and one table, in the order the summary shows them.
 pub fn report(stats_csv: &Path, refs: &[Reference], out: &Path) -> Result<String, AnalysisError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
     let ours = Ours::read(stats_csv)?;

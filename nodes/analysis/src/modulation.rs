@@ -326,6 +326,47 @@ pub fn report(
     std::fs::create_dir_all(out).map_err(io_err(out))?;
     let ours = scalars(run, from, batches);
     let theirs = base.map(|b| scalars(b, from, batches));
+    let (csv, mut md) = scalar_table(run, &ours, theirs.as_deref(), from, batches);
+    std::fs::write(out.join("flow_modulation.csv"), csv)
+        .map_err(io_err(&out.join("flow_modulation.csv")))?;
+
+    // profiles
+    let (y, ours_b) = profile_batches(run, from);
+    let ours_p = profile_estimates(&ours_b);
+    let theirs_p = base.map(|b| {
+        let (yb, bb) = profile_batches(b, from);
+        (yb, profile_estimates(&bb))
+    });
+    let pcsv = profiles_csv(&y, &ours_p, theirs_p.as_ref());
+    std::fs::write(out.join("flow_profiles.csv"), pcsv)
+        .map_err(io_err(&out.join("flow_profiles.csv")))?;
+    if !ours_b.is_empty() {
+        profile_plots(out, &y, &ours_p, theirs_p.as_ref())?;
+    }
+    let _ = writeln!(
+        md,
+        "\nProfiles: {} batches of this run{}; `flow_profiles.csv`, `flow_mean_velocity.png`, \
+         `flow_rms.png`. Budget: pressure_gradient = wall_shear + fibre_force_x (outer \
+         units); the residual is what the time average leaves.",
+        ours_b.len(),
+        theirs_p
+            .as_ref()
+            .map_or(String::new(), |_| " beside the unladen run's".into())
+    );
+    std::fs::write(out.join("flow_modulation.md"), &md)
+        .map_err(io_err(&out.join("flow_modulation.md")))?;
+    Ok(md)
+}
+
+/// The scalar rows (this run, the base run, the change) as CSV and as the summary's
+/// Markdown table, which opens the summary.
+fn scalar_table(
+    run: &FlowSeries,
+    ours: &[(&'static str, Option<Estimate>)],
+    theirs: Option<&[(&'static str, Option<Estimate>)]>,
+    from: f64,
+    batches: usize,
+) -> (String, String) {
     let fmt = |e: &Option<Estimate>| match e {
         Some(e) => format!("{:.5} ± {:.5}", e.mean, e.half_width),
         None => "—".into(),
@@ -346,7 +387,7 @@ pub fn report(
         "| quantity | this run | unladen | change |\n|---|---|---|---|"
     );
     for (k, (name, e)) in ours.iter().enumerate() {
-        let b = theirs.as_ref().and_then(|t| t[k].1);
+        let b = theirs.and_then(|t| t[k].1);
         let change = match (e, b) {
             (Some(e), Some(b)) if b.mean.abs() > 1e-12 => Some(e.change_from(&b)),
             _ => None,
@@ -378,19 +419,17 @@ pub fn report(
         let _ = writeln!(
             md,
             "\n—: fewer than two flow statuses with statistics per batch after t+ = {from} \
-             (`flow.status_every` sets how often the flow node measures them)."
+             (`flow.status_every_steps` sets how often the flow node measures them)."
         );
     }
-    std::fs::write(out.join("flow_modulation.csv"), csv)
-        .map_err(io_err(&out.join("flow_modulation.csv")))?;
+    (csv, md)
+}
 
-    // profiles
-    let (y, ours_b) = profile_batches(run, from);
-    let ours_p = profile_estimates(&ours_b);
-    let theirs_p = base.map(|b| {
-        let (yb, bb) = profile_batches(b, from);
-        (yb, profile_estimates(&bb))
-    });
+/// Profile means and half-widths per y+ row, with the base run's beside them.
+type BaseProfiles = (Vec<f64>, [Vec<Estimate>; 5]);
+
+/// `flow_profiles.csv`: y+, each profile quantity and its half-width (and the base run's).
+fn profiles_csv(y: &[f64], ours_p: &[Vec<Estimate>; 5], theirs_p: Option<&BaseProfiles>) -> String {
     let mut pcsv = String::from("y_plus");
     for q in PROFILE_NAMES {
         let _ = write!(pcsv, ",{q},{q}_half_width");
@@ -403,10 +442,10 @@ pub fn report(
     pcsv.push('\n');
     for (j, yj) in y.iter().enumerate() {
         let _ = write!(pcsv, "{yj:.6}");
-        for q in &ours_p {
+        for q in ours_p {
             let _ = write!(pcsv, ",{:.6e},{:.6e}", q[j].mean, q[j].half_width);
         }
-        if let Some((_, tp)) = &theirs_p {
+        if let Some((_, tp)) = theirs_p {
             for q in tp {
                 match q.get(j) {
                     Some(e) => {
@@ -418,63 +457,57 @@ pub fn report(
         }
         pcsv.push('\n');
     }
-    std::fs::write(out.join("flow_profiles.csv"), pcsv)
-        .map_err(io_err(&out.join("flow_profiles.csv")))?;
+    pcsv
+}
+
+/// `flow_mean_velocity.png` and `flow_rms.png` (lines: this run; dots: the base run).
+fn profile_plots(
+    out: &Path,
+    y: &[f64],
+    ours_p: &[Vec<Estimate>; 5],
+    theirs_p: Option<&BaseProfiles>,
+) -> Result<(), AnalysisError> {
     let curve = |yy: &[f64], e: &[Estimate], label: &str, colour: usize, markers: bool| Series {
         label: label.into(),
         points: yy.iter().zip(e).map(|(y, e)| (*y, e.mean)).collect(),
         colour,
         markers,
     };
-    if !ours_b.is_empty() {
-        let mut s = vec![curve(&y, &ours_p[0], "U+ (this run)", 0, false)];
-        if let Some((yb, tp)) = &theirs_p {
-            s.push(curve(yb, &tp[0], "U+ unladen", 7, true));
-        }
-        line_plot(
-            &out.join("flow_mean_velocity.png"),
-            "Mean velocity",
-            "y+",
-            "U+",
-            &s,
-            true,
-            false,
-        )?;
-        let labels = ["u'", "v'", "w'", "-u'v'"];
-        let mut s = Vec::new();
-        for q in 1..5 {
-            s.push(curve(&y, &ours_p[q], labels[q - 1], q - 1, false));
-            if let Some((yb, tp)) = &theirs_p {
-                s.push(curve(yb, &tp[q], "", q - 1, true));
-            }
-        }
-        line_plot(
-            &out.join("flow_rms.png"),
-            if theirs_p.is_some() {
-                "RMS and Reynolds stress (lines: this run; dots: unladen)"
-            } else {
-                "RMS and Reynolds stress"
-            },
-            "y+",
-            "wall units",
-            &s,
-            false,
-            false,
-        )?;
+    let mut s = vec![curve(y, &ours_p[0], "U+ (this run)", 0, false)];
+    if let Some((yb, tp)) = theirs_p {
+        s.push(curve(yb, &tp[0], "U+ unladen", 7, true));
     }
-    let _ = writeln!(
-        md,
-        "\nProfiles: {} batches of this run{}; `flow_profiles.csv`, `flow_mean_velocity.png`, \
-         `flow_rms.png`. Budget: pressure_gradient = wall_shear + fibre_force_x (outer \
-         units); the residual is what the time average leaves.",
-        ours_b.len(),
-        theirs_p
-            .as_ref()
-            .map_or(String::new(), |_| " beside the unladen run's".into())
-    );
-    std::fs::write(out.join("flow_modulation.md"), &md)
-        .map_err(io_err(&out.join("flow_modulation.md")))?;
-    Ok(md)
+    line_plot(
+        &out.join("flow_mean_velocity.png"),
+        "Mean velocity",
+        "y+",
+        "U+",
+        &s,
+        true,
+        false,
+    )?;
+    let labels = ["u'", "v'", "w'", "-u'v'"];
+    let mut s = Vec::new();
+    for q in 1..5 {
+        s.push(curve(y, &ours_p[q], labels[q - 1], q - 1, false));
+        if let Some((yb, tp)) = theirs_p {
+            s.push(curve(yb, &tp[q], "", q - 1, true));
+        }
+    }
+    line_plot(
+        &out.join("flow_rms.png"),
+        if theirs_p.is_some() {
+            "RMS and Reynolds stress (lines: this run; dots: unladen)"
+        } else {
+            "RMS and Reynolds stress"
+        },
+        "y+",
+        "wall units",
+        &s,
+        false,
+        false,
+    )?;
+    Ok(())
 }
 
 #[cfg(test)]

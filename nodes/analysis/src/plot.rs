@@ -24,6 +24,8 @@ const PALETTE: [RGBColor; 8] = [
 ];
 
 /// Draws the series into a PNG; `log_x`/`log_y` select logarithmic axes.
+///
+/// Long (≈115 lines): one plotters chart, axes to legend, in drawing order.
 pub fn line_plot(
     path: &Path,
     title: &str,

@@ -46,17 +46,17 @@ enum Cmd {
         #[arg(long)]
         no_record: bool,
         /// Launch file with six fibre groups.
-        #[arg(long, default_value = "launch/scale-1e4.toml")]
+        #[arg(long, default_value = "launch/bench/scale-1e4.toml")]
         fibers_file: PathBuf,
         /// Launch file of the flow alone.
-        #[arg(long, default_value = "launch/scale-flow-only.toml")]
+        #[arg(long, default_value = "launch/bench/scale-flow-only.toml")]
         flow_only_file: PathBuf,
         /// Fibre counts (multiples of 60) also run over two launchers on this machine, as
         /// if on two hosts (zenoh with mutual TLS; compared with zenoh's flow-only runs).
         #[arg(long, value_delimiter = ',')]
         two_launchers: Vec<u64>,
         /// The `[network]` launch file of those runs (hosts head and worker).
-        #[arg(long, default_value = "launch/scale-3e5-two-launchers.toml")]
+        #[arg(long, default_value = "launch/bench/scale-3e5-two-launchers.toml")]
         two_launchers_file: PathBuf,
         /// Where the runs and bench-scale.md go.
         #[arg(long, default_value = "recordings/bench-scale")]

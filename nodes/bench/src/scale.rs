@@ -36,7 +36,7 @@ pub struct BenchOptions {
     /// Fibre counts also run over two launchers on this machine ([`TWO_LAUNCHERS`]).
     pub two_launchers: Vec<u64>,
     /// The `[network]` launch file for those runs (hosts `head` and `worker`; its
-    /// certificates are made with `launch/make-certs.sh` if missing).
+    /// certificates are made with `launch/multi-host/make-certs.sh` if missing).
     pub two_launchers_file: PathBuf,
     /// A launch-file key whose values are compared, run by run (`--compare`).
     pub compare: Option<Compare>,
@@ -363,6 +363,8 @@ fn steps_per_run(given: Option<u64>, files: &[(&Path, u64)]) -> Result<u64> {
     Ok(steps)
 }
 
+/// The scale benchmark. Long (≈140 lines): its rounds of alternating runs in order (a
+/// benchmark harness, not part of the product binary).
 pub fn run(o: &BenchOptions) -> Result<()> {
     if o.fibres.iter().any(|n| n % 30 != 0) {
         bail!("--fibers: every count must be a multiple of 30 (six groups of five layers)");
@@ -617,7 +619,7 @@ fn run_sets(record: bool, steps: u64, c: &Config, i: usize, r: usize) -> Vec<Str
         sets.extend(
             [
                 "recorder.enabled=true",
-                "recorder.states_every=10",
+                "recorder.states_every_steps=10",
                 "recorder.samples=false",
             ]
             .map(String::from),
@@ -662,17 +664,25 @@ fn apply_clean_steps(
     Ok(())
 }
 
-/// Makes the certificates a two-launcher file names (`certs/` beside it) with
-/// `launch/make-certs.sh` if its CA is missing.
+/// Makes the certificates a two-launcher file names (its `network.root_ca_certificate`
+/// and the host certificates beside it) with `launch/multi-host/make-certs.sh` (from the
+/// repository root, where the benchmark runs) if the CA is missing.
 fn ensure_certificates(file: &Path) -> Result<()> {
-    let dir = file.parent().unwrap_or(Path::new("."));
-    let certs = dir.join("certs");
-    if certs.join("ca.pem").exists() {
+    let (lf, _) = fiberflow_launcher::launchfile::LaunchFile::load_with(file, &[])?;
+    let Some(network) = lf.network else {
+        bail!(
+            "{}: a two-launcher file needs a [network] table",
+            file.display()
+        );
+    };
+    let ca = &network.root_ca_certificate;
+    if ca.exists() {
         return Ok(());
     }
-    let script = dir.join("make-certs.sh");
-    let st = Command::new(&script)
-        .arg(&certs)
+    let certs = ca.parent().unwrap_or(Path::new("."));
+    let script = Path::new("launch/multi-host/make-certs.sh");
+    let st = Command::new(script)
+        .arg(certs)
         .args(["head=localhost", "worker=localhost"])
         .stdout(std::process::Stdio::null())
         .status()
@@ -1040,7 +1050,7 @@ mod tests {
     /// `--steps` wins.
     #[test]
     fn runs_take_the_launch_files_steps_unless_told() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/bench");
         let shipped: Vec<(PathBuf, u64)> = ["scale-1e4.toml", "scale-flow-only.toml"]
             .iter()
             .map(|f| {

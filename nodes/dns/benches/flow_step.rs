@@ -79,7 +79,7 @@ fn bench_step(c: &mut Criterion) {
     group.finish();
 }
 
-/// What the flow node adds every `status_every` steps beside the step: a statistics
+/// What the flow node adds every `status_every_steps` steps beside the step: a statistics
 /// sample of the field and the wall Re_tau.
 fn bench_statistics(c: &mut Criterion) {
     let mut group = c.benchmark_group("statistics");

@@ -76,7 +76,7 @@ pub struct DnsConfig {
     pub forcing: Forcing,
     /// Check max |div u| every this many steps (a full pass over the field).
     #[serde(default = "default_check_every")]
-    pub check_every: u64,
+    pub check_every_steps: u64,
     /// The field a run without a restart starts from (default: turbulent).
     #[serde(default = "default_init")]
     pub init: InitialField,
@@ -141,7 +141,7 @@ impl DnsConfig {
             dt_fixed_plus: None,
             implicit_y: true,
             forcing: default_forcing(),
-            check_every: default_check_every(),
+            check_every_steps: default_check_every(),
             init: default_init(),
         }
     }
@@ -186,8 +186,8 @@ impl DnsConfig {
                 return bad("dt_fixed_plus", "positive", dt.to_string());
             }
         }
-        if self.check_every == 0 {
-            return bad("check_every", ">= 1", "0".into());
+        if self.check_every_steps == 0 {
+            return bad("check_every_steps", ">= 1", "0".into());
         }
         if let Forcing::FlowRate { bulk_velocity } = self.forcing {
             // 0 holds the fluid at no net flow (e.g. a settling test in still fluid)

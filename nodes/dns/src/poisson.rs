@@ -135,6 +135,9 @@ impl Poisson {
 
     /// The solver proper; `fill(k, j, row)` writes the right-hand side of interior row
     /// (j, k) (0-based) into `row` (nx values).
+    ///
+    /// Long (≈125 lines): its numbered stages (FFT in x, FFT in z, tridiagonal solves in
+    /// y, inverse transforms) share the row buffers and read as the method.
     fn solve_rows(
         &mut self,
         g: &Grid,

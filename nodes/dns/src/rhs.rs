@@ -45,6 +45,8 @@ unsafe fn plane_rhs_avx2(
     plane_rhs_body(g, vel, nu, implicit_y, k, ru, rv, rw);
 }
 
+/// Long (≈120 lines) on purpose: one fused pass over a plane computing every term of the
+/// momentum right-hand side; split, each term would read the plane again.
 #[inline(always)]
 fn plane_rhs_body(
     g: &Grid,

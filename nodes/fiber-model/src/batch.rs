@@ -339,6 +339,8 @@ fn thomas(
     }
 }
 
+/// Long (≈170 lines) on purpose: the step of `step_inner` written once over SIMD lanes
+/// (one fibre per lane); split, the lanes would have to cross function boundaries.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn kernel(

@@ -206,6 +206,8 @@ pub fn step_with_loads(
 /// buffer is initialised at this size on each step.
 const MAX_STACK: usize = 16;
 
+/// Long (≈180 lines) on purpose: it is one implicit step, eqs. 10–16 assembled and solved
+/// as one system, and reads top to bottom like the paper's algorithm.
 fn step_inner(
     p: &ModelParams,
     f: &mut Fibre,

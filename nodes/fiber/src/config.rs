@@ -128,7 +128,7 @@ pub struct FiberNodeConfig {
     pub wall_contact: bool,
     /// Publish metrics every this many steps, ≥ 1.
     #[serde(default = "default_metrics_every")]
-    pub metrics_every: u64,
+    pub metrics_every_steps: u64,
     /// Fibre nodes that integrate the group, each a contiguous slice of its fibres (nodes
     /// `<group>.0`, `<group>.1`, … when > 1); results do not depend on it.
     #[serde(default = "default_shards")]
@@ -246,148 +246,10 @@ impl FiberNodeConfig {
 
     /// Validates and builds the group for a channel box (wall units).
     pub fn build(&self, box_plus: [f64; 3]) -> Result<BuiltGroup, FibreError> {
-        let bad = |key: &str, range: &str, v: String| {
-            Err(FibreError::Config(format!(
-                "fibers[{}].{key} must be {range} (got {v})",
-                self.group
-            )))
-        };
-        if self.group.is_empty()
-            || !self
-                .group
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-        {
-            return bad(
-                "group",
-                "a non-empty name of [A-Za-z0-9_-]",
-                format!("{:?}", self.group),
-            );
-        }
-        if let Some(p) = &self.physical {
-            p.check(&self.group)?;
-        }
-        if self.segments == 0 || self.segments > 1000 {
-            return bad("segments", "in 1..=1000", self.segments.to_string());
-        }
-        let (l, d, rho) = self.resolved();
-        if !(d > 0.0 && d.is_finite()) {
-            return bad("diameter_plus", "positive and finite", d.to_string());
-        }
-        if !(l > d && l.is_finite()) {
-            return bad(
-                "segment_length_plus",
-                "greater than diameter_plus",
-                l.to_string(),
-            );
-        }
-        if !(rho > 0.0 && rho.is_finite()) {
-            return bad("density_ratio", "positive and finite", rho.to_string());
-        }
-        if !(self.bending_stiffness_plus >= 0.0 && self.bending_stiffness_plus.is_finite()) {
-            return bad(
-                "bending_stiffness_plus",
-                ">= 0 and finite",
-                self.bending_stiffness_plus.to_string(),
-            );
-        }
-        if !(self.twisting_stiffness_plus >= 0.0 && self.twisting_stiffness_plus.is_finite()) {
-            return bad(
-                "twisting_stiffness_plus",
-                ">= 0 and finite",
-                self.twisting_stiffness_plus.to_string(),
-            );
-        }
-        if !(self.tikhonov >= 0.0 && self.tikhonov < 1.0) {
-            return bad("tikhonov", "in [0, 1)", self.tikhonov.to_string());
-        }
-        if !(self.drag_coefficient >= 0.0 && self.drag_coefficient.is_finite()) {
-            return bad(
-                "drag_coefficient",
-                ">= 0",
-                self.drag_coefficient.to_string(),
-            );
-        }
-        if self.metrics_every == 0 {
-            return bad("metrics_every", ">= 1", "0".into());
-        }
-        let placements: Vec<Placement> = match &self.placement {
-            PlacementConfig::Layers {
-                per_layer,
-                near_wall_plus,
-                next_plus,
-            } => {
-                let half = 0.5 * l * self.segments as f64;
-                if *per_layer == 0 {
-                    return bad("placement.per_layer", ">= 1", "0".into());
-                }
-                if !(*near_wall_plus >= half && *near_wall_plus < 0.5 * box_plus[1]) {
-                    return bad(
-                        "placement.near_wall_plus",
-                        &format!(
-                            "in [{half}, {}) so the fibre starts inside the channel",
-                            0.5 * box_plus[1]
-                        ),
-                        near_wall_plus.to_string(),
-                    );
-                }
-                if !(*next_plus >= half && *next_plus < 0.5 * box_plus[1]) {
-                    return bad(
-                        "placement.next_plus",
-                        "inside the channel",
-                        next_plus.to_string(),
-                    );
-                }
-                five_layers(box_plus, *per_layer, *near_wall_plus, *next_plus)
-            }
-            PlacementConfig::Random {
-                count,
-                seed,
-                band_plus,
-                min_distance_plus,
-            } => {
-                if *count == 0 {
-                    return bad("placement.count", ">= 1", "0".into());
-                }
-                let gap = min_distance_plus.unwrap_or(d);
-                if !(gap >= 0.0 && gap.is_finite()) {
-                    return bad("placement.min_distance_plus", ">= 0", gap.to_string());
-                }
-                let band = band_plus.unwrap_or([0.0, box_plus[1]]);
-                random_suspension(&Suspension {
-                    count: *count,
-                    seed: *seed,
-                    box_plus,
-                    band_plus: band,
-                    segments: self.segments,
-                    segment_length_plus: l,
-                    diameter_plus: d,
-                    min_distance_plus: gap,
-                })
-                .map_err(|e| FibreError::Config(format!("fibers[{}].{e}", self.group)))?
-            }
-            PlacementConfig::Explicit { centres, axes } => {
-                if centres.len() != axes.len() || centres.is_empty() {
-                    return bad(
-                        "placement.axes",
-                        "as many entries as placement.centres (>= 1)",
-                        format!("{} vs {}", axes.len(), centres.len()),
-                    );
-                }
-                centres
-                    .iter()
-                    .zip(axes)
-                    .map(|(c, a)| Placement {
-                        centre: Vector3::from(*c),
-                        axis: Vector3::from(*a),
-                        layer: Layer::Middle,
-                        upper: false,
-                    })
-                    .collect()
-            }
-        };
+        let (l, d, rho) = self.checked_sizes()?;
+        let placements = self.placements(box_plus, l, d)?;
         if self.shards == 0 || self.shards as usize > placements.len() {
-            return bad(
+            return self.bad(
                 "shards",
                 &format!("in 1..={} (the group's fibres)", placements.len()),
                 self.shards.to_string(),
@@ -414,6 +276,158 @@ impl FiberNodeConfig {
         Ok(BuiltGroup {
             group: FibreGroup::new(params, fibres),
             layers,
+        })
+    }
+
+    /// The error for key `key` of this group outside `range`.
+    fn bad<T>(&self, key: &str, range: &str, got: String) -> Result<T, FibreError> {
+        Err(FibreError::Config(format!(
+            "fibers[{}].{key} must be {range} (got {got})",
+            self.group
+        )))
+    }
+
+    /// Checks the group's name and scalar keys (each error names its key and range) and
+    /// gives the resolved segment length, diameter and density ratio.
+    fn checked_sizes(&self) -> Result<(f64, f64, f64), FibreError> {
+        if self.group.is_empty()
+            || !self
+                .group
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return self.bad(
+                "group",
+                "a non-empty name of [A-Za-z0-9_-]",
+                format!("{:?}", self.group),
+            );
+        }
+        if let Some(p) = &self.physical {
+            p.check(&self.group)?;
+        }
+        if self.segments == 0 || self.segments > 1000 {
+            return self.bad("segments", "in 1..=1000", self.segments.to_string());
+        }
+        let (l, d, rho) = self.resolved();
+        if !(d > 0.0 && d.is_finite()) {
+            return self.bad("diameter_plus", "positive and finite", d.to_string());
+        }
+        if !(l > d && l.is_finite()) {
+            return self.bad(
+                "segment_length_plus",
+                "greater than diameter_plus",
+                l.to_string(),
+            );
+        }
+        if !(rho > 0.0 && rho.is_finite()) {
+            return self.bad("density_ratio", "positive and finite", rho.to_string());
+        }
+        if !(self.bending_stiffness_plus >= 0.0 && self.bending_stiffness_plus.is_finite()) {
+            return self.bad(
+                "bending_stiffness_plus",
+                ">= 0 and finite",
+                self.bending_stiffness_plus.to_string(),
+            );
+        }
+        if !(self.twisting_stiffness_plus >= 0.0 && self.twisting_stiffness_plus.is_finite()) {
+            return self.bad(
+                "twisting_stiffness_plus",
+                ">= 0 and finite",
+                self.twisting_stiffness_plus.to_string(),
+            );
+        }
+        if !(self.tikhonov >= 0.0 && self.tikhonov < 1.0) {
+            return self.bad("tikhonov", "in [0, 1)", self.tikhonov.to_string());
+        }
+        if !(self.drag_coefficient >= 0.0 && self.drag_coefficient.is_finite()) {
+            return self.bad(
+                "drag_coefficient",
+                ">= 0",
+                self.drag_coefficient.to_string(),
+            );
+        }
+        if self.metrics_every_steps == 0 {
+            return self.bad("metrics_every_steps", ">= 1", "0".into());
+        }
+        Ok((l, d, rho))
+    }
+
+    /// Where the group's fibres start, by `placement.kind` (checked against the box).
+    fn placements(&self, box_plus: [f64; 3], l: f64, d: f64) -> Result<Vec<Placement>, FibreError> {
+        Ok(match &self.placement {
+            PlacementConfig::Layers {
+                per_layer,
+                near_wall_plus,
+                next_plus,
+            } => {
+                let half = 0.5 * l * self.segments as f64;
+                if *per_layer == 0 {
+                    return self.bad("placement.per_layer", ">= 1", "0".into());
+                }
+                if !(*near_wall_plus >= half && *near_wall_plus < 0.5 * box_plus[1]) {
+                    return self.bad(
+                        "placement.near_wall_plus",
+                        &format!(
+                            "in [{half}, {}) so the fibre starts inside the channel",
+                            0.5 * box_plus[1]
+                        ),
+                        near_wall_plus.to_string(),
+                    );
+                }
+                if !(*next_plus >= half && *next_plus < 0.5 * box_plus[1]) {
+                    return self.bad(
+                        "placement.next_plus",
+                        "inside the channel",
+                        next_plus.to_string(),
+                    );
+                }
+                five_layers(box_plus, *per_layer, *near_wall_plus, *next_plus)
+            }
+            PlacementConfig::Random {
+                count,
+                seed,
+                band_plus,
+                min_distance_plus,
+            } => {
+                if *count == 0 {
+                    return self.bad("placement.count", ">= 1", "0".into());
+                }
+                let gap = min_distance_plus.unwrap_or(d);
+                if !(gap >= 0.0 && gap.is_finite()) {
+                    return self.bad("placement.min_distance_plus", ">= 0", gap.to_string());
+                }
+                let band = band_plus.unwrap_or([0.0, box_plus[1]]);
+                random_suspension(&Suspension {
+                    count: *count,
+                    seed: *seed,
+                    box_plus,
+                    band_plus: band,
+                    segments: self.segments,
+                    segment_length_plus: l,
+                    diameter_plus: d,
+                    min_distance_plus: gap,
+                })
+                .map_err(|e| FibreError::Config(format!("fibers[{}].{e}", self.group)))?
+            }
+            PlacementConfig::Explicit { centres, axes } => {
+                if centres.len() != axes.len() || centres.is_empty() {
+                    return self.bad(
+                        "placement.axes",
+                        "as many entries as placement.centres (>= 1)",
+                        format!("{} vs {}", axes.len(), centres.len()),
+                    );
+                }
+                centres
+                    .iter()
+                    .zip(axes)
+                    .map(|(c, a)| Placement {
+                        centre: Vector3::from(*c),
+                        axis: Vector3::from(*a),
+                        layer: Layer::Middle,
+                        upper: false,
+                    })
+                    .collect()
+            }
         })
     }
 

@@ -55,7 +55,7 @@ pub struct Checkpointing {
     /// (empty = accept any).
     pub config_digest: String,
     /// Complete states every this many steps and at the last (the recorder's
-    /// `states_every`; 0 and 1 = every step); lean states (centres only) at the others.
+    /// `states_every_steps`; 0 and 1 = every step); lean states (centres only) at the others.
     pub full_states_every: u64,
     /// Two-way coupling (`run.coupling = "two-way"`): every state, lean or complete,
     /// carries each segment's hydrodynamic force of the last step for the flow node.
@@ -241,7 +241,7 @@ struct Served {
     /// The step the run starts (or resumes) from.
     start: u64,
     initial_velocity: InitialVelocity,
-    metrics_every: u64,
+    metrics_every_steps: u64,
     samples_in: Inbox,
     ann_in: Inbox,
     /// Refilled every step: its per-fibre arrays are set once and the segment arrays (MBs
@@ -269,6 +269,9 @@ struct Served {
 
 impl Served {
     /// Builds (or restores) the node's slice of its group and subscribes to its topics.
+    ///
+    /// Long (≈120 lines): fresh start and restore from a checkpoint side by side, so
+    /// both visibly build the same state.
     fn prepare(
         cfg: &FiberNodeConfig,
         shard: u32,
@@ -374,7 +377,7 @@ impl Served {
             run_id: run_id.to_string(),
             start: ck.start_step,
             initial_velocity: cfg.initial_velocity,
-            metrics_every: cfg.metrics_every,
+            metrics_every_steps: cfg.metrics_every_steps,
             samples_in,
             ann_in,
             state_msg,
@@ -427,7 +430,7 @@ impl Served {
         self.steps = ann.steps;
         let start = self.start;
         self.publish_state(start)?;
-        if start == 0 || start.is_multiple_of(self.metrics_every) {
+        if start == 0 || start.is_multiple_of(self.metrics_every_steps) {
             self.publish_metrics(start)?;
         }
         self.cpu_from = fiberflow_bus::usage::process_cpu_s();
@@ -591,7 +594,7 @@ impl Served {
     fn publish_step(&mut self, step: u64) -> Result<(), BusError> {
         let t0 = Instant::now();
         self.publish_state(step)?;
-        if step.is_multiple_of(self.metrics_every) || step == self.steps {
+        if step.is_multiple_of(self.metrics_every_steps) || step == self.steps {
             self.publish_metrics(step)?;
         }
         self.timing.2 += t0.elapsed().as_secs_f64();

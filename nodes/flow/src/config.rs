@@ -53,11 +53,11 @@ pub struct FlowNodeConfig {
     pub join_timeout_s: f64,
     /// Publish a status message every this many coupling steps, ≥ 1.
     #[serde(default = "default_status_every")]
-    pub status_every: u64,
+    pub status_every_steps: u64,
     /// Publish running flow statistics (FlowProfiles) every this many coupling steps
-    /// (a statistics sample is taken every `status_every` steps).
+    /// (a statistics sample is taken every `status_every_steps` steps).
     #[serde(default = "default_profiles_every")]
-    pub profiles_every: u64,
+    pub profiles_every_steps: u64,
     /// How DNS velocity and gradient are interpolated to fibre positions:
     /// `"trilinear"` (default) or `"tricubic"`.
     #[serde(default)]
@@ -65,7 +65,7 @@ pub struct FlowNodeConfig {
     /// Publish the flow slices for viewers (u' at `streaks_y_plus` and a cross-section)
     /// every this many coupling steps, 0 = never (DNS only).
     #[serde(default = "default_slices_every")]
-    pub slices_every: u64,
+    pub slices_every_steps: u64,
     /// Height of the wall-parallel slice above the lower wall, wall units (the nearest
     /// row of cell centres is taken).
     #[serde(default = "default_streaks_y_plus")]
@@ -144,14 +144,14 @@ impl FlowNodeConfig {
                 self.join_timeout_s
             )));
         }
-        if self.profiles_every == 0 {
+        if self.profiles_every_steps == 0 {
             return Err(FlowError::Config(
-                "flow.profiles_every must be >= 1 (got 0)".into(),
+                "flow.profiles_every_steps must be >= 1 (got 0)".into(),
             ));
         }
-        if self.status_every == 0 {
+        if self.status_every_steps == 0 {
             return Err(FlowError::Config(
-                "flow.status_every must be >= 1 (got 0)".into(),
+                "flow.status_every_steps must be >= 1 (got 0)".into(),
             ));
         }
         Ok(())
@@ -174,10 +174,10 @@ mod tests {
             steps: 10,
             dt_plus: 0.2,
             join_timeout_s: 30.0,
-            status_every: 10,
-            profiles_every: 100,
+            status_every_steps: 10,
+            profiles_every_steps: 100,
             interpolation: Interpolation::Trilinear,
-            slices_every: 10,
+            slices_every_steps: 10,
             streaks_y_plus: 15.0,
             self_induced: SelfInduced::History,
         }

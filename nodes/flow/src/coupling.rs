@@ -320,7 +320,9 @@ impl<'a> Coupling<'a> {
         self.timing.publishing_s += t0.elapsed().as_secs_f64();
         let cfg = self.cfg;
         if let Field::Dns(d) = &self.field {
-            if cfg.slices_every > 0 && (k.is_multiple_of(cfg.slices_every) || k == run.steps) {
+            if cfg.slices_every_steps > 0
+                && (k.is_multiple_of(cfg.slices_every_steps) || k == run.steps)
+            {
                 let t0 = Instant::now();
                 publish_slices(&mut self.out, t, &d.solver, cfg, k)?;
                 self.timing.publishing_s += t0.elapsed().as_secs_f64();
@@ -360,11 +362,12 @@ impl<'a> Coupling<'a> {
         let stats = self
             .stats
             .get_or_insert_with(|| RunningStats::new(&solver.grid));
-        let sampled = next.is_multiple_of(cfg.status_every);
+        let sampled = next.is_multiple_of(cfg.status_every_steps);
         if sampled {
             stats.add(&solver.grid, &solver.vel, r.t_plus);
         }
-        if (next.is_multiple_of(cfg.profiles_every) || next == run.steps) && stats.samples > 0 {
+        if (next.is_multiple_of(cfg.profiles_every_steps) || next == run.steps) && stats.samples > 0
+        {
             let p = stats.profiles(&solver.grid, solver.cfg.re_tau);
             let msg = profiles_message(&p, next, t_plus);
             self.out
@@ -400,7 +403,7 @@ impl<'a> Coupling<'a> {
         on_status: &mut impl FnMut(&FlowStatus),
     ) -> Result<(), FlowError> {
         let next = k + 1;
-        if next.is_multiple_of(self.cfg.status_every) || next == self.run.steps {
+        if next.is_multiple_of(self.cfg.status_every_steps) || next == self.run.steps {
             self.out
                 .send(self.t.flow_status(), Arc::new(encode(status)))?;
             on_status(status);

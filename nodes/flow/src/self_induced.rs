@@ -294,6 +294,7 @@ impl History {
 
 /// One fibre's correction and advance ([`History::correct_and_advance`]): `centre`,
 /// `force` and `velocity` its segments' (3 each), `m` its [`PER_FIBRE`] memories.
+/// Long (≈105 lines): the correction's steps for one fibre's segments, in order.
 fn fibre(
     widths: &Widths,
     re_tau: f64,

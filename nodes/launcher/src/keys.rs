@@ -403,11 +403,7 @@ mod tests {
     fn every_key_of_the_shipped_launch_files_is_listed() {
         let listed: BTreeSet<String> = launch_keys().unwrap().into_iter().map(|k| k.path).collect();
         let mut seen = 0;
-        for entry in std::fs::read_dir(repo().join("launch")).unwrap() {
-            let path = entry.unwrap().path();
-            if path.extension().and_then(|e| e.to_str()) != Some("toml") {
-                continue;
-            }
+        for path in crate::launchfile::tests::shipped_launch_files() {
             let doc: toml::Table =
                 toml::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
             let mut paths = Vec::new();

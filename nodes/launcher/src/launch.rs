@@ -595,6 +595,8 @@ pub fn node_zenoh_runtime(
         .then_some(fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME)
 }
 
+/// Runs the nodes here as processes and supervises them until the run ends. Long (≈105
+/// lines): the supervision loop's cases (exit, failure, stop signal) in one place.
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<Ended> {
     let zenoh = base.transport == "zenoh";
     let rendezvous = if let (Some(net), Some(h)) = (&base.launch.network, &base.host) {
@@ -937,7 +939,8 @@ mod tests {
 
     /// The same with more `--set` overrides.
     fn run_launch_with(bus: BusHandle, out: &Path, sets: &[&str]) -> Vec<u8> {
-        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/analytic-shear.toml");
+        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../launch/validation/analytic-shear.toml");
         let mut all = vec!["run.steps=30".to_string()];
         all.extend(sets.iter().map(|s| s.to_string()));
         let (lf, text) = LaunchFile::load_with(&file, &all).unwrap();
@@ -1027,7 +1030,7 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
     }
 
-    /// With `recorder.states_every = 4` the fibre nodes send lean states (centres only)
+    /// With `recorder.states_every_steps = 4` the fibre nodes send lean states (centres only)
     /// at the other steps (and complete ones at the recorded steps, counted on the bus):
     /// the run is the same bit for bit — the recorded states of steps 0, 4, …, 28 and the
     /// last (30) are those of the run with every state complete.
@@ -1042,7 +1045,7 @@ mod tests {
         let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
         let mut sent =
             fiberflow_bus::Inbox::new(bus.subscribe("fiberflow/analytic-shear/fibers/**").unwrap());
-        let bytes = run_launch_with(bus, &dir.join("lean"), &["recorder.states_every=4"]);
+        let bytes = run_launch_with(bus, &dir.join("lean"), &["recorder.states_every_steps=4"]);
         let (mut lean_sent, mut full_sent) = (0, 0);
         while let Some((topic, b)) = sent.recv_raw(std::time::Duration::ZERO) {
             if topic.ends_with("/state") {

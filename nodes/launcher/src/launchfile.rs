@@ -7,6 +7,9 @@ use fiberflow_flow::{FlowNodeConfig, FlowSource};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+pub use crate::overrides::apply_overrides;
+use crate::overrides::refuse_misplaced_keys;
+
 /// `[run]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -152,7 +155,7 @@ pub struct RecorderSection {
     /// first and last step always. Metrics, flow status and profiles are recorded every
     /// time they are published.
     #[serde(default = "default_one")]
-    pub states_every: u64,
+    pub states_every_steps: u64,
     /// Record the flow samples (needed only to re-drive fibre nodes with `replay`).
     #[serde(default = "default_true")]
     pub samples: bool,
@@ -173,7 +176,7 @@ impl Default for RecorderSection {
     fn default() -> Self {
         Self {
             enabled: true,
-            states_every: 1,
+            states_every_steps: 1,
             samples: true,
             compression: fiberflow_recorder::ChunkCompression::Zstd,
         }
@@ -236,103 +239,6 @@ pub struct LaunchFile {
     pub recorder: RecorderSection,
     #[serde(default)]
     pub network: Option<NetworkSection>,
-}
-
-/// Applies `--set KEY=VALUE` overrides to a parsed launch file. KEY is a dotted path
-/// (`run.steps`, `flow.source.dns.nx`); inside `[[fibers]]` a segment is an index or a
-/// group name (`fibers.case1.count`). VALUE is a TOML value; a bare word is a string.
-pub fn apply_overrides(doc: &mut toml::Table, sets: &[String]) -> Result<()> {
-    for set in sets {
-        let Some((key, raw)) = set.split_once('=') else {
-            bail!("--set {set:?}: expected KEY=VALUE, e.g. --set run.steps=400");
-        };
-        let (key, raw) = (key.trim(), raw.trim());
-        let value = match toml::from_str::<toml::Table>(&format!("v = {raw}")) {
-            Ok(mut t) => t
-                .remove("v")
-                .unwrap_or_else(|| toml::Value::String(raw.into())),
-            Err(_) if !raw.is_empty() && !raw.contains(['"', '\'', '[', '{']) => {
-                toml::Value::String(raw.into())
-            }
-            Err(e) => bail!("--set {key}: {raw:?} is not a TOML value: {e}"),
-        };
-        let parts: Vec<&str> = key.split('.').collect();
-        if key.is_empty() || parts.iter().any(|p| p.is_empty()) {
-            bail!("--set {set:?}: the key must be a dotted path such as run.steps");
-        }
-        set_path(doc, &parts, key, value)?;
-    }
-    Ok(())
-}
-
-fn set_path(table: &mut toml::Table, parts: &[&str], key: &str, value: toml::Value) -> Result<()> {
-    let (head, rest) = (parts[0], &parts[1..]);
-    if rest.is_empty() {
-        table.insert(head.to_string(), value);
-        return Ok(());
-    }
-    let entry = table.entry(head.to_string()).or_insert_with(|| {
-        let mut t = toml::Table::new();
-        // a group without a placement table has the default one: setting one of its
-        // keys (e.g. placement.per_layer) keeps that kind
-        if head == "placement" {
-            t.insert("kind".into(), toml::Value::String("layers".into()));
-        }
-        toml::Value::Table(t)
-    });
-    match entry {
-        toml::Value::Table(t) => set_path(t, rest, key, value),
-        toml::Value::Array(items) => {
-            let sel = rest[0];
-            let idx = sel.parse::<usize>().ok().or_else(|| {
-                items
-                    .iter()
-                    .position(|it| it.get("group").and_then(|g| g.as_str()) == Some(sel))
-            });
-            let Some(toml::Value::Table(item)) = idx.and_then(|n| items.get_mut(n)) else {
-                bail!("--set {key}: {head} has no entry {sel:?} (use an index or a group name)");
-            };
-            if rest.len() < 2 {
-                bail!("--set {key}: name a key inside {head}.{sel}");
-            }
-            set_path(item, &rest[1..], key, value)
-        }
-        _ => bail!("--set {key}: {head} is a value, not a table"),
-    }
-}
-
-/// Keys that were renamed (user-facing keys spell "fiber", as `[[fibers]]` does): the old
-/// name is an error that names the new one.
-const RENAMED_RUN_KEYS: [(&str, &str); 2] = [
-    ("fibre_processes", "fiber_processes"),
-    ("fibre_scheduling", "fiber_scheduling"),
-];
-
-/// Keys a launch file must not have, each an error that names the key to use instead:
-/// renamed `[run]` keys, and `flow.steps` / `flow.dt_plus`, the flow node's own keys,
-/// which a launch file sets from `run.steps` / `run.dt_plus` (a value under `[flow]`
-/// would be silently replaced).
-fn refuse_misplaced_keys(text: &str) -> Result<()> {
-    // a file that is not TOML gets its error, with the file's name, from the parse after
-    let Ok(doc) = toml::from_str::<toml::Table>(text) else {
-        return Ok(());
-    };
-    let table = |name: &str| doc.get(name).and_then(toml::Value::as_table);
-    if let Some(flow) = table("flow") {
-        for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
-            if flow.contains_key(key) {
-                bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
-            }
-        }
-    }
-    if let Some(run) = table("run") {
-        for (old, new) in RENAMED_RUN_KEYS {
-            if run.contains_key(old) {
-                bail!("run.{old} was renamed: use run.{new}");
-            }
-        }
-    }
-    Ok(())
 }
 
 impl LaunchFile {
@@ -442,11 +348,11 @@ impl LaunchFile {
                 r.step_timeout_s
             );
         }
-        if !(1..=r.steps).contains(&self.recorder.states_every) {
+        if !(1..=r.steps).contains(&self.recorder.states_every_steps) {
             bail!(
-                "recorder.states_every must be in 1..=run.steps = {} (got {})",
+                "recorder.states_every_steps must be in 1..=run.steps = {} (got {})",
                 r.steps,
-                self.recorder.states_every
+                self.recorder.states_every_steps
             );
         }
         let fibre_nodes = self.pieces().map(|p| p.len()).unwrap_or(0);
@@ -583,8 +489,29 @@ impl LaunchFile {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// Every `.toml` under `launch/` and its sub-folders, sorted.
+    pub(crate) fn shipped_launch_files() -> Vec<PathBuf> {
+        fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
+            for e in std::fs::read_dir(dir).unwrap().flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    walk(&p, out);
+                } else if p.extension().is_some_and(|x| x == "toml") {
+                    out.push(p);
+                }
+            }
+        }
+        let mut out = Vec::new();
+        walk(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch"),
+            &mut out,
+        );
+        out.sort();
+        out
+    }
 
     fn write_launch(dir: &Path, flow_extra: &str) -> PathBuf {
         let text = format!(
@@ -645,18 +572,41 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("ff-rn-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         for (old, new, value) in [
-            ("fibre_processes", "run.fiber_processes", "1"),
-            ("fibre_scheduling", "run.fiber_scheduling", "\"idle\""),
+            ("run.fibre_processes", "run.fiber_processes", "1"),
+            ("run.fibre_scheduling", "run.fiber_scheduling", "\"idle\""),
+            ("flow.status_every", "flow.status_every_steps", "5"),
+            ("flow.profiles_every", "flow.profiles_every_steps", "5"),
+            ("flow.slices_every", "flow.slices_every_steps", "5"),
+            ("recorder.states_every", "recorder.states_every_steps", "5"),
         ] {
-            let set = format!("run.{old}={value}");
+            let set = format!("{old}={value}");
             let err = LaunchFile::load_with(&write_launch(&dir, ""), &[set]).unwrap_err();
             let msg = format!("{err:#}");
             assert!(
-                msg.contains(&format!("run.{old} was renamed: use {new}")),
+                msg.contains(&format!("{old} was renamed: use {new}")),
                 "{msg}"
             );
             let set = format!("{new}={value}");
             LaunchFile::load_with(&write_launch(&dir, ""), &[set]).unwrap();
+        }
+        // in any [[fibers]] table, and in the nested DNS table
+        for (text, new) in [
+            (
+                "[[fibers]]\ncase = \"case1\"\n[[fibers]]\ncase = \"case2\"\nmetrics_every = 3\n",
+                "fibers[].metrics_every_steps",
+            ),
+            (
+                "[flow.source.dns]\ncheck_every = 3\n",
+                "flow.source.dns.check_every_steps",
+            ),
+        ] {
+            let err = refuse_misplaced_keys(text).unwrap_err();
+            assert!(
+                format!("{err:#}").contains(&format!("was renamed: use {new}")),
+                "{err:#}"
+            );
+            let fixed = text.replace("_every = 3", "_every_steps = 3");
+            refuse_misplaced_keys(&fixed).unwrap();
         }
         std::fs::remove_dir_all(&dir).ok();
     }
@@ -770,11 +720,9 @@ mod tests {
     /// usual, a process per node.
     #[test]
     fn every_shipped_launch_file_loads() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
         let mut idle = Vec::new();
         let mut n = 0;
-        for e in std::fs::read_dir(&dir).unwrap().flatten() {
-            let p = e.path();
+        for p in shipped_launch_files() {
             // the spin-up files configure `fiberflow spinup`, not a launch
             let text = std::fs::read_to_string(&p).unwrap_or_default();
             if p.extension().is_none_or(|x| x != "toml")

@@ -12,6 +12,7 @@ pub mod launch;
 pub mod launchfile;
 pub mod loading;
 pub mod nodes;
+pub mod overrides;
 pub mod panics;
 pub mod progress;
 pub mod run_lock;

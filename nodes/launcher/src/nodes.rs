@@ -142,6 +142,8 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
 }
 
 /// Runs the node named in the spec until the run ends.
+///
+/// Long (≈110 lines): one arm per kind of node, each its set-up and serve call.
 pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Result<()> {
     let lf = &spec.launch;
     let groups = lf.groups();
@@ -232,7 +234,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                     .map(|p| (p.group.clone(), p.first_fiber))
                     .collect(),
                 nodes: fibre_nodes.clone(),
-                states_every: lf.recorder.states_every,
+                states_every_steps: lf.recorder.states_every_steps,
                 samples: lf.recorder.samples,
                 compression: lf.recorder.compression,
             };
@@ -282,7 +284,7 @@ fn run_fibre_nodes(
         every: lf.run.checkpoint_every_steps(),
         root: spec.checkpoint_root(),
         config_digest: digest(&spec.launch_text),
-        full_states_every: lf.recorder.states_every,
+        full_states_every: lf.recorder.states_every_steps,
         two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
     };
     let served = fiberflow_fiber::serve::serve_many(
@@ -414,7 +416,8 @@ mod tests {
     /// process that waited for all its nodes would hang this test).
     #[test]
     fn a_failing_co_node_ends_its_process_at_once() {
-        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch/analytic-shear.toml");
+        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../launch/validation/analytic-shear.toml");
         let (lf, text) = LaunchFile::load_with(&file, &["run.step_timeout_s=3600".into()]).unwrap();
         let waiting = lf.fibre_nodes().unwrap()[0].clone();
         let out = std::env::temp_dir().join(format!("ff-co-nodes-{}", std::process::id()));

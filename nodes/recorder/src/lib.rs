@@ -67,7 +67,7 @@ pub struct RecordSummary {
     pub path: PathBuf,
     /// Step-stamped messages that an earlier segment already holds (not written again).
     pub already_recorded: u64,
-    /// States left out by the plan (`states_every`; samples are not subscribed to when the
+    /// States left out by the plan (`states_every_steps`; samples are not subscribed to when the
     /// plan leaves them out).
     pub decimated: u64,
     /// Wall seconds spent checking, encoding and writing messages (the rest is waiting).
@@ -172,7 +172,7 @@ pub struct RecordPlan {
     pub previous_segments: Vec<PathBuf>,
     /// Full states (and their PointCloud2) every this many steps, plus the first and the
     /// last step (0 counts as 1).
-    pub states_every: u64,
+    pub states_every_steps: u64,
     /// Record the flow samples.
     pub samples: bool,
     /// How the file's chunks are compressed.
@@ -219,7 +219,7 @@ impl ChunkCompression {
 impl RecordPlan {
     /// Is a state of step `k` recorded?
     pub fn keeps_state(&self, k: u64) -> bool {
-        k.is_multiple_of(self.states_every.max(1)) || k == self.steps
+        k.is_multiple_of(self.states_every_steps.max(1)) || k == self.steps
     }
 }
 
@@ -287,7 +287,7 @@ impl Session<'_> {
         // states the plan leaves out are read no further than their header (a state is tens
         // of MB at scale): they only mark their node's progress. (Without samples in the
         // plan the recorder does not subscribe to them.)
-        if is_state && self.plan.states_every > 1 {
+        if is_state && self.plan.states_every_steps > 1 {
             let h = match fiberflow_messages::peek_group_header(bytes) {
                 Ok(h) => h,
                 Err(e) => {
@@ -547,65 +547,9 @@ pub fn record(
     stop: Arc<AtomicBool>,
 ) -> Result<RecordSummary, RecorderError> {
     let t = Topics::new(run_id);
-    let pstr = path.display().to_string();
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| RecorderError::Io {
-            path: pstr.clone(),
-            source,
-        })?;
-    }
+    let out = open_recording(path, meta, plan)?;
     let seen = recorded_steps(&plan.previous_segments);
-    let file = direct::RecordingFile::create(path).map_err(|source| RecorderError::Io {
-        path: pstr.clone(),
-        source,
-    })?;
-    let opts = mcap::WriteOptions::new()
-        .compression(plan.compression.mcap())
-        // zstd's fastest level: the numbers in these files are mostly mantissas that no
-        // level compresses much (level 3 kept 86% of the bytes at 6 × 10⁴ fibres)
-        .compression_level(ZSTD_LEVEL)
-        .chunk_size(Some(4 * 1024 * 1024))
-        // each chunk is built in memory and written after its header, in file order
-        .disable_seeking(true)
-        .profile("ros2")
-        .library(format!("fiberflow {}", meta.software_version));
-    let w = opts.create(file).map_err(|source| RecorderError::Mcap {
-        path: pstr.clone(),
-        source,
-    })?;
-    let mut out = Out {
-        w,
-        path: pstr.clone(),
-        schemas: HashMap::new(),
-        channels: HashMap::new(),
-        seq: 0,
-    };
-    write_provenance(&mut out, meta)?;
-    let mut rec = BTreeMap::new();
-    rec.insert(
-        "states_every".to_string(),
-        plan.states_every.max(1).to_string(),
-    );
-    rec.insert("samples".to_string(), plan.samples.to_string());
-    out.w
-        .write_metadata(&mcap::records::Metadata {
-            name: "fiberflow.recording".into(),
-            metadata: rec,
-        })
-        .map_err(out.err())?;
-    // without samples in the plan the recorder does not subscribe to them at all (at scale
-    // they are as large as the states, and every copy to the recorder costs)
-    let patterns: Vec<String> = if plan.samples {
-        vec![format!("{}/**", t.prefix())]
-    } else {
-        vec![
-            format!("{}/control/**", t.prefix()),
-            t.flow_status(),
-            t.flow_profiles(),
-            format!("{}/flow/slices/**", t.prefix()),
-            format!("{}/fibers/**", t.prefix()),
-        ]
-    };
+    let patterns = subscriptions(&t, plan.samples);
     let mut inbox = Inbox::new(fiberflow_bus::subscribe_any(bus.as_ref(), &patterns)?);
     let next_checkpoint = (plan.checkpoint_every > 0)
         .then(|| (plan.start_step / plan.checkpoint_every + 1) * plan.checkpoint_every)
@@ -707,6 +651,88 @@ pub fn record(
         sess.handle(&topic, &bytes)?;
         sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
     }
+    finish(sess, &inbox, &bus, &t)
+}
+
+/// Creates the MCAP file at `path` (and its folder) with the run's provenance and the
+/// recording plan as metadata.
+fn open_recording(
+    path: &Path,
+    meta: &RunMetadata,
+    plan: &RecordPlan,
+) -> Result<Out, RecorderError> {
+    let pstr = path.display().to_string();
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| RecorderError::Io {
+            path: pstr.clone(),
+            source,
+        })?;
+    }
+    let file = direct::RecordingFile::create(path).map_err(|source| RecorderError::Io {
+        path: pstr.clone(),
+        source,
+    })?;
+    let opts = mcap::WriteOptions::new()
+        .compression(plan.compression.mcap())
+        // zstd's fastest level: the numbers in these files are mostly mantissas that no
+        // level compresses much (level 3 kept 86% of the bytes at 6 × 10⁴ fibres)
+        .compression_level(ZSTD_LEVEL)
+        .chunk_size(Some(4 * 1024 * 1024))
+        // each chunk is built in memory and written after its header, in file order
+        .disable_seeking(true)
+        .profile("ros2")
+        .library(format!("fiberflow {}", meta.software_version));
+    let w = opts.create(file).map_err(|source| RecorderError::Mcap {
+        path: pstr.clone(),
+        source,
+    })?;
+    let mut out = Out {
+        w,
+        path: pstr.clone(),
+        schemas: HashMap::new(),
+        channels: HashMap::new(),
+        seq: 0,
+    };
+    write_provenance(&mut out, meta)?;
+    let mut rec = BTreeMap::new();
+    rec.insert(
+        "states_every_steps".to_string(),
+        plan.states_every_steps.max(1).to_string(),
+    );
+    rec.insert("samples".to_string(), plan.samples.to_string());
+    out.w
+        .write_metadata(&mcap::records::Metadata {
+            name: "fiberflow.recording".into(),
+            metadata: rec,
+        })
+        .map_err(out.err())?;
+    Ok(out)
+}
+
+/// The topics the recorder subscribes to: everything of the run, or everything but the
+/// flow's samples (at scale as large as the states, and every copy to the recorder costs).
+fn subscriptions(t: &Topics, samples: bool) -> Vec<String> {
+    if samples {
+        vec![format!("{}/**", t.prefix())]
+    } else {
+        vec![
+            format!("{}/control/**", t.prefix()),
+            t.flow_status(),
+            t.flow_profiles(),
+            format!("{}/flow/slices/**", t.prefix()),
+            format!("{}/fibers/**", t.prefix()),
+        ]
+    }
+}
+
+/// Writes what is still queued and held, the drop counts, and the MCAP footer; then tells
+/// the run that the file is complete.
+fn finish(
+    mut sess: Session<'_>,
+    inbox: &Inbox,
+    bus: &BusHandle,
+    t: &Topics,
+) -> Result<RecordSummary, RecorderError> {
     // drain what is already queued
     while let Ok((topic, bytes)) = inbox.sub.rx.try_recv() {
         sess.handle(&topic, &bytes)?;
@@ -1011,7 +1037,7 @@ mod tests {
         assert!(read_back[0] == read_back[1] && read_back[0] == read_back[2]);
     }
 
-    /// `states_every = 4`, `samples = false` over 10 steps, states lean where the plan
+    /// `states_every_steps = 4`, `samples = false` over 10 steps, states lean where the plan
     /// leaves them out: complete states (and PointCloud2) of steps 0, 4, 8 and the last
     /// step 10 only, a lean state at a recorded step dropped and counted, no samples,
     /// metrics every step, and the plan written into the file's metadata.
@@ -1026,7 +1052,7 @@ mod tests {
         let plan = RecordPlan {
             groups: vec!["g".into()],
             steps: 10,
-            states_every: 4,
+            states_every_steps: 4,
             samples: false,
             checkpoint_every: 4,
             checkpoint_root: Some(ck_root.clone()),
@@ -1133,7 +1159,7 @@ mod tests {
             .find(|i| i.name == "fiberflow.recording")
             .expect("recording plan in the metadata");
         let meta = mcap::read::metadata(&bytes, idx).unwrap();
-        assert_eq!(meta.metadata["states_every"], "4");
+        assert_eq!(meta.metadata["states_every_steps"], "4");
         assert_eq!(meta.metadata["samples"], "false");
         // the recorder's share of checkpoints 4 and 8 is committed without samples (the
         // flow node's status of a later step stands in for them)

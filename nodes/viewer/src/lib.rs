@@ -186,88 +186,22 @@ type SeriesChunk = (
 
 /// Logs the recording at `mcap` (a file or run folder) to `sink`.
 pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary, ViewerError> {
-    // pass 1: groups, layers, final σ², box and time step
-    let mut groups: BTreeMap<String, GroupInfo> = BTreeMap::new();
-    let mut box_plus = [942.48, 300.0, 471.24];
-    let mut dt_plus: Option<f64> = None;
-    let mut dt_seen: Option<f64> = None;
-    read::for_each(mcap, |it| match &it {
-        Item::Announce(a) => {
-            box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
-            dt_plus = Some(a.dt_plus);
-        }
-        Item::State(s) => groups.entry(s.group.clone()).or_default().add(&it),
-        Item::Metrics(m) => {
-            if m.step > 0 && dt_seen.is_none() {
-                dt_seen = Some(m.t_plus / m.step as f64);
-            }
-            groups.entry(m.group.clone()).or_default().add(&it)
-        }
-        Item::Slice(_) => {}
-    })?;
-    groups.retain(|_, g| !g.layer.is_empty());
-    if groups.is_empty() {
-        return Err(ViewerError::Empty(mcap.display().to_string()));
-    }
-    let dt_plus = dt_plus.or(dt_seen).unwrap_or(1.0);
+    let Survey {
+        groups,
+        box_plus,
+        dt_plus,
+    } = survey(mcap)?;
     let h_plus = 0.5 * box_plus[1];
 
-    // which fibres, where in the gallery
-    let chosen: Vec<Vec<usize>> = groups
-        .values()
-        .map(|g| select::choose(&g.layer, &g.final_sigma2, opts.sampling))
-        .collect();
-    let longest = groups.values().map(|g| g.contour_plus).fold(0.0, f64::max);
-    let g = gallery::layout(&chosen.iter().map(Vec::len).collect::<Vec<_>>(), longest);
-    let mut shown: HashMap<String, HashMap<usize, Shown>> = HashMap::new();
-    let mut entities = Vec::new();
-    let mut styles = Vec::new();
-    for (c, (name, info)) in groups.iter().enumerate() {
-        let digits = paths::digits(info.fibres);
-        let m = shown.entry(name.clone()).or_default();
-        for (rank, &f) in chosen[c].iter().enumerate() {
-            let layer = info.layer[f];
-            let path = paths::fibre(name, layer, f, digits);
-            entities.push(blueprint::FibreEntity {
-                path: path.clone(),
-                case: name.clone(),
-            });
-            styles.push(SeriesStyle {
-                label: format!("{name} {} f{f}", paths::layer_name(layer)),
-                colour: LAYER_COLOURS[usize::from(layer).min(LAYER_COLOURS.len() - 1)],
-            });
-            m.insert(
-                f,
-                Shown {
-                    path,
-                    cell: g.centres[c][rank],
-                    sigma2: Vec::new(),
-                    series: Vec::new(),
-                    shapes: Vec::new(),
-                },
-            );
-        }
-    }
+    let Chosen {
+        gallery: g,
+        mut shown,
+        entities,
+        styles,
+    } = choose(&groups, opts);
 
-    let builder = rerun::RecordingStreamBuilder::new("fiberflow");
-    let rec = match sink {
-        Sink::Save(p) => builder.save(p).map_err(err)?,
-        Sink::Spawn => builder.spawn().map_err(err)?,
-        Sink::Connect(url) => builder.connect_grpc_opts(url.clone()).map_err(err)?,
-    };
-    // the channel camera: above the lower half, looking at a quarter of the box
-    let eye = blueprint::Eye {
-        position: [
-            (0.22 * box_plus[0]) as f32,
-            (0.1 * box_plus[1]) as f32,
-            (0.95 * box_plus[2]) as f32,
-        ],
-        look_target: [
-            (0.45 * box_plus[0]) as f32,
-            (-0.35 * box_plus[1]) as f32,
-            (0.5 * box_plus[2]) as f32,
-        ],
-    };
+    let rec = open_stream(sink)?;
+    let eye = channel_camera(box_plus);
     blueprint::send(&rec, &entities, &eye)?;
     for (e, style) in entities.iter().zip(&styles) {
         log_fibre_style(&rec, &e.path, style)?;
@@ -336,6 +270,125 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
         events,
         slices,
     })
+}
+
+/// What the first pass over a recording finds: the groups (layers, final σ²), the box and
+/// the coupling time step.
+struct Survey {
+    groups: BTreeMap<String, GroupInfo>,
+    box_plus: [f64; 3],
+    dt_plus: f64,
+}
+
+/// Pass 1: groups, layers, final σ², box and time step.
+fn survey(mcap: &Path) -> Result<Survey, ViewerError> {
+    let mut groups: BTreeMap<String, GroupInfo> = BTreeMap::new();
+    let mut box_plus = [942.48, 300.0, 471.24];
+    let mut dt_plus: Option<f64> = None;
+    let mut dt_seen: Option<f64> = None;
+    read::for_each(mcap, |it| match &it {
+        Item::Announce(a) => {
+            box_plus = [a.box_plus[0], a.box_plus[1], a.box_plus[2]];
+            dt_plus = Some(a.dt_plus);
+        }
+        Item::State(s) => groups.entry(s.group.clone()).or_default().add(&it),
+        Item::Metrics(m) => {
+            if m.step > 0 && dt_seen.is_none() {
+                dt_seen = Some(m.t_plus / m.step as f64);
+            }
+            groups.entry(m.group.clone()).or_default().add(&it)
+        }
+        Item::Slice(_) => {}
+    })?;
+    groups.retain(|_, g| !g.layer.is_empty());
+    if groups.is_empty() {
+        return Err(ViewerError::Empty(mcap.display().to_string()));
+    }
+    let dt_plus = dt_plus.or(dt_seen).unwrap_or(1.0);
+    Ok(Survey {
+        groups,
+        box_plus,
+        dt_plus,
+    })
+}
+
+/// The fibres shown, where each sits in the gallery, and their entity paths and styles.
+struct Chosen {
+    gallery: gallery::Gallery,
+    shown: HashMap<String, HashMap<usize, Shown>>,
+    entities: Vec<blueprint::FibreEntity>,
+    styles: Vec<SeriesStyle>,
+}
+
+/// Which fibres of each group are shown (`opts.sampling`) and where in the gallery.
+fn choose(groups: &BTreeMap<String, GroupInfo>, opts: &ViewOptions) -> Chosen {
+    let chosen: Vec<Vec<usize>> = groups
+        .values()
+        .map(|g| select::choose(&g.layer, &g.final_sigma2, opts.sampling))
+        .collect();
+    let longest = groups.values().map(|g| g.contour_plus).fold(0.0, f64::max);
+    let g = gallery::layout(&chosen.iter().map(Vec::len).collect::<Vec<_>>(), longest);
+    let mut shown: HashMap<String, HashMap<usize, Shown>> = HashMap::new();
+    let mut entities = Vec::new();
+    let mut styles = Vec::new();
+    for (c, (name, info)) in groups.iter().enumerate() {
+        let digits = paths::digits(info.fibres);
+        let m = shown.entry(name.clone()).or_default();
+        for (rank, &f) in chosen[c].iter().enumerate() {
+            let layer = info.layer[f];
+            let path = paths::fibre(name, layer, f, digits);
+            entities.push(blueprint::FibreEntity {
+                path: path.clone(),
+                case: name.clone(),
+            });
+            styles.push(SeriesStyle {
+                label: format!("{name} {} f{f}", paths::layer_name(layer)),
+                colour: LAYER_COLOURS[usize::from(layer).min(LAYER_COLOURS.len() - 1)],
+            });
+            m.insert(
+                f,
+                Shown {
+                    path,
+                    cell: g.centres[c][rank],
+                    sigma2: Vec::new(),
+                    series: Vec::new(),
+                    shapes: Vec::new(),
+                },
+            );
+        }
+    }
+    Chosen {
+        gallery: g,
+        shown,
+        entities,
+        styles,
+    }
+}
+
+/// The Rerun stream to a file, a spawned viewer or a running one.
+fn open_stream(sink: &Sink) -> Result<rerun::RecordingStream, ViewerError> {
+    let builder = rerun::RecordingStreamBuilder::new("fiberflow");
+    Ok(match sink {
+        Sink::Save(p) => builder.save(p).map_err(err)?,
+        Sink::Spawn => builder.spawn().map_err(err)?,
+        Sink::Connect(url) => builder.connect_grpc_opts(url.clone()).map_err(err)?,
+    })
+}
+
+/// The channel camera: above the lower half, looking at a quarter of the box.
+fn channel_camera(box_plus: [f64; 3]) -> blueprint::Eye {
+    blueprint::Eye {
+        position: [
+            (0.22 * box_plus[0]) as f32,
+            (0.1 * box_plus[1]) as f32,
+            (0.95 * box_plus[2]) as f32,
+        ],
+        look_target: [
+            (0.45 * box_plus[0]) as f32,
+            (-0.35 * box_plus[1]) as f32,
+            (0.5 * box_plus[2]) as f32,
+        ],
+    }
 }
 
 fn log_static(

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Creates a private CA and one TLS identity per host for a multi-host fiberflow run
-# (launch/multi-host.toml). Usage:
-#   launch/make-certs.sh OUT_DIR HOST_NAME[=DNS_NAME] ...
-# e.g. launch/make-certs.sh launch/certs head=head.lab.example worker=worker.lab.example
+# (launch/multi-host/multi-host.toml). Usage:
+#   launch/multi-host/make-certs.sh OUT_DIR HOST_NAME[=DNS_NAME] ...
+# e.g. launch/multi-host/make-certs.sh launch/certs head=head.lab.example worker=worker.lab.example
 # Writes OUT_DIR/ca.pem (give it to every host), OUT_DIR/<host>.pem and
 # OUT_DIR/<host>-key.pem (give each host only its own). The certificate common name is
 # fiberflow-<host>: list those names in network.allowed_common_names. Keys are EC P-256,
