@@ -4,6 +4,7 @@
 //! ratios (docs/performance.md). It starts the `fiberflow` binary that sits beside it
 //! (`cargo build --release --workspace` builds both).
 
+mod contact;
 mod scale;
 mod slicing;
 
@@ -23,6 +24,7 @@ struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
+#[allow(clippy::large_enum_variant)] // parsed once
 enum Cmd {
     /// Scale benchmark: the fine-grid flow alone and carrying increasing fibre counts, over
     /// each transport, interleaved; prints wall per coupling step split into stages.
@@ -74,6 +76,22 @@ enum Cmd {
         #[arg(long, value_name = "MS", value_parser = clap::value_parser!(u64).range(50..=10_000))]
         slice_ms: Option<u64>,
     },
+    /// The fibre step of one group of case-1 fibres at random in the fine-grid box, with
+    /// fibre–fibre contact off and on in alternating rounds; prints ms per step and ratios.
+    Contact {
+        /// Fibres in the group.
+        #[arg(long, default_value_t = 100_000)]
+        fibers: usize,
+        /// Steps per round.
+        #[arg(long, default_value_t = 5)]
+        steps: usize,
+        /// Rounds (each: off and on, the order alternating).
+        #[arg(long, default_value_t = 6)]
+        rounds: usize,
+        /// Friction coefficient of the runs with contact.
+        #[arg(long, default_value_t = 0.5)]
+        friction: f64,
+    },
 }
 
 fn main() -> Result<()> {
@@ -111,6 +129,17 @@ fn main() -> Result<()> {
             out,
             compare,
             slice_ms,
+        }),
+        Cmd::Contact {
+            fibers,
+            steps,
+            rounds,
+            friction,
+        } => contact::run_contact(&contact::ContactOptions {
+            fibres: fibers,
+            steps,
+            rounds,
+            friction,
         }),
     }
 }

@@ -10,6 +10,7 @@
 //! the fibre-major order of [`Segment`]s, never this layout.
 
 use crate::batch::{self, LaneConsts, LaneSeg};
+use crate::contact::{self, ContactParams, Outcome as ContactOutcome};
 use crate::error::FibreError;
 use crate::fibre::{Fibre, Segment, SegmentProps};
 use crate::lanes::LANES;
@@ -65,6 +66,11 @@ pub struct FibreGroup {
     /// below [`PARALLEL_MIN_SEGMENTS`] allocates nothing in a step after its first (test
     /// `tests/no_allocation.rs`).
     work: Work,
+    /// Fibre–fibre contact within the group ([`crate::contact`]); None: fibres pass
+    /// through each other (the paper's independent fibres).
+    contact: Option<ContactParams>,
+    /// What contact did in the last step.
+    last_contact: ContactOutcome,
 }
 
 impl FibreGroup {
@@ -137,6 +143,50 @@ impl FibreGroup {
             state,
             consts,
             work: Work::default(),
+            contact: None,
+            last_contact: ContactOutcome::default(),
+        }
+    }
+
+    /// Turns fibre–fibre contact within the group on (Some) or off.
+    pub fn set_contact(&mut self, contact: Option<ContactParams>) {
+        self.contact = contact;
+    }
+
+    /// The group's contact parameters, if contact is on.
+    pub fn contact(&self) -> Option<&ContactParams> {
+        self.contact.as_ref()
+    }
+
+    /// What contact did in the last step (empty when contact is off).
+    pub fn last_contact(&self) -> &ContactOutcome {
+        &self.last_contact
+    }
+
+    /// Resolves contact after a free step from `before` (the fibres at its start): the
+    /// fibres that touched get their corrected segments back, then the walls again (a
+    /// contact must not push a fibre through a wall).
+    fn apply_contact(&mut self, before: &[Fibre], dt: f64) {
+        let Some(c) = self.contact else {
+            return;
+        };
+        let mut after = self.fibres();
+        self.last_contact = contact::resolve(&mut after, before, &[], &c, dt);
+        let mut touched: Vec<usize> = self
+            .last_contact
+            .contacts
+            .iter()
+            .flat_map(|c| [c.a.0, c.b.0])
+            .collect();
+        touched.sort_unstable();
+        touched.dedup();
+        for k in touched {
+            if let Some(hh) = self.params.wall_half_height {
+                crate::step::wall_contact(&mut after[k], hh);
+            }
+            for (i, s) in after[k].segments.iter().enumerate() {
+                self.set_segment(k, i, *s);
+            }
         }
     }
 
@@ -220,10 +270,12 @@ impl FibreGroup {
     /// The group of fibres `first .. first + n` (one shard's share), same parameters.
     pub fn slice(&self, first: usize, n: usize) -> FibreGroup {
         let end = (first + n).min(self.len());
-        FibreGroup::new(
+        let mut g = FibreGroup::new(
             self.params,
             (first.min(end)..end).map(|k| self.fibre(k)).collect(),
-        )
+        );
+        g.contact = self.contact;
+        g
     }
 
     /// Shape and orientation metrics of every fibre, in order (in parallel from
@@ -335,12 +387,19 @@ impl FibreGroup {
     /// where the block allows it ([`batch`]); deterministic: fibres are independent and
     /// every fibre gets the same bits as from [`step`] one fibre at a time.
     /// Groups below [`PARALLEL_MIN_SEGMENTS`] are stepped on the calling thread.
+    /// With contact on, the fibres that touch are then corrected ([`crate::contact`]).
     pub fn step<'f>(&mut self, fluid: impl Into<Fluid<'f>>, dt: f64) -> Result<(), FibreError> {
         let fluid = fluid.into();
+        let before = self.contact.map(|_| self.fibres());
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
-            return self.step_here(fluid, dt, true);
+            self.step_here(fluid, dt, true)?;
+        } else {
+            self.step_parallel(fluid, dt)?;
         }
-        self.step_parallel(fluid, dt)
+        if let Some(before) = before {
+            self.apply_contact(&before, dt);
+        }
+        Ok(())
     }
 
     /// [`Self::step`] split over the thread pool whatever the group's size.

@@ -6,6 +6,7 @@
 pub mod batch;
 pub mod cases;
 pub mod checkpoint;
+pub mod contact;
 pub mod dense;
 pub mod error;
 pub mod fibre;

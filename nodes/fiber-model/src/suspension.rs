@@ -66,54 +66,15 @@ impl Stream {
     }
 }
 
-/// Closest distance between segments p0–p1 and q0–q1 (clamped closest points of the two
-/// lines; Ericson, Real-Time Collision Detection §5.1.9).
+/// Closest distance between segments p0–p1 and q0–q1 ([`crate::contact::closest_points`]).
 pub fn segment_distance(
     p0: Vector3<f64>,
     p1: Vector3<f64>,
     q0: Vector3<f64>,
     q1: Vector3<f64>,
 ) -> f64 {
-    let d1 = p1 - p0;
-    let d2 = q1 - q0;
-    let r = p0 - q0;
-    let a = d1.dot(&d1);
-    let e = d2.dot(&d2);
-    let f = d2.dot(&r);
-    let (s, t);
-    if a <= f64::EPSILON && e <= f64::EPSILON {
-        return r.norm();
-    }
-    if a <= f64::EPSILON {
-        s = 0.0;
-        t = (f / e).clamp(0.0, 1.0);
-    } else {
-        let c = d1.dot(&r);
-        if e <= f64::EPSILON {
-            t = 0.0;
-            s = (-c / a).clamp(0.0, 1.0);
-        } else {
-            let b = d1.dot(&d2);
-            let denom = a * e - b * b;
-            let s0 = if denom > 0.0 {
-                ((b * f - c * e) / denom).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let t0 = (b * s0 + f) / e;
-            if t0 < 0.0 {
-                t = 0.0;
-                s = (-c / a).clamp(0.0, 1.0);
-            } else if t0 > 1.0 {
-                t = 1.0;
-                s = ((b - c) / a).clamp(0.0, 1.0);
-            } else {
-                t = t0;
-                s = s0;
-            }
-        }
-    }
-    ((p0 + d1 * s) - (q0 + d2 * t)).norm()
+    let (s, t) = crate::contact::closest_points(&p0, &p1, &q0, &q1);
+    ((p0 + (p1 - p0) * s) - (q0 + (q1 - q0) * t)).norm()
 }
 
 /// The layer tag of a fibre starting at height `y` (from the centre plane): the nearest

@@ -3,6 +3,7 @@
 use fiberflow_fiber_model::cases::{
     build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement,
 };
+use fiberflow_fiber_model::contact::{self, ContactParams};
 use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::suspension::{random_suspension, Suspension};
 use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
@@ -137,6 +138,34 @@ pub struct FiberNodeConfig {
     /// values and the case preset for the quantities it gives).
     #[serde(default)]
     pub physical: Option<PhysicalProperties>,
+    /// Fibre–fibre contact within the group (docs/contact.md); unset: the fibres pass
+    /// through each other, as in the paper. Needs `shards = 1` and a start without
+    /// overlaps (`placement.kind = "random"`).
+    #[serde(default)]
+    pub contact: Option<ContactConfig>,
+}
+
+/// `[fibers.contact]`: segments of different fibres of the group keep their centre-lines
+/// at least a diameter apart, with Coulomb friction where they touch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ContactConfig {
+    /// Coulomb friction coefficient μ between fibres (static = sliding), ≥ 0 and finite.
+    /// 0.5 is of the order measured for wood–wood contact; inter-fibre friction is what
+    /// makes flocs (Schmid, Switzer & Klingenberg 2000), so vary it.
+    #[serde(default = "default_friction")]
+    pub friction: f64,
+    /// Most sweeps of the contact solve per step, in 1..=10000 (it stops earlier once no
+    /// pair is closer than its contact distance).
+    #[serde(default = "default_sweeps")]
+    pub sweeps: u32,
+}
+
+fn default_friction() -> f64 {
+    0.5
+}
+fn default_sweeps() -> u32 {
+    100
 }
 
 /// Fibre and fluid properties in SI units, converted to wall units with ν and u_tau:
@@ -273,10 +302,52 @@ impl FiberNodeConfig {
             tikhonov: self.tikhonov,
             wall_half_height: self.wall_contact.then_some(0.5 * box_plus[1]),
         };
-        Ok(BuiltGroup {
-            group: FibreGroup::new(params, fibres),
-            layers,
-        })
+        let mut group = FibreGroup::new(params, fibres);
+        group.set_contact(self.contact_params(box_plus, &group)?);
+        Ok(BuiltGroup { group, layers })
+    }
+
+    /// The group's contact parameters (None without `contact`), checked: its keys, one
+    /// shard, and a start where no two fibres overlap.
+    fn contact_params(
+        &self,
+        box_plus: [f64; 3],
+        group: &FibreGroup,
+    ) -> Result<Option<ContactParams>, FibreError> {
+        let Some(c) = &self.contact else {
+            return Ok(None);
+        };
+        if !(c.friction >= 0.0 && c.friction.is_finite()) {
+            return self.bad(
+                "contact.friction",
+                ">= 0 and finite",
+                c.friction.to_string(),
+            );
+        }
+        if !(1..=10_000).contains(&c.sweeps) {
+            return self.bad("contact.sweeps", "in 1..=10000", c.sweeps.to_string());
+        }
+        if self.shards != 1 {
+            return self.bad(
+                "shards",
+                "1 with contact (contact across shards is not built yet)",
+                self.shards.to_string(),
+            );
+        }
+        let params = ContactParams {
+            friction: c.friction,
+            sweeps: c.sweeps,
+            period: [Some(box_plus[0]), None, Some(box_plus[2])],
+        };
+        let overlaps = contact::overlaps(&group.fibres(), &params.period);
+        if let Some(&(a, i, b, j, dist)) = overlaps.first() {
+            return Err(FibreError::Config(format!(
+                "fibers[{}].contact: the start overlaps: segment {i} of fibre {a} and segment {j} of fibre {b} are {dist:.4} apart, closer than a diameter ({} pairs in all); start from placement.kind = \"random\" with min_distance_plus >= diameter_plus",
+                self.group,
+                overlaps.len()
+            )));
+        }
+        Ok(Some(params))
     }
 
     /// The error for key `key` of this group outside `range`.
@@ -567,5 +638,46 @@ mod tests {
         }
         c.shards = 1;
         assert_eq!(c.pieces([942.0, 300.0, 471.0]).unwrap()[0].node(), "g");
+    }
+
+    /// `[fibers.contact]` turns contact on for the group with its keys checked by name;
+    /// it needs one shard, and a start where fibres overlap is refused naming them.
+    #[test]
+    fn contact_keys_are_checked_and_overlapping_starts_refused() {
+        let b = [942.0, 300.0, 471.0];
+        let random =
+            "group = \"g\"\ncase = \"case1\"\nplacement = { kind = \"random\", count = 200 }\n";
+        let c: FiberNodeConfig = toml::from_str(&format!("{random}contact = {{}}")).unwrap();
+        let g = c.build(b).unwrap().group;
+        let on = g.contact().unwrap();
+        assert_eq!((on.friction, on.sweeps), (0.5, 100));
+        assert_eq!(on.period, [Some(942.0), None, Some(471.0)]);
+        assert!(base().build(b).unwrap().group.contact().is_none());
+        for (extra, key) in [
+            (
+                "contact = { friction = -0.1 }",
+                "fibers[g].contact.friction",
+            ),
+            ("contact = { sweeps = 0 }", "fibers[g].contact.sweeps"),
+            (
+                "contact = {}\nshards = 2",
+                "fibers[g].shards must be 1 with contact",
+            ),
+        ] {
+            let c: FiberNodeConfig = toml::from_str(&format!("{random}{extra}")).unwrap();
+            let e = c.build(b).err().unwrap().to_string();
+            assert!(e.contains(key), "{e}");
+        }
+        let crossed: FiberNodeConfig = toml::from_str(
+            "group = \"g\"\ncase = \"case1\"\ncontact = {}\n\
+             placement = { kind = \"explicit\", centres = [[100.0, 0.0, 100.0], [100.0, 0.1, 100.0]], axes = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]] }",
+        )
+        .unwrap();
+        let e = crossed.build(b).err().unwrap().to_string();
+        assert!(
+            e.contains("fibers[g].contact: the start overlaps")
+                && e.contains("of fibre 0 and segment 3 of fibre 1 are 0.1000 apart"),
+            "{e}"
+        );
     }
 }

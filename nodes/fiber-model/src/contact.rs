@@ -1,0 +1,1215 @@
+//! Fibre–fibre contact: segments of different fibres keep their centre-lines at least a
+//! diameter apart, with Coulomb friction (coefficient μ, static and sliding) at the point
+//! where they touch (Lindström & Uesaka, Phys. Fluids 2007, §II.C; Schmid, Switzer &
+//! Klingenberg, J. Rheol. 2000).
+//!
+//! A penalty spring stiff enough to hold 1% of d at the approach speeds of the channel is
+//! far too stiff for an explicit force at Δt+ = 0.2 (docs/contact.md), so contact is a
+//! velocity-level constraint applied after the joint solve of the step ([`resolve`]):
+//!
+//! 1. **Who may touch**: pairs of segments of different fibres whose centre-lines were
+//!    within d + skin at the start of the step, the skin bounding how much closer any two
+//!    of their points came in the step (their centres' relative displacement plus how far
+//!    each end turned), so no pair can cross from one side to the other unseen. Each pair keeps the side it started on (the unit normal n₀ at the start);
+//!    a pair that crossed in the free step has a negative separation.
+//! 2. **Impulses**: for every pair closer than d at the end of the free step, the impulse J
+//!    (on the first segment, −J on the second, both at the midpoint of the closest points)
+//!    that brings the separation back to d by the end of the step and stops the sliding
+//!    (static friction); if that needs |J_t| > μ J_n, the pair slides with |J_t| = μ J_n
+//!    against the sliding direction. A fibre answers an impulse as one rigid body (its
+//!    mass, centre of mass and inertia tensor), so its joints stay closed; its bending
+//!    answers from the next step on through the joint solve.
+//! 3. **Sweeps**: all pairs are computed from the same state and applied together
+//!    (Jacobi, with each fibre's mass shared among its active contacts so several contacts
+//!    do not overshoot), positions and velocities updated consistently (the correction
+//!    moves each fibre by Δt times its velocity change), geometry recomputed, repeated for
+//!    a fixed number of sweeps or until no pair is closer than d. The order of pairs is
+//!    fixed (fibre, segment), so the result is the same bits whatever the threads.
+//!
+//! Forces are equal and opposite and act at one point, so the contact forces and torques
+//! of a step sum to zero; total momentum is unchanged (tests below).
+//!
+//! Not yet: contact between non-adjacent segments of one fibre (a rigid response cannot
+//! separate two points of one body; it needs the chain's own mobility).
+
+use crate::fibre::Fibre;
+use crate::lanes::sin_cos1;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// Contact parameters (wall units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactParams {
+    /// Coulomb friction coefficient μ ≥ 0 (static = sliding).
+    pub friction: f64,
+    /// Most Jacobi sweeps per step, ≥ 1 (they stop once no pair is closer than
+    /// 10⁻⁶ of its contact distance).
+    pub sweeps: u32,
+    /// Periods of the box along x1, x2, x3 (None: not periodic); centres are unwrapped,
+    /// pairs are found across periodic boundaries by the nearest image.
+    pub period: [Option<f64>; 3],
+}
+
+impl Default for ContactParams {
+    fn default() -> Self {
+        Self {
+            friction: 0.0,
+            sweeps: 100,
+            period: [None; 3],
+        }
+    }
+}
+
+/// One contact of a step: the segments, where they touched, and the total impulse on the
+/// first (the second received its opposite).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Contact {
+    /// (fibre, segment) of the two segments, the first before the second in fibre order.
+    pub a: (usize, usize),
+    pub b: (usize, usize),
+    /// The contact point in the first segment's frame (unwrapped as its centre is).
+    pub point: Vector3<f64>,
+    /// Periodic shift added to the second segment's coordinates to meet the first.
+    pub shift: Vector3<f64>,
+    /// Impulse on the first segment over the step (force × Δt).
+    pub impulse: Vector3<f64>,
+}
+
+/// What [`resolve`] did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Outcome {
+    /// Pairs that touched in the step, in (fibre, segment) order.
+    pub contacts: Vec<Contact>,
+    /// Candidate pairs examined (within reach at the start of the step).
+    pub candidates: usize,
+    /// Sweeps used.
+    pub sweeps: u32,
+    /// Smallest centre-line separation minus contact distance after the step (≥ 0 when
+    /// every pair was separated; negative if the sweeps ran out), over the candidates.
+    pub worst_gap: f64,
+}
+
+impl Outcome {
+    /// Per-segment contact force (impulse / Δt) and torque about the segment's centre, in
+    /// the fibre-major order of `fibres`.
+    pub fn segment_loads(
+        &self,
+        fibres: &[Fibre],
+        dt: f64,
+    ) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
+        let offsets = offsets(fibres);
+        let n = offsets.last().copied().unwrap_or(0);
+        let mut force = vec![Vector3::zeros(); n];
+        let mut torque = vec![Vector3::zeros(); n];
+        for c in &self.contacts {
+            let f = c.impulse / dt;
+            let (ka, ia) = c.a;
+            let (kb, ib) = c.b;
+            let ra = fibres[ka].segments[ia].r;
+            let rb = fibres[kb].segments[ib].r + c.shift;
+            force[offsets[ka] + ia] += f;
+            torque[offsets[ka] + ia] += (c.point - ra).cross(&f);
+            force[offsets[kb] + ib] -= f;
+            torque[offsets[kb] + ib] += (c.point - rb).cross(&(-f));
+        }
+        (force, torque)
+    }
+}
+
+/// Closest points of segments p0–p1 and q0–q1: their parameters s, t ∈ [0, 1] along each
+/// (Ericson, Real-Time Collision Detection §5.1.9). For parallel segments, the middle of
+/// the overlap of their projections, so touching parallel fibres meet in the middle.
+pub fn closest_points(
+    p0: &Vector3<f64>,
+    p1: &Vector3<f64>,
+    q0: &Vector3<f64>,
+    q1: &Vector3<f64>,
+) -> (f64, f64) {
+    let d1 = p1 - p0;
+    let d2 = q1 - q0;
+    let r = p0 - q0;
+    let a = d1.dot(&d1);
+    let e = d2.dot(&d2);
+    let f = d2.dot(&r);
+    if a <= f64::EPSILON && e <= f64::EPSILON {
+        return (0.0, 0.0);
+    }
+    if a <= f64::EPSILON {
+        return (0.0, (f / e).clamp(0.0, 1.0));
+    }
+    let c = d1.dot(&r);
+    if e <= f64::EPSILON {
+        return ((-c / a).clamp(0.0, 1.0), 0.0);
+    }
+    let b = d1.dot(&d2);
+    let denom = a * e - b * b;
+    if denom <= 1e-12 * a * e {
+        // parallel: the middle of the overlap of q's projection onto p
+        let sq0 = ((q0 - p0).dot(&d1) / a).clamp(0.0, 1.0);
+        let sq1 = ((q1 - p0).dot(&d1) / a).clamp(0.0, 1.0);
+        let s = 0.5 * (sq0 + sq1);
+        let t = ((p0 + d1 * s - q0).dot(&d2) / e).clamp(0.0, 1.0);
+        return (s, t);
+    }
+    let s0 = ((b * f - c * e) / denom).clamp(0.0, 1.0);
+    let t0 = (b * s0 + f) / e;
+    if t0 < 0.0 {
+        ((-c / a).clamp(0.0, 1.0), 0.0)
+    } else if t0 > 1.0 {
+        (((b - c) / a).clamp(0.0, 1.0), 1.0)
+    } else {
+        (s0, t0)
+    }
+}
+
+/// Offsets of each fibre's first segment in fibre-major order, plus the total.
+fn offsets(fibres: &[Fibre]) -> Vec<usize> {
+    let mut o = Vec::with_capacity(fibres.len() + 1);
+    let mut n = 0;
+    for f in fibres {
+        o.push(n);
+        n += f.len();
+    }
+    o.push(n);
+    o
+}
+
+/// Segment end points r ± (l/2) ẑ.
+fn ends(f: &Fibre, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+    let s = &f.segments[i];
+    let h = 0.5 * f.props[i].shape.length;
+    (s.r - s.z * h, s.r + s.z * h)
+}
+
+/// A fibre seen as one rigid body: what an impulse does to it.
+#[derive(Debug, Clone, Copy)]
+struct Rigid {
+    inv_mass: f64,
+    com: Vector3<f64>,
+    /// Inverse inertia tensor about the centre of mass (zero for a fixed fibre).
+    inv_inertia: Matrix3<f64>,
+}
+
+impl Rigid {
+    fn of(f: &Fibre, fixed: bool) -> Self {
+        let mass = f.mass();
+        let com = f
+            .segments
+            .iter()
+            .zip(&f.props)
+            .fold(Vector3::zeros(), |acc, (s, p)| acc + s.r * p.mass)
+            / mass;
+        if fixed {
+            return Self {
+                inv_mass: 0.0,
+                com,
+                inv_inertia: Matrix3::zeros(),
+            };
+        }
+        let mut inertia = Matrix3::zeros();
+        for (s, p) in f.segments.iter().zip(&f.props) {
+            let rho = s.r - com;
+            inertia += p.inertia(&s.z)
+                + p.mass * (rho.dot(&rho) * Matrix3::identity() - rho * rho.transpose());
+        }
+        Self {
+            inv_mass: 1.0 / mass,
+            com,
+            inv_inertia: inertia.try_inverse().unwrap_or_else(Matrix3::zeros),
+        }
+    }
+
+    /// Velocity change at `point` per unit impulse there: W = (1/M) 1 − [ρ]× I⁻¹ [ρ]×.
+    fn mobility(&self, point: &Vector3<f64>) -> Matrix3<f64> {
+        let x = cross_matrix(&(point - self.com));
+        Matrix3::identity() * self.inv_mass - x * self.inv_inertia * x
+    }
+}
+
+/// [v]× such that [v]× u = v × u.
+fn cross_matrix(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// Velocity of the material point `point` of segment `i`: v + ω × (point − r).
+fn point_velocity(f: &Fibre, i: usize, point: &Vector3<f64>) -> Vector3<f64> {
+    let s = &f.segments[i];
+    s.v + s.w.cross(&(point - s.r))
+}
+
+/// Rodrigues rotation of `v` by the rotation vector `phi` (no renormalisation).
+fn rotate_vector(v: &Vector3<f64>, phi: &Vector3<f64>) -> Vector3<f64> {
+    let angle = phi.norm();
+    if angle < 1e-300 {
+        return *v;
+    }
+    let k = phi / angle;
+    let (s, c) = sin_cos1(angle);
+    v * c + k.cross(v) * s + k * (k.dot(v) * (1.0 - c))
+}
+
+/// A pair that may touch in this step.
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    a: (usize, usize),
+    b: (usize, usize),
+    /// Shift of b's coordinates to its image nearest a.
+    shift: Vector3<f64>,
+    /// The side a was on at the start of the step (unit, from b to a).
+    normal0: Vector3<f64>,
+    /// Contact distance (d_a + d_b)/2.
+    reach: f64,
+    impulse: Vector3<f64>,
+}
+
+/// Nearest-image shift of `to` towards `from` along the periodic directions.
+fn image_shift(from: &Vector3<f64>, to: &Vector3<f64>, period: &[Option<f64>; 3]) -> Vector3<f64> {
+    let mut shift = Vector3::zeros();
+    for k in 0..3 {
+        if let Some(p) = period[k] {
+            let d = from[k] - to[k];
+            if d.abs() > 0.5 * p {
+                shift[k] = (d / p).round() * p;
+            }
+        }
+    }
+    shift
+}
+
+/// A dense cell list over points: cells of side at least `cell` (fewer along a periodic
+/// direction so they tile the period), points sorted by cell (counting sort).
+struct CellList {
+    dims: [usize; 3],
+    side: [f64; 3],
+    lo: [f64; 3],
+    periodic: [bool; 3],
+    /// First entry of each cell in `order` (plus the total).
+    start: Vec<u32>,
+    order: Vec<u32>,
+}
+
+impl CellList {
+    fn new(points: &[Vector3<f64>], cell: f64, period: &[Option<f64>; 3]) -> Self {
+        // no smaller than holds about two points each (a sparse grid costs lookups)
+        let mut volume = 1.0;
+        for k in 0..3 {
+            volume *= match period[k] {
+                Some(p) => p,
+                None => {
+                    let (mn, mx) = points
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+                            (a.min(r[k]), b.max(r[k]))
+                        });
+                    if mx > mn {
+                        mx - mn
+                    } else {
+                        1.0
+                    }
+                }
+            };
+        }
+        let mut cell = cell.max((2.0 * volume / points.len().max(1) as f64).cbrt());
+        loop {
+            let mut dims = [1usize; 3];
+            let mut side = [cell; 3];
+            let mut lo = [0.0; 3];
+            let mut periodic = [false; 3];
+            for k in 0..3 {
+                match period[k] {
+                    Some(p) => {
+                        dims[k] = ((p / cell).floor() as usize).max(1);
+                        side[k] = p / dims[k] as f64;
+                        periodic[k] = true;
+                    }
+                    None => {
+                        let (mn, mx) = points
+                            .iter()
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+                                (a.min(r[k]), b.max(r[k]))
+                            });
+                        lo[k] = if mn.is_finite() { mn } else { 0.0 };
+                        dims[k] = if mx.is_finite() {
+                            ((mx - lo[k]) / cell).floor() as usize + 1
+                        } else {
+                            1
+                        };
+                    }
+                }
+            }
+            // a sparse cloud spread far apart gets larger cells, not a huge grid
+            if dims.iter().product::<usize>() > 8 * points.len() + 64 {
+                cell *= 2.0;
+                continue;
+            }
+            let mut list = Self {
+                dims,
+                side,
+                lo,
+                periodic,
+                start: Vec::new(),
+                order: Vec::new(),
+            };
+            let ids: Vec<usize> = points.iter().map(|r| list.id(&list.coords(r))).collect();
+            let n = dims.iter().product::<usize>();
+            let mut start = vec![0u32; n + 1];
+            for &c in &ids {
+                start[c + 1] += 1;
+            }
+            for c in 0..n {
+                start[c + 1] += start[c];
+            }
+            let mut fill = start.clone();
+            let mut order = vec![0u32; points.len()];
+            for (i, &c) in ids.iter().enumerate() {
+                order[fill[c] as usize] = i as u32;
+                fill[c] += 1;
+            }
+            list.start = start;
+            list.order = order;
+            return list;
+        }
+    }
+
+    fn coords(&self, r: &Vector3<f64>) -> [i64; 3] {
+        std::array::from_fn(|k| {
+            let x = if self.periodic[k] {
+                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
+            } else {
+                r[k] - self.lo[k]
+            };
+            ((x / self.side[k]).floor() as i64).clamp(0, self.dims[k] as i64 - 1)
+        })
+    }
+
+    fn id(&self, c: &[i64; 3]) -> usize {
+        (c[0] as usize * self.dims[1] + c[1] as usize) * self.dims[2] + c[2] as usize
+    }
+
+    /// Offsets to the cells around a cell (itself and its 26 neighbours), each cell once:
+    /// along a periodic direction of one or two cells, −1 and +1 are the same cell.
+    fn offsets(&self) -> Vec<[i64; 3]> {
+        let along = |k: usize| -> Vec<i64> {
+            match (self.periodic[k], self.dims[k]) {
+                (true, 1) => vec![0],
+                (true, 2) => vec![0, 1],
+                _ => vec![-1, 0, 1],
+            }
+        };
+        let mut out = Vec::with_capacity(27);
+        for &dx in &along(0) {
+            for &dy in &along(1) {
+                for &dz in &along(2) {
+                    out.push([dx, dy, dz]);
+                }
+            }
+        }
+        out
+    }
+
+    /// The cell at `offset` from cell coordinates `c` (None beyond a non-periodic edge).
+    fn neighbour(&self, c: &[i64; 3], offset: &[i64; 3]) -> Option<usize> {
+        let mut n = [0i64; 3];
+        for k in 0..3 {
+            // offsets are −1, 0 or +1: one wrap at most
+            let m = self.dims[k] as i64;
+            n[k] = c[k] + offset[k];
+            if n[k] < 0 || n[k] >= m {
+                if !self.periodic[k] {
+                    return None;
+                }
+                n[k] -= n[k].signum() * m;
+            }
+        }
+        Some(self.id(&n))
+    }
+}
+
+/// A segment in the cell list's order, with what the first test of a pair reads.
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    centre: Vector3<f64>,
+    shift: Vector3<f64>,
+    turn: f64,
+    half_length: f64,
+    radius: f64,
+    /// Fibre-major index, and the fibre.
+    index: usize,
+    fibre: usize,
+}
+
+/// Pairs of segments of different fibres that may come within their contact distance in
+/// the step, in (fibre, segment) order: those whose centre-lines were within reach + skin
+/// at the start, the skin bounding how much closer any two of their points came in the
+/// step (`moves`). Found with a cell list over the segments' mid-step centres.
+fn candidates(before: &[Fibre], moves: &[Move], period: &[Option<f64>; 3]) -> Vec<Candidate> {
+    let mut segs = Vec::new();
+    let mut centres = Vec::new();
+    let (mut longest, mut widest) = (0.0_f64, 0.0_f64);
+    for (k, f) in before.iter().enumerate() {
+        for (i, p) in f.props.iter().enumerate() {
+            longest = longest.max(p.shape.length);
+            widest = widest.max(p.shape.diameter);
+            segs.push((k, i));
+            centres.push(f.segments[i].r);
+        }
+    }
+    // two segments that touch in the step have mid-step centres within
+    // (l_a + l_b)/2 + D + |Δr_a − Δr_b|/2 + (turn_a + turn_b), and |Δr_a − Δr_b|/2 is at
+    // most the largest deviation of a displacement from the mean one
+    let n = moves.len().max(1) as f64;
+    let mean = moves.iter().fold(Vector3::zeros(), |acc, m| acc + m.shift) / n;
+    let deviation = moves
+        .iter()
+        .map(|m| (m.shift - mean).norm())
+        .fold(0.0, f64::max);
+    let turn = moves.iter().map(|m| m.turn).fold(0.0, f64::max);
+    let mids: Vec<Vector3<f64>> = centres
+        .iter()
+        .zip(moves)
+        .map(|(r, m)| r + m.shift * 0.5)
+        .collect();
+    let cells = CellList::new(&mids, longest + widest + deviation + 2.0 * turn, period);
+    let offsets = cells.offsets();
+    // the segments in cell order, with what the first test needs, so neighbouring work
+    // reads neighbouring memory
+    let sorted: Vec<Entry> = cells
+        .order
+        .iter()
+        .map(|&g| {
+            let g = g as usize;
+            let (k, i) = segs[g];
+            let p = &before[k].props[i];
+            Entry {
+                centre: centres[g],
+                shift: moves[g].shift,
+                turn: moves[g].turn,
+                half_length: 0.5 * p.shape.length,
+                radius: 0.5 * p.shape.diameter,
+                index: g,
+                fibre: k,
+            }
+        })
+        .collect();
+    let ncells = cells.start.len() - 1;
+    let widest_limit = longest + widest + 2.0 * (deviation + turn);
+    let per_cell = |cell: usize| -> Vec<Candidate> {
+        let mut out = Vec::new();
+        let slots = cells.start[cell] as usize..cells.start[cell + 1] as usize;
+        if slots.is_empty() {
+            return out;
+        }
+        let c = cells.coords(&mids[sorted[slots.start].index]);
+        for slot in slots {
+            let ea = &sorted[slot];
+            for off in &offsets {
+                let Some(nc) = cells.neighbour(&c, off) else {
+                    continue;
+                };
+                for eb in &sorted[cells.start[nc] as usize..cells.start[nc + 1] as usize] {
+                    if eb.index <= ea.index || eb.fibre == ea.fibre {
+                        continue;
+                    }
+                    let shift = image_shift(&ea.centre, &eb.centre, period);
+                    let between = eb.centre + shift - ea.centre;
+                    // first against the largest limit any pair has (no square root)
+                    if between.dot(&between) >= widest_limit * widest_limit {
+                        continue;
+                    }
+                    let skin = (ea.shift - eb.shift).norm() + ea.turn + eb.turn;
+                    let limit = ea.half_length + eb.half_length + ea.radius + eb.radius + skin;
+                    if between.dot(&between) >= limit * limit {
+                        continue;
+                    }
+                    let (ka, ia) = segs[ea.index];
+                    let (kb, ib) = segs[eb.index];
+                    let (fa, fb) = (&before[ka], &before[kb]);
+                    let reach = ea.radius + eb.radius;
+                    let (pa0, pa1) = ends(fa, ia);
+                    let (qb0, qb1) = ends(fb, ib);
+                    let (qb0, qb1) = (qb0 + shift, qb1 + shift);
+                    let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+                    let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
+                    let dist = v.norm();
+                    if dist >= reach + skin {
+                        continue;
+                    }
+                    let normal0 = if dist > 1e-12 * reach {
+                        v / dist
+                    } else {
+                        // centre-lines meeting at the start: any direction across both axes
+                        let z = fa.segments[ia].z.cross(&fb.segments[ib].z);
+                        if z.norm() > 1e-12 {
+                            z.normalize()
+                        } else {
+                            Vector3::y()
+                        }
+                    };
+                    out.push(Candidate {
+                        a: (ka, ia),
+                        b: (kb, ib),
+                        shift,
+                        normal0,
+                        reach,
+                        impulse: Vector3::zeros(),
+                    });
+                }
+            }
+        }
+        out
+    };
+    let mut out: Vec<Candidate> = (0..ncells)
+        .into_par_iter()
+        .with_min_len(256)
+        .map(per_cell)
+        .flatten_iter()
+        .collect();
+    // the pairs are unique, so this order is the same whatever the threads did
+    out.par_sort_unstable_by_key(|c| (c.a, c.b));
+    out
+}
+
+/// How a segment moved in the step: its centre's displacement, and the most any of its
+/// points moved relative to the centre (h |Δẑ|).
+#[derive(Debug, Clone, Copy, Default)]
+struct Move {
+    shift: Vector3<f64>,
+    turn: f64,
+}
+
+/// Every segment's [`Move`] between `before` and `after`, fibre-major.
+fn moves(before: &[Fibre], after: &[Fibre]) -> Vec<Move> {
+    let mut m = Vec::new();
+    for (fb, fa) in before.iter().zip(after) {
+        for ((sb, sa), p) in fb.segments.iter().zip(&fa.segments).zip(&fa.props) {
+            m.push(Move {
+                shift: sa.r - sb.r,
+                turn: 0.5 * p.shape.length * (sa.z - sb.z).norm(),
+            });
+        }
+    }
+    m
+}
+
+/// Pairs of segments of different fibres whose centre-lines are closer than their contact
+/// distance (d_a + d_b)/2: (fibre a, segment, fibre b, segment, distance), a before b. A
+/// suspension with contact must start without any.
+pub fn overlaps(
+    fibres: &[Fibre],
+    period: &[Option<f64>; 3],
+) -> Vec<(usize, usize, usize, usize, f64)> {
+    candidates(
+        fibres,
+        &vec![Move::default(); fibres.iter().map(Fibre::len).sum()],
+        period,
+    )
+    .iter()
+    .map(|c| {
+        let (_, _, gap) = geometry(fibres, c);
+        (c.a.0, c.a.1, c.b.0, c.b.1, gap + c.reach)
+    })
+    .filter(|o| {
+        o.4 < 0.5 * (fibres[o.0].props[o.1].shape.diameter + fibres[o.2].props[o.3].shape.diameter)
+    })
+    .collect()
+}
+
+/// The state of a candidate at the end of the free step: contact point, normal (on a's
+/// side) and separation minus contact distance (negative: too close, or crossed).
+fn geometry(fibres: &[Fibre], c: &Candidate) -> (Vector3<f64>, Vector3<f64>, f64) {
+    let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
+    let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+    let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
+    let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+    let pa = pa0 + (pa1 - pa0) * s;
+    let pb = qb0 + (qb1 - qb0) * t;
+    let v = pa - pb;
+    let dist = v.norm();
+    let (normal, separation) = if dist > 1e-12 * c.reach {
+        let side = if v.dot(&c.normal0) >= 0.0 { 1.0 } else { -1.0 };
+        (v * (side / dist), side * dist)
+    } else {
+        (c.normal0, 0.0)
+    };
+    (0.5 * (pa + pb), normal, separation - c.reach)
+}
+
+/// The impulse on a (−J on b) that brings the gap to zero by the end of the step and
+/// stops the sliding if Coulomb's cone allows (static friction), else slides with
+/// |J_t| = μ J_n against the sliding velocity. `w` maps an impulse to the change of the
+/// relative velocity at the contact, `u` is that velocity, `gap` < 0.
+fn impulse(
+    w: &Matrix3<f64>,
+    u: &Vector3<f64>,
+    normal: &Vector3<f64>,
+    gap: f64,
+    dt: f64,
+    mu: f64,
+) -> Vector3<f64> {
+    let un = u.dot(normal);
+    let ut = u - normal * un;
+    // the normal velocity change that closes the gap over the step (the motion already in
+    // u was made by the free step)
+    let dun = -gap / dt;
+    if mu > 0.0 {
+        if let Some(w_inv) = w.try_inverse() {
+            let j = w_inv * (normal * dun - ut);
+            let jn = j.dot(normal);
+            if jn > 0.0 && (j - normal * jn).norm() <= mu * jn {
+                return j;
+            }
+        }
+        // sliding: J = j (n − μ t̂), t̂ along the sliding velocity
+        let speed = ut.norm();
+        if speed > 0.0 {
+            let dir = normal - ut * (mu / speed);
+            let denom = normal.dot(&(w * dir));
+            if denom > 0.0 {
+                return dir * (dun / denom);
+            }
+        }
+    }
+    normal * (dun / normal.dot(&(w * normal)))
+}
+
+/// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
+/// its start), with fibres `fixed[k]` immovable (a support). See the module's
+/// documentation for the method.
+pub fn resolve(
+    fibres: &mut [Fibre],
+    before: &[Fibre],
+    fixed: &[bool],
+    params: &ContactParams,
+    dt: f64,
+) -> Outcome {
+    let moved = moves(before, fibres);
+    let mut cands = candidates(before, &moved, &params.period);
+    let mut outcome = Outcome {
+        candidates: cands.len(),
+        worst_gap: f64::INFINITY,
+        ..Default::default()
+    };
+    let is_fixed = |k: usize| fixed.get(k).copied().unwrap_or(false);
+    let mut pending: Vec<(usize, Vector3<f64>, Vector3<f64>)> = Vec::new();
+    for sweep in 0..params.sweeps.max(1) {
+        // active pairs and how many each fibre has (its mass is shared among them)
+        pending.clear();
+        let mut count: HashMap<usize, u32> = HashMap::new();
+        let geo: Vec<_> = cands.iter().map(|c| geometry(fibres, c)).collect();
+        if cands.iter().zip(&geo).all(|(c, g)| g.2 >= -1e-6 * c.reach) {
+            break;
+        }
+        for (c, g) in cands.iter().zip(&geo) {
+            if g.2 < 0.0 {
+                *count.entry(c.a.0).or_default() += 1;
+                *count.entry(c.b.0).or_default() += 1;
+            }
+        }
+        if count.is_empty() {
+            break;
+        }
+        outcome.sweeps = sweep + 1;
+        let rigid: HashMap<usize, Rigid> = count
+            .keys()
+            .map(|&k| (k, Rigid::of(&fibres[k], is_fixed(k))))
+            .collect();
+        for (n, (c, (point, normal, gap))) in cands.iter().zip(&geo).enumerate() {
+            if *gap >= 0.0 {
+                continue;
+            }
+            let (ra, rb) = (&rigid[&c.a.0], &rigid[&c.b.0]);
+            let point_b = point - c.shift;
+            let w = ra.mobility(point) * f64::from(count[&c.a.0])
+                + rb.mobility(&point_b) * f64::from(count[&c.b.0]);
+            let u = point_velocity(&fibres[c.a.0], c.a.1, point)
+                - point_velocity(&fibres[c.b.0], c.b.1, &point_b);
+            pending.push((
+                n,
+                *point,
+                impulse(&w, &u, normal, *gap, dt, params.friction),
+            ));
+        }
+        // every fibre's total impulse and moment about its centre of mass, in pair order
+        let mut push: HashMap<usize, (Vector3<f64>, Vector3<f64>)> = HashMap::new();
+        for &(n, point, j) in &pending {
+            let c = &mut cands[n];
+            c.impulse += j;
+            let ea = push
+                .entry(c.a.0)
+                .or_insert((Vector3::zeros(), Vector3::zeros()));
+            ea.0 += j;
+            ea.1 += (point - rigid[&c.a.0].com).cross(&j);
+            let eb = push
+                .entry(c.b.0)
+                .or_insert((Vector3::zeros(), Vector3::zeros()));
+            eb.0 -= j;
+            eb.1 += (point - c.shift - rigid[&c.b.0].com).cross(&(-j));
+        }
+        let mut keys: Vec<usize> = push.keys().copied().collect();
+        keys.sort_unstable();
+        for k in keys {
+            if is_fixed(k) {
+                continue;
+            }
+            let r = &rigid[&k];
+            let (p, l) = push[&k];
+            let dv = p * r.inv_mass;
+            let dw = r.inv_inertia * l;
+            // the velocity change, and the motion it makes over the step (rigid)
+            let phi = dw * dt;
+            for s in fibres[k].segments.iter_mut() {
+                let rho = s.r - r.com;
+                s.v += dv + dw.cross(&rho);
+                s.w += dw;
+                s.r = r.com + dv * dt + rotate_vector(&rho, &phi);
+                s.z = rotate_vector(&s.z, &phi).normalize();
+                s.n = rotate_vector(&s.n, &phi).normalize();
+            }
+        }
+    }
+    for c in &cands {
+        let (_, _, gap) = geometry(fibres, c);
+        outcome.worst_gap = outcome.worst_gap.min(gap);
+        if c.impulse != Vector3::zeros() {
+            let (point, _, _) = geometry(fibres, c);
+            outcome.contacts.push(Contact {
+                a: c.a,
+                b: c.b,
+                point,
+                shift: c.shift,
+                impulse: c.impulse,
+            });
+        }
+    }
+    outcome
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hydro::DragModel;
+    use crate::step::{step, FluidSample, ModelParams};
+    use crate::suspension::{random_suspension, segment_distance, Suspension};
+
+    /// Case-1-like segments: 7 of length 3, d+ 0.232, ρ_s/ρ_f 1150 (paper Table 1).
+    const D: f64 = 0.232;
+    const L: f64 = 3.0;
+    const N: usize = 7;
+    const DT: f64 = 0.2;
+
+    fn fibre(centre: Vector3<f64>, axis: Vector3<f64>) -> Fibre {
+        Fibre::straight(centre, axis.normalize(), &[L; N], &[D; N], 1150.0).unwrap()
+    }
+
+    fn params(gravity: Vector3<f64>) -> ModelParams {
+        ModelParams {
+            drag: DragModel {
+                viscosity: 1.0,
+                fluid_density: 1.0,
+                drag_coefficient: 1.0,
+            },
+            gravity,
+            bending_stiffness: 0.0,
+            twisting_stiffness: 0.0,
+            tikhonov: 0.0,
+            wall_half_height: None,
+        }
+    }
+
+    /// One coupled step: every free fibre by the model's step in the fluid `fluid(k, r)`,
+    /// then contact (None: without contact).
+    fn step_all(
+        fibres: &mut [Fibre],
+        fixed: &[bool],
+        p: &ModelParams,
+        fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample,
+        contact: Option<&ContactParams>,
+    ) -> Option<Outcome> {
+        let before = fibres.to_vec();
+        for (k, f) in fibres.iter_mut().enumerate() {
+            if fixed.get(k).copied().unwrap_or(false) {
+                continue;
+            }
+            let samples: Vec<FluidSample> = f.segments.iter().map(|s| fluid(k, &s.r)).collect();
+            step(p, f, &samples, DT).unwrap();
+        }
+        contact.map(|c| resolve(fibres, &before, fixed, c, DT))
+    }
+
+    /// Smallest centre-line distance between segments of different fibres, by brute force
+    /// over nearest periodic images.
+    fn min_distance(fibres: &[Fibre], period: &[Option<f64>; 3]) -> f64 {
+        let mut m = f64::INFINITY;
+        for a in 0..fibres.len() {
+            for b in a + 1..fibres.len() {
+                for i in 0..fibres[a].len() {
+                    for j in 0..fibres[b].len() {
+                        let (p0, p1) = ends(&fibres[a], i);
+                        let (q0, q1) = ends(&fibres[b], j);
+                        let sh =
+                            image_shift(&fibres[a].segments[i].r, &fibres[b].segments[j].r, period);
+                        m = m.min(segment_distance(p0, p1, q0 + sh, q1 + sh));
+                    }
+                }
+            }
+        }
+        m
+    }
+
+    fn com(f: &Fibre) -> Vector3<f64> {
+        Rigid::of(f, false).com
+    }
+
+    fn uniform(v: Vector3<f64>) -> FluidSample {
+        FluidSample {
+            vel: v,
+            grad: Matrix3::zeros(),
+        }
+    }
+
+    /// Closest points against brute force over a fine grid of (s, t), for skew, crossing,
+    /// parallel, collinear and end-to-end segments.
+    #[test]
+    fn closest_points_are_the_closest() {
+        let v = |x: f64, y: f64, z: f64| Vector3::new(x, y, z);
+        let cases = [
+            (
+                v(-1.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(0.0, 0.5, -1.0),
+                v(0.0, 0.5, 1.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(2.0, 0.0, 0.0),
+                v(0.5, 0.3, 0.0),
+                v(1.5, 0.3, 0.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(2.0, 0.0, 0.0),
+                v(3.0, 0.0, 0.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 1.0, 0.0),
+                v(3.0, 0.0, 1.0),
+                v(2.0, 4.0, -1.0),
+            ),
+            (
+                v(0.0, 0.0, 0.0),
+                v(1.0, 0.0, 0.0),
+                v(1.2, 0.1, 0.0),
+                v(1.2, 2.0, 0.0),
+            ),
+        ];
+        for (p0, p1, q0, q1) in cases {
+            let (s, t) = closest_points(&p0, &p1, &q0, &q1);
+            let got = ((p0 + (p1 - p0) * s) - (q0 + (q1 - q0) * t)).norm();
+            let mut best = f64::INFINITY;
+            for i in 0..=400 {
+                for j in 0..=400 {
+                    let (a, b) = (i as f64 / 400.0, j as f64 / 400.0);
+                    best = best.min(((p0 + (p1 - p0) * a) - (q0 + (q1 - q0) * b)).norm());
+                }
+            }
+            assert!(got <= best + 1e-12, "{got} > grid minimum {best}");
+            assert!(got >= best - 1e-2, "{got} far below grid minimum {best}");
+        }
+        // parallel overlapping: the middle of the overlap
+        let (s, t) = closest_points(&cases[1].0, &cases[1].1, &cases[1].2, &cases[1].3);
+        assert!(
+            (s - 0.5).abs() < 1e-12 && (t - 0.5).abs() < 1e-12,
+            "{s} {t}"
+        );
+    }
+
+    /// Head-on: two crossed fibres driven at each other at 2 u_τ each, so that they close
+    /// 0.8 wall units (3.4 d) in one step: with contact the centre-lines never come closer
+    /// than 0.99 d and the upper fibre stays above; without, they pass through each other.
+    #[test]
+    fn head_on_fibres_do_not_pass_through() {
+        let u = 2.0;
+        let start = || {
+            let mut a = fibre(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
+            let mut b = fibre(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
+            a.segments
+                .iter_mut()
+                .for_each(|s| s.v = Vector3::new(0.0, -u, 0.0));
+            b.segments
+                .iter_mut()
+                .for_each(|s| s.v = Vector3::new(0.0, u, 0.0));
+            vec![a, b]
+        };
+        let fluid = |k: usize, _: &Vector3<f64>| {
+            uniform(Vector3::new(0.0, if k == 0 { -u } else { u }, 0.0))
+        };
+        let p = params(Vector3::zeros());
+        let c = ContactParams::default();
+        let mut fibres = start();
+        let mut touched = 0;
+        for _ in 0..40 {
+            let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+            touched += out.contacts.len();
+            let m = min_distance(&fibres, &[None; 3]);
+            assert!(m >= 0.99 * D, "centre-lines {m} apart (d = {D})");
+            assert!(com(&fibres[0]).y > com(&fibres[1]).y);
+        }
+        assert!(touched > 10, "the fibres touched in only {touched} steps");
+        let mut free = start();
+        for _ in 0..40 {
+            step_all(&mut free, &[], &p, &fluid, None);
+        }
+        assert!(
+            com(&free[0]).y < com(&free[1]).y,
+            "without contact they pass"
+        );
+    }
+
+    /// Crossing in shear u = γ y: a spanwise fibre and a slightly tilted one at y = ±0.05
+    /// carried past each other at 1 u_τ relative speed; their centre-lines would cross (the
+    /// run without contact comes within 0.1 d), with contact they never come closer than
+    /// 0.99 d, with and without friction.
+    #[test]
+    fn fibres_crossing_in_shear_slide_over_each_other() {
+        let gamma = 10.0;
+        let fluid = |_: usize, r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * r.y, 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        let start = || {
+            let mut fs = vec![
+                fibre(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
+                fibre(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
+            ];
+            for f in fs.iter_mut() {
+                for s in f.segments.iter_mut() {
+                    s.v = fluid(0, &s.r).vel;
+                }
+            }
+            fs
+        };
+        let p = params(Vector3::zeros());
+        let mut free = start();
+        let mut closest_free = f64::INFINITY;
+        for _ in 0..160 {
+            step_all(&mut free, &[], &p, &fluid, None);
+            closest_free = closest_free.min(min_distance(&free, &[None; 3]));
+        }
+        assert!(
+            closest_free < 0.1 * D,
+            "the encounter is not one: {closest_free}"
+        );
+        for mu in [0.0, 0.5] {
+            let c = ContactParams {
+                friction: mu,
+                ..Default::default()
+            };
+            let mut fibres = start();
+            let mut touched = 0;
+            for _ in 0..160 {
+                let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+                touched += out.contacts.len();
+                let m = min_distance(&fibres, &[None; 3]);
+                assert!(m >= 0.99 * D, "μ = {mu}: centre-lines {m} apart");
+            }
+            assert!(touched >= 1, "μ = {mu}: they never touched");
+            assert!(
+                com(&fibres[0]).x > com(&fibres[1]).x,
+                "μ = {mu}: they passed"
+            );
+        }
+    }
+
+    /// A crowded periodic box of 60 fibres moving at random (nL³ ≈ 20): every step the
+    /// contact forces sum to zero and so do their torques about the origin (to round-off),
+    /// total momentum is what the free step left, and no centre-lines are closer than 0.99 d.
+    #[test]
+    fn contact_forces_and_torques_sum_to_zero_and_momentum_is_kept() {
+        let side = 30.0;
+        let period = [Some(side), None, Some(side)];
+        let placed = random_suspension(&Suspension {
+            count: 60,
+            seed: 7,
+            box_plus: [side, side, side],
+            band_plus: [0.0, side],
+            segments: N,
+            segment_length_plus: L,
+            diameter_plus: D,
+            min_distance_plus: D,
+        })
+        .unwrap();
+        let mut x = 12345u64;
+        let mut rnd = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut fibres: Vec<Fibre> = placed
+            .iter()
+            .map(|pl| {
+                let mut f = fibre(pl.centre, pl.axis);
+                let v = Vector3::new(rnd(), rnd(), rnd()) * 4.0;
+                f.segments.iter_mut().for_each(|s| s.v = v);
+                f
+            })
+            .collect();
+        let p = params(Vector3::zeros());
+        let c = ContactParams {
+            friction: 0.5,
+            period,
+            ..Default::default()
+        };
+        let momentum = |fs: &[Fibre]| {
+            fs.iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
+        };
+        let mut contacts = 0;
+        for _ in 0..25 {
+            let before = fibres.clone();
+            for f in fibres.iter_mut() {
+                let samples = vec![FluidSample::at_rest(); f.len()];
+                step(&p, f, &samples, DT).unwrap();
+            }
+            let free = momentum(&fibres);
+            let out = resolve(&mut fibres, &before, &[], &c, DT);
+            contacts += out.contacts.len();
+            let scale: f64 = fibres
+                .iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .map(|(s, p)| s.v.norm() * p.mass)
+                .sum();
+            assert!((momentum(&fibres) - free).norm() <= 1e-12 * scale);
+            let (force, torque) = out.segment_loads(&fibres, DT);
+            let total_f = force.iter().sum::<Vector3<f64>>();
+            let fmax = force.iter().map(|f| f.norm()).fold(0.0, f64::max);
+            assert!(total_f.norm() <= 1e-12 * fmax.max(1e-300) * force.len() as f64);
+            // torque about the origin: each segment's r × F plus its own torque, the
+            // second segment of a pair taken at its image beside the first
+            let mut total_t = Vector3::zeros();
+            let mut k = 0;
+            for f in &fibres {
+                for s in &f.segments {
+                    total_t += torque[k];
+                    k += 1;
+                    let _ = s;
+                }
+            }
+            for ct in &out.contacts {
+                let fa = ct.impulse / DT;
+                let ra = fibres[ct.a.0].segments[ct.a.1].r;
+                let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
+                total_t += ra.cross(&fa) + rb.cross(&(-fa));
+            }
+            let tmax = fmax * side;
+            assert!(total_t.norm() <= 1e-11 * tmax.max(1e-300), "{total_t}");
+            let m = min_distance(&fibres, &period);
+            assert!(
+                m >= 0.99 * D,
+                "centre-lines {m} apart (worst gap {})",
+                out.worst_gap
+            );
+        }
+        assert!(contacts > 50, "only {contacts} contacts in 25 steps");
+    }
+
+    /// Friction: a fibre lying across two fixed ones (rails 12 apart, so it cannot tip),
+    /// gravity tilted by θ = 20° along the upper fibre's axis. Coulomb: it stays for
+    /// μ ≥ tan θ and slides below. At μ = 1.02 tan θ the points of contact stay the same
+    /// material points of the fibre; at 0.98 tan θ it slides.
+    #[test]
+    fn a_fibre_on_an_incline_sticks_above_tan_theta_and_slides_below() {
+        let theta = 20f64.to_radians();
+        let g = 0.05;
+        let p = params(Vector3::new(0.0, -theta.cos(), -theta.sin()) * g);
+        // where along the upper fibre the lower one touches it (from its first end)
+        let contact_along = |fs: &[Fibre]| {
+            let (q0, q1) = ends(&fs[1], N / 2);
+            let mut best = (f64::INFINITY, 0.0);
+            for i in 0..N {
+                let (p0, p1) = ends(&fs[0], i);
+                let (s, t) = closest_points(&p0, &p1, &q0, &q1);
+                let d = ((p0 + (p1 - p0) * s) - (q0 + (q1 - q0) * t)).norm();
+                if d < best.0 {
+                    best = (d, (i as f64 + s) * L);
+                }
+            }
+            best.1
+        };
+        let slide = |mu: f64| {
+            let mut fs = vec![
+                fibre(Vector3::new(0.0, D, 0.0), Vector3::z()),
+                fibre(Vector3::new(0.0, 0.0, -6.0), Vector3::x()),
+                fibre(Vector3::new(0.0, 0.0, 6.0), Vector3::x()),
+            ];
+            let start = contact_along(&fs);
+            let c = ContactParams {
+                friction: mu,
+                ..Default::default()
+            };
+            let rest = |_: usize, _: &Vector3<f64>| FluidSample::at_rest();
+            for _ in 0..200 {
+                step_all(&mut fs, &[false, true, true], &p, &rest, Some(&c));
+                let m = min_distance(&fs, &[None; 3]);
+                assert!(m >= 0.99 * D, "μ = {mu}: sank to {m}");
+            }
+            (contact_along(&fs) - start).abs()
+        };
+        let mu_c = theta.tan();
+        let stuck = slide(1.02 * mu_c);
+        let slid = slide(0.98 * mu_c);
+        assert!(stuck < 1e-6, "stuck fibre moved {stuck} along its contact");
+        assert!(slid > 1e-3, "sliding fibre moved only {slid}");
+        assert!(slid > 1e3 * stuck.max(1e-12));
+    }
+
+    /// A group with contact on steps to the same bits as the model's step fibre by fibre
+    /// followed by [`resolve`] (what the tests above check), here for 60 crowded fibres in
+    /// shear over 10 steps, and its fibres touch.
+    #[test]
+    fn a_group_with_contact_steps_as_step_then_resolve() {
+        let side = 30.0;
+        let placed = random_suspension(&Suspension {
+            count: 60,
+            seed: 3,
+            box_plus: [side, side, side],
+            band_plus: [0.0, side],
+            segments: N,
+            segment_length_plus: L,
+            diameter_plus: D,
+            min_distance_plus: D,
+        })
+        .unwrap();
+        let fibres: Vec<Fibre> = placed.iter().map(|pl| fibre(pl.centre, pl.axis)).collect();
+        let p = params(Vector3::zeros());
+        let c = ContactParams {
+            friction: 0.3,
+            period: [Some(side), None, Some(side)],
+            ..Default::default()
+        };
+        let gamma = 2.0;
+        let shear = |r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * (r.y - 0.5 * side), 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        let mut group = crate::group::FibreGroup::new(p, fibres.clone());
+        group.set_contact(Some(c));
+        let mut by_hand = fibres;
+        let mut touched = 0;
+        for _ in 0..10 {
+            let samples: Vec<FluidSample> = (0..group.len())
+                .flat_map(|k| group.segments(k).map(|s| shear(&s.r)).collect::<Vec<_>>())
+                .collect();
+            group.step(&samples, DT).unwrap();
+            touched += group.last_contact().contacts.len();
+            let out = step_all(&mut by_hand, &[], &p, &|_, r| shear(r), Some(&c)).unwrap();
+            assert_eq!(&out, group.last_contact());
+            assert_eq!(group.fibres(), by_hand);
+        }
+        assert!(touched > 0, "no contacts: the test checks nothing");
+    }
+}
