@@ -120,6 +120,7 @@ struct Reading {
     segment_length: f64,
     from_states: BTreeMap<u64, Row>,
     from_metrics: BTreeMap<u64, Row>,
+    flocs: Vec<crate::flocs::FlocRow>,
 }
 
 /// Reads a recording's fibre groups, ordered by step. `mcap_path` is a run folder (all
@@ -134,6 +135,8 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
     // a sharded group's slices, put back together per step
     let mut state_tiles = Tiles::default();
     let mut metric_tiles = Tiles::default();
+    // the box (periodic along x1 and x3) that contacts are found in
+    let mut box_plus: Option<[f64; 3]> = None;
     for seg in &segs {
         let bytes = std::fs::read(seg).map_err(io_err(seg))?;
         let stream =
@@ -141,7 +144,13 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
         for m in stream {
             let Ok(m) = m else { break }; // a damaged tail: analyse what is there
             let topic = m.channel.topic.as_str();
-            if topic.ends_with("/state") {
+            if topic.ends_with("/control/announce") {
+                if let Ok(a) = decode::<fiberflow_messages::RunAnnouncement>(&m.data) {
+                    if let [x, y, z] = a.box_plus[..] {
+                        box_plus.get_or_insert([x, y, z]);
+                    }
+                }
+            } else if topic.ends_with("/state") {
                 let Ok(s) = decode::<FiberGroupState>(&m.data) else {
                     continue;
                 };
@@ -162,6 +171,9 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                     r.layer = s.layer.clone();
                     r.density_ratio = s.density_ratio.first().copied().unwrap_or(0.0);
                     r.segment_length = s.segment_length.first().copied().unwrap_or(0.0);
+                }
+                if let Some(b) = box_plus {
+                    r.flocs.push(crate::flocs::of_state(&s, b));
                 }
                 r.from_states.insert(s.step, row_of_state(&s));
             } else if topic.ends_with("/metrics") && topic.contains("/fibers/") {
@@ -191,7 +203,10 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 rows.entry(k).or_insert(row);
             }
         }
+        r.flocs.sort_by_key(|f| f.step);
+        r.flocs.dedup_by_key(|f| f.step);
         let mut gs = GroupSeries {
+            flocs: std::mem::take(&mut r.flocs),
             layer: r.layer,
             density_ratio: r.density_ratio,
             segment_length: r.segment_length,
@@ -511,6 +526,17 @@ pub fn analyse(
         });
     }
     ensemble.plot(out)?;
+    let floc_rows: Vec<(String, Vec<crate::flocs::FlocRow>)> = groups
+        .iter()
+        .filter(|(_, g)| !g.flocs.is_empty())
+        .map(|(n, g)| (n.clone(), g.flocs.clone()))
+        .collect();
+    for (name, rows) in &floc_rows {
+        write(out, &format!("{name}_flocs.csv"), &crate::flocs::csv(rows))?;
+    }
+    if !floc_rows.is_empty() {
+        write(out, "flocs.md", &crate::flocs::table(&floc_rows))?;
+    }
     let (coiling_table, onsets_csv) = crate::coiling::report(&groups, thresholds);
     write(out, "coiling_onsets.csv", &onsets_csv)?;
     write(out, "coiling_onsets.md", &coiling_table)?;

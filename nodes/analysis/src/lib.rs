@@ -4,6 +4,7 @@
 pub mod bootstrap;
 pub mod coiling;
 pub mod fibres;
+pub mod flocs;
 pub mod flow_validation;
 pub mod modulation;
 pub mod plot;

@@ -12,4 +12,6 @@ pub struct GroupSeries {
     pub layer: Vec<u8>,
     pub density_ratio: f64,
     pub segment_length: f64,
+    /// Contacts and flocs of each recorded full state ([`crate::flocs`]).
+    pub flocs: Vec<crate::flocs::FlocRow>,
 }

@@ -599,9 +599,30 @@ pub fn overlaps(
     fibres: &[Fibre],
     period: &[Option<f64>; 3],
 ) -> Vec<(usize, usize, usize, usize, f64)> {
+    touching(fibres, period, 0.0)
+}
+
+/// Pairs of segments of different fibres whose centre-lines are closer than their contact
+/// distance times (1 + `tolerance`): (fibre a, segment, fibre b, segment, distance), a
+/// before b, in (fibre, segment) order. With a small tolerance, the pairs in contact.
+pub fn touching(
+    fibres: &[Fibre],
+    period: &[Option<f64>; 3],
+    tolerance: f64,
+) -> Vec<(usize, usize, usize, usize, f64)> {
+    // a skin as wide as the tolerance finds every pair within it
+    let widest = fibres
+        .iter()
+        .flat_map(|f| f.props.iter())
+        .map(|p| p.shape.diameter)
+        .fold(0.0, f64::max);
+    let still = Move {
+        shift: Vector3::zeros(),
+        turn: 0.5 * tolerance * widest,
+    };
     candidates(
         fibres,
-        &vec![Move::default(); fibres.iter().map(Fibre::len).sum()],
+        &vec![still; fibres.iter().map(Fibre::len).sum()],
         period,
     )
     .iter()
@@ -610,7 +631,9 @@ pub fn overlaps(
         (c.a.0, c.a.1, c.b.0, c.b.1, gap + c.reach)
     })
     .filter(|o| {
-        o.4 < 0.5 * (fibres[o.0].props[o.1].shape.diameter + fibres[o.2].props[o.3].shape.diameter)
+        let reach =
+            0.5 * (fibres[o.0].props[o.1].shape.diameter + fibres[o.2].props[o.3].shape.diameter);
+        o.4 < reach * (1.0 + tolerance)
     })
     .collect()
 }

@@ -1,0 +1,260 @@
+//! Contacts and flocs in recorded fibre states (docs/contact.md): which segments of
+//! different fibres touch (centre-lines within 1% of their contact distance), contacts per
+//! fibre, the contact graph's clusters of fibres (flocs: count, largest, share of fibres
+//! in one), the closest approach of any two fibres, and the crowding number.
+//!
+//! A run without contact has fibres that pass through each other: there the same numbers
+//! measure how much they interpenetrate.
+
+use fiberflow_fiber_model::contact::touching;
+use fiberflow_fiber_model::fibre::{Fibre, Segment, SegmentProps};
+use fiberflow_messages::FiberGroupState;
+use nalgebra::Vector3;
+use std::fmt::Write as _;
+
+/// Centre-lines within this fraction of their contact distance are in contact.
+pub const CONTACT_TOLERANCE: f64 = 0.01;
+
+/// One recorded state's contacts and flocs.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct FlocRow {
+    pub step: u64,
+    pub t_plus: f64,
+    pub fibres: usize,
+    /// Mean number of other fibres each fibre touches.
+    pub contacts_per_fibre: f64,
+    /// Pairs of segments of different fibres in contact.
+    pub segment_contacts: usize,
+    /// Clusters of two or more fibres joined by contacts.
+    pub flocs: usize,
+    /// Fibres in the largest cluster (1 when no fibre touches another).
+    pub largest: usize,
+    /// Share of the fibres that are in a floc.
+    pub in_flocs: f64,
+    /// Closest centre-line distance between segments of different fibres over the mean
+    /// diameter (∞ when none is within 1% of touching).
+    pub closest_over_d: f64,
+    /// Crowding number N = (2/3) c_v (L/d)² of the group in the box.
+    pub crowding: f64,
+}
+
+/// The fibres of a full state (centres and axes) as the model's fibres.
+fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
+    let mut out = Vec::with_capacity(s.segments_per_fiber.len());
+    let mut seg = 0usize;
+    for (f, &n) in s.segments_per_fiber.iter().enumerate() {
+        let (l, d) = (s.segment_length[f], s.diameter[f]);
+        let rho = s.density_ratio.get(f).copied().unwrap_or(1.0);
+        let mut segments = Vec::with_capacity(n as usize);
+        for i in seg..seg + n as usize {
+            let r = Vector3::new(s.centre[3 * i], s.centre[3 * i + 1], s.centre[3 * i + 2]);
+            let z = Vector3::new(s.axis[3 * i], s.axis[3 * i + 1], s.axis[3 * i + 2]);
+            segments.push(Segment {
+                r,
+                z,
+                v: Vector3::zeros(),
+                w: Vector3::zeros(),
+                n: z.cross(&Vector3::x())
+                    .try_normalize(1e-9)
+                    .unwrap_or(Vector3::y()),
+                f: Vector3::zeros(),
+            });
+        }
+        seg += n as usize;
+        out.push(Fibre {
+            props: vec![SegmentProps::new(l, d, rho); n as usize],
+            segments,
+            density: rho,
+        });
+    }
+    out
+}
+
+/// Union–find root with path halving.
+fn root(parent: &mut [usize], mut a: usize) -> usize {
+    while parent[a] != a {
+        parent[a] = parent[parent[a]];
+        a = parent[a];
+    }
+    a
+}
+
+/// Contacts and flocs of one full state of a whole group in a box periodic along x1
+/// and x3 (`box_plus` its lengths).
+pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
+    let fibres = fibres_of(s);
+    let n = fibres.len();
+    let period = [Some(box_plus[0]), None, Some(box_plus[2])];
+    let pairs = touching(&fibres, &period, CONTACT_TOLERANCE);
+    let mut parent: Vec<usize> = (0..n).collect();
+    let mut fibre_pairs: Vec<(usize, usize)> = pairs.iter().map(|p| (p.0, p.2)).collect();
+    fibre_pairs.sort_unstable();
+    fibre_pairs.dedup();
+    for &(a, b) in &fibre_pairs {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        if ra != rb {
+            parent[ra.max(rb)] = ra.min(rb);
+        }
+    }
+    let mut size = vec![0usize; n];
+    for k in 0..n {
+        let r = root(&mut parent, k);
+        size[r] += 1;
+    }
+    let flocs = size.iter().filter(|&&c| c >= 2).count();
+    let in_flocs = size.iter().filter(|&&c| c >= 2).sum::<usize>();
+    let mean_d = s.diameter.iter().sum::<f64>() / s.diameter.len().max(1) as f64;
+    let closest = pairs.iter().map(|p| p.4).fold(f64::INFINITY, f64::min);
+    let fibre_volume: f64 = fibres
+        .iter()
+        .flat_map(|f| f.props.iter())
+        .map(|p| std::f64::consts::FRAC_PI_4 * p.shape.diameter.powi(2) * p.shape.length)
+        .sum();
+    let length = fibres
+        .iter()
+        .map(|f| f.props.iter().map(|p| p.shape.length).sum::<f64>())
+        .sum::<f64>()
+        / n.max(1) as f64;
+    let cv = fibre_volume / box_plus.iter().product::<f64>();
+    FlocRow {
+        step: s.step,
+        t_plus: s.t_plus,
+        fibres: n,
+        contacts_per_fibre: 2.0 * fibre_pairs.len() as f64 / n.max(1) as f64,
+        segment_contacts: pairs.len(),
+        flocs,
+        largest: size.iter().copied().max().unwrap_or(0),
+        in_flocs: in_flocs as f64 / n.max(1) as f64,
+        closest_over_d: closest / mean_d,
+        crowding: 2.0 / 3.0 * cv * (length / mean_d).powi(2),
+    }
+}
+
+/// `{group}_flocs.csv`: one row per recorded full state.
+pub fn csv(rows: &[FlocRow]) -> String {
+    let mut out = String::from(
+        "step,t_plus,fibres,contacts_per_fibre,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding\n",
+    );
+    for r in rows {
+        let _ = writeln!(
+            out,
+            "{},{:.4},{},{:.5},{},{},{},{:.5},{:.5},{:.4}",
+            r.step,
+            r.t_plus,
+            r.fibres,
+            r.contacts_per_fibre,
+            r.segment_contacts,
+            r.flocs,
+            r.largest,
+            r.in_flocs,
+            r.closest_over_d,
+            r.crowding
+        );
+    }
+    out
+}
+
+/// The Markdown table of every group's first and last recorded state.
+pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
+    let mut out = String::from(
+        "# Contacts and flocs\n\nSegments of different fibres are in contact when their centre-lines are within 1% of a diameter; flocs are clusters of two or more fibres joined by contacts. Without `[fibers.contact]` fibres pass through each other, and these numbers measure how much.\n\n| group | t+ | crowding N | contacts per fibre | flocs | largest floc | share in flocs | closest / d |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for (name, rows) in groups {
+        let ends = match (rows.first(), rows.last()) {
+            (Some(a), Some(b)) if a.step != b.step => vec![a, b],
+            (Some(a), _) => vec![a],
+            _ => vec![],
+        };
+        for r in ends {
+            let _ = writeln!(
+                out,
+                "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} |",
+                r.t_plus,
+                r.crowding,
+                r.contacts_per_fibre,
+                r.flocs,
+                r.largest,
+                r.in_flocs,
+                if r.closest_over_d.is_finite() {
+                    format!("{:.4}", r.closest_over_d)
+                } else {
+                    "> 1.01".into()
+                }
+            );
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A state of fibres along x3 at given (x1, x2), 7 segments of l 3, d 0.232.
+    fn state(positions: &[(f64, f64)]) -> FiberGroupState {
+        let n = positions.len();
+        let mut centre = Vec::new();
+        let mut axis = Vec::new();
+        for &(x, y) in positions {
+            for i in 0..7 {
+                centre.extend([x, y, 100.0 + 3.0 * i as f64]);
+                axis.extend([0.0, 0.0, 1.0]);
+            }
+        }
+        FiberGroupState {
+            group: "g".into(),
+            step: 5,
+            t_plus: 1.0,
+            group_fibers: n as u32,
+            segments_per_fiber: vec![7; n],
+            segment_length: vec![3.0; n],
+            diameter: vec![0.232; n],
+            density_ratio: vec![1150.0; n],
+            layer: vec![0; n],
+            centre,
+            axis,
+            ..Default::default()
+        }
+    }
+
+    /// Four parallel fibres: a chain of three touching (0.232 and 0.233 apart, within 1%),
+    /// one alone; a pair 0.24 apart (3% off) does not count. Flocs, sizes, contacts per
+    /// fibre and the closest approach follow by hand; the crowding number is (2/3) c_v (L/d)².
+    #[test]
+    fn a_chain_of_touching_fibres_is_one_floc() {
+        let s = state(&[
+            (10.0, 0.0),
+            (10.0, 0.232),
+            (10.0, 0.465),
+            (50.0, 0.0),
+            (50.0, 0.24),
+        ]);
+        let box_plus = [942.0, 300.0, 471.0];
+        let r = of_state(&s, box_plus);
+        assert_eq!(r.fibres, 5);
+        assert_eq!(r.flocs, 1);
+        assert_eq!(r.largest, 3);
+        assert!((r.in_flocs - 0.6).abs() < 1e-12);
+        // two fibre pairs touch: 2 × 2 / 5
+        assert!((r.contacts_per_fibre - 0.8).abs() < 1e-12);
+        assert_eq!(r.segment_contacts, 2 * 7 + 2 * 2 * 6);
+        assert!(
+            (r.closest_over_d - 1.0).abs() < 1e-9,
+            "{}",
+            r.closest_over_d
+        );
+        let cv =
+            5.0 * std::f64::consts::FRAC_PI_4 * 0.232f64.powi(2) * 21.0 / (942.0 * 300.0 * 471.0);
+        let want = 2.0 / 3.0 * cv * (21.0 / 0.232f64).powi(2);
+        assert!((r.crowding - want).abs() < 1e-12 * want);
+    }
+
+    /// Across the periodic boundary in x1 two fibres still touch.
+    #[test]
+    fn contacts_are_found_across_the_periodic_boundary() {
+        let s = state(&[(0.05, 0.0), (941.95 - 0.132, 0.0)]);
+        let r = of_state(&s, [942.0, 300.0, 471.0]);
+        assert_eq!((r.flocs, r.largest), (1, 2));
+        assert!((r.closest_over_d - 0.232 / 0.232).abs() < 1e-9);
+    }
+}
