@@ -696,23 +696,17 @@ fn impulse(
     normal * (dun / normal.dot(&(w * normal)))
 }
 
-/// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
-/// its start), with fibres `fixed[k]` immovable (a support). See the module's
-/// documentation for the method.
-pub fn resolve(
+/// Jacobi sweeps over `cands` until no pair is closer than 10⁻⁶ of its contact distance
+/// or `params.sweeps` ran out; returns the sweeps used and the impulses applied.
+fn sweep(
     fibres: &mut [Fibre],
-    before: &[Fibre],
+    cands: &mut [Candidate],
     fixed: &[bool],
     params: &ContactParams,
     dt: f64,
-) -> Outcome {
-    let moved = moves(before, fibres);
-    let mut cands = candidates(before, &moved, &params.period);
-    let mut outcome = Outcome {
-        candidates: cands.len(),
-        worst_gap: f64::INFINITY,
-        ..Default::default()
-    };
+) -> (u32, usize) {
+    let mut used = 0;
+    let mut applied = 0;
     let is_fixed = |k: usize| fixed.get(k).copied().unwrap_or(false);
     let mut pending: Vec<(usize, Vector3<f64>, Vector3<f64>)> = Vec::new();
     for sweep in 0..params.sweeps.max(1) {
@@ -732,7 +726,7 @@ pub fn resolve(
         if count.is_empty() {
             break;
         }
-        outcome.sweeps = sweep + 1;
+        used = sweep + 1;
         let rigid: HashMap<usize, Rigid> = count
             .keys()
             .map(|&k| (k, Rigid::of(&fibres[k], is_fixed(k))))
@@ -755,6 +749,7 @@ pub fn resolve(
         }
         // every fibre's total impulse and moment about its centre of mass, in pair order
         let mut push: HashMap<usize, (Vector3<f64>, Vector3<f64>)> = HashMap::new();
+        applied += pending.len();
         for &(n, point, j) in &pending {
             let c = &mut cands[n];
             c.impulse += j;
@@ -791,6 +786,51 @@ pub fn resolve(
             }
         }
     }
+    (used, applied)
+}
+
+/// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
+/// its start), with fibres `fixed[k]` immovable (a support). See the module's
+/// documentation for the method.
+pub fn resolve(
+    fibres: &mut [Fibre],
+    before: &[Fibre],
+    fixed: &[bool],
+    params: &ContactParams,
+    dt: f64,
+) -> Outcome {
+    let moved = moves(before, fibres);
+    let mut cands = candidates(before, &moved, &params.period);
+    let mut outcome = Outcome {
+        candidates: cands.len(),
+        worst_gap: f64::INFINITY,
+        ..Default::default()
+    };
+    for _round in 0..4 {
+        let (used, applied) = sweep(fibres, &mut cands, fixed, params, dt);
+        outcome.sweeps += used;
+        if applied == 0 {
+            break;
+        }
+        // the corrections moved fibres: pairs they pushed together that were not
+        // candidates join (their side is where they are now), and the sweeps go on
+        let still = vec![Move::default(); moved.len()];
+        let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period)
+            .into_iter()
+            .filter(|c| geometry(fibres, c).2 < -1e-6 * c.reach)
+            .filter(|c| {
+                cands
+                    .binary_search_by_key(&(c.a, c.b), |x| (x.a, x.b))
+                    .is_err()
+            })
+            .collect();
+        if fresh.is_empty() {
+            break;
+        }
+        cands.extend(fresh);
+        cands.sort_by_key(|c| (c.a, c.b));
+    }
+    outcome.candidates = cands.len();
     for c in &cands {
         let (_, _, gap) = geometry(fibres, c);
         outcome.worst_gap = outcome.worst_gap.min(gap);
