@@ -1275,4 +1275,40 @@ mod tests {
         }
         assert!(touched > 0, "no contacts: the test checks nothing");
     }
+
+    /// A correction can push a fibre into one that was no candidate: A is driven into B,
+    /// which rests 0.01 d from C. The pair B–C could not close by the free step (neither
+    /// moves), so only the search after the corrections finds it; no centre-lines end
+    /// closer than 0.99 d.
+    #[test]
+    fn a_fibre_pushed_into_a_third_is_held_off_it_too() {
+        let gap = 0.01 * D;
+        let mut fibres = vec![
+            fibre(Vector3::new(-0.5, 0.0, 0.0), Vector3::z()),
+            fibre(Vector3::new(0.0, 0.0, 0.0), Vector3::z()),
+            fibre(Vector3::new(D + gap, 0.0, 0.0), Vector3::z()),
+        ];
+        fibres[0]
+            .segments
+            .iter_mut()
+            .for_each(|s| s.v = Vector3::new(2.0, 0.0, 0.0));
+        let fluid = |k: usize, _: &Vector3<f64>| {
+            uniform(Vector3::new(if k == 0 { 2.0 } else { 0.0 }, 0.0, 0.0))
+        };
+        let p = params(Vector3::zeros());
+        let out = step_all(
+            &mut fibres,
+            &[],
+            &p,
+            &fluid,
+            Some(&ContactParams::default()),
+        )
+        .unwrap();
+        let m = min_distance(&fibres, &[None; 3]);
+        assert!(m >= 0.99 * D, "centre-lines {m} apart");
+        assert!(
+            out.contacts.iter().any(|c| c.a.0 == 1 && c.b.0 == 2),
+            "B and C never touched"
+        );
+    }
 }
