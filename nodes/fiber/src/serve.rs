@@ -254,6 +254,8 @@ struct Served {
     metrics_topic: String,
     full_states_every: u64,
     two_way: bool,
+    /// Steps whose contact solve left a pair closer than 0.99 d.
+    unresolved_contact_steps: u64,
     checkpoint_every: u64,
     checkpoint_root: Option<PathBuf>,
     dt: f64,
@@ -383,6 +385,7 @@ impl Served {
             state_msg,
             full_states_every: ck.full_states_every,
             two_way: ck.two_way,
+            unresolved_contact_steps: 0,
             checkpoint_every: ck.every,
             checkpoint_root: ck.root.clone(),
             dt: 0.0,
@@ -584,10 +587,40 @@ impl Served {
             self.publish_state(0)?;
         }
         self.group.step(fluid, self.dt)?;
+        self.report_unresolved_contact(k + 1);
         drop(samples);
         stepped_s += t0.elapsed().as_secs_f64();
         self.timing = (waited_s, stepped_s, published_s);
         Ok(())
+    }
+
+    /// With contact on, says when the contact solve left a pair closer than 0.99 of its
+    /// contact distance (the first such step, then every 100th): the sweeps ran out.
+    fn report_unresolved_contact(&mut self, step: u64) {
+        let Some(c) = self.group.contact() else {
+            return;
+        };
+        let out = self.group.last_contact();
+        let d = self
+            .group
+            .props(0)
+            .first()
+            .map_or(0.0, |p| p.shape.diameter);
+        if out.worst_gap < -0.01 * d {
+            if self.unresolved_contact_steps.is_multiple_of(100) {
+                tracing::warn!(
+                    node = %self.node,
+                    step,
+                    worst_gap_over_d = out.worst_gap / d,
+                    sweeps = out.sweeps,
+                    max_sweeps = c.sweeps,
+                    contacts = out.contacts.len(),
+                    steps_so_far = self.unresolved_contact_steps + 1,
+                    "contact left a pair closer than 0.99 d (raise fibers.contact.sweeps?)"
+                );
+            }
+            self.unresolved_contact_steps += 1;
+        }
     }
 
     /// Publishes the state of step `step` just integrated to (and its metrics when due).
