@@ -533,6 +533,7 @@ pub fn analyse(
         .collect();
     for (name, rows) in &floc_rows {
         write(out, &format!("{name}_flocs.csv"), &crate::flocs::csv(rows))?;
+        crate::flocs::plot(&out.join(format!("{name}_flocs.png")), name, rows)?;
     }
     if !floc_rows.is_empty() {
         write(out, "flocs.md", &crate::flocs::table(&floc_rows))?;

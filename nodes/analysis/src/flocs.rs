@@ -186,6 +186,38 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
     out
 }
 
+/// `{group}_flocs.png`: contacts per fibre, the share of fibres in flocs and the closest
+/// approach over d, against t+.
+pub fn plot(
+    path: &std::path::Path,
+    group: &str,
+    rows: &[FlocRow],
+) -> Result<(), crate::AnalysisError> {
+    let series = |label: &str, colour: usize, f: &dyn Fn(&FlocRow) -> f64| crate::plot::Series {
+        label: label.into(),
+        points: rows
+            .iter()
+            .map(|r| (r.t_plus, f(r)))
+            .filter(|p| p.1.is_finite())
+            .collect(),
+        colour,
+        markers: true,
+    };
+    crate::plot::line_plot(
+        path,
+        &format!("{group}: contacts and flocs"),
+        "t+",
+        "per fibre / share / closest over d",
+        &[
+            series("contacts per fibre", 0, &|r| r.contacts_per_fibre),
+            series("share of fibres in flocs", 1, &|r| r.in_flocs),
+            series("closest centre-lines / d", 2, &|r| r.closest_over_d),
+        ],
+        false,
+        false,
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
