@@ -920,6 +920,21 @@ mod tests {
         m
     }
 
+    /// 60 case-1-like fibres at random in a cube of `side`, none closer than d.
+    fn crowded_box(side: f64, seed: u64) -> Vec<crate::cases::Placement> {
+        random_suspension(&Suspension {
+            count: 60,
+            seed,
+            box_plus: [side, side, side],
+            band_plus: [0.0, side],
+            segments: N,
+            segment_length_plus: L,
+            diameter_plus: D,
+            min_distance_plus: D,
+        })
+        .unwrap()
+    }
+
     fn com(f: &Fibre) -> Vector3<f64> {
         Rigid::of(f, false).com
     }
@@ -1093,17 +1108,7 @@ mod tests {
     fn contact_forces_and_torques_sum_to_zero_and_momentum_is_kept() {
         let side = 30.0;
         let period = [Some(side), None, Some(side)];
-        let placed = random_suspension(&Suspension {
-            count: 60,
-            seed: 7,
-            box_plus: [side, side, side],
-            band_plus: [0.0, side],
-            segments: N,
-            segment_length_plus: L,
-            diameter_plus: D,
-            min_distance_plus: D,
-        })
-        .unwrap();
+        let placed = crowded_box(side, 7);
         let mut x = 12345u64;
         let mut rnd = move || {
             x ^= x << 13;
@@ -1236,17 +1241,7 @@ mod tests {
     #[test]
     fn a_group_with_contact_steps_as_step_then_resolve() {
         let side = 30.0;
-        let placed = random_suspension(&Suspension {
-            count: 60,
-            seed: 3,
-            box_plus: [side, side, side],
-            band_plus: [0.0, side],
-            segments: N,
-            segment_length_plus: L,
-            diameter_plus: D,
-            min_distance_plus: D,
-        })
-        .unwrap();
+        let placed = crowded_box(side, 3);
         let fibres: Vec<Fibre> = placed.iter().map(|pl| fibre(pl.centre, pl.axis)).collect();
         let p = params(Vector3::zeros());
         let c = ContactParams {
