@@ -291,23 +291,22 @@ struct CellList {
 
 impl CellList {
     fn new(points: &[Vector3<f64>], cell: f64, period: &[Option<f64>; 3]) -> Self {
+        // the extent of the points along each direction that is not periodic
+        let bounds: [(f64, f64); 3] = std::array::from_fn(|k| {
+            points
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+                    (a.min(r[k]), b.max(r[k]))
+                })
+        });
         // no smaller than holds about two points each (a sparse grid costs lookups)
         let mut volume = 1.0;
         for k in 0..3 {
+            let (mn, mx) = bounds[k];
             volume *= match period[k] {
                 Some(p) => p,
-                None => {
-                    let (mn, mx) = points
-                        .iter()
-                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
-                            (a.min(r[k]), b.max(r[k]))
-                        });
-                    if mx > mn {
-                        mx - mn
-                    } else {
-                        1.0
-                    }
-                }
+                None if mx > mn => mx - mn,
+                None => 1.0,
             };
         }
         let mut cell = cell.max((2.0 * volume / points.len().max(1) as f64).cbrt());
@@ -324,11 +323,7 @@ impl CellList {
                         periodic[k] = true;
                     }
                     None => {
-                        let (mn, mx) = points
-                            .iter()
-                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
-                                (a.min(r[k]), b.max(r[k]))
-                            });
+                        let (mn, mx) = bounds[k];
                         lo[k] = if mn.is_finite() { mn } else { 0.0 };
                         dims[k] = if mx.is_finite() {
                             ((mx - lo[k]) / cell).floor() as usize + 1
@@ -626,14 +621,9 @@ pub fn touching(
         period,
     )
     .iter()
-    .map(|c| {
-        let (_, _, gap) = geometry(fibres, c);
-        (c.a.0, c.a.1, c.b.0, c.b.1, gap + c.reach)
-    })
-    .filter(|o| {
-        let reach =
-            0.5 * (fibres[o.0].props[o.1].shape.diameter + fibres[o.2].props[o.3].shape.diameter);
-        o.4 < reach * (1.0 + tolerance)
+    .filter_map(|c| {
+        let distance = geometry(fibres, c).2 + c.reach;
+        (distance < c.reach * (1.0 + tolerance)).then_some((c.a.0, c.a.1, c.b.0, c.b.1, distance))
     })
     .collect()
 }
@@ -832,10 +822,9 @@ pub fn resolve(
     }
     outcome.candidates = cands.len();
     for c in &cands {
-        let (_, _, gap) = geometry(fibres, c);
+        let (point, _, gap) = geometry(fibres, c);
         outcome.worst_gap = outcome.worst_gap.min(gap);
         if c.impulse != Vector3::zeros() {
-            let (point, _, _) = geometry(fibres, c);
             outcome.contacts.push(Contact {
                 a: c.a,
                 b: c.b,
