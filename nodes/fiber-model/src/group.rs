@@ -172,14 +172,7 @@ impl FibreGroup {
         };
         let mut after = self.fibres();
         self.last_contact = contact::resolve(&mut after, before, &[], &c, dt);
-        let mut touched: Vec<usize> = self
-            .last_contact
-            .contacts
-            .iter()
-            .flat_map(|c| [c.a.0, c.b.0])
-            .collect();
-        touched.sort_unstable();
-        touched.dedup();
+        let touched = self.last_contact.moved.clone();
         for k in touched {
             if let Some(hh) = self.params.wall_half_height {
                 crate::step::wall_contact(&mut after[k], hh);
