@@ -1291,6 +1291,7 @@ mod tests {
         let mu_c = theta.tan();
         let stuck = slide(1.02 * mu_c);
         let slid = slide(0.98 * mu_c);
+        eprintln!("incline: moved {stuck:e} at 1.02 tan θ, {slid:e} at 0.98 tan θ");
         // the solve loads the first contact up to its cone and the flexible fibre's own
         // motion creeps there by ~1e-7 per step: 40 t+ of it is 2e-4 of a diameter
         assert!(stuck < 1e-4, "stuck fibre moved {stuck} along its contact");
