@@ -32,7 +32,10 @@
 //! Not yet: contact between non-adjacent segments of one fibre (a rigid response cannot
 //! separate two points of one body; it needs the chain's own mobility).
 
-use crate::fibre::Fibre;
+use crate::fibre::{Fibre, Segment, SegmentProps};
+
+/// Most rounds of solving islands and searching for the pairs their corrections made.
+const MAX_ROUNDS: usize = 8;
 use crate::lanes::sin_cos1;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -82,7 +85,7 @@ pub struct Outcome {
     pub contacts: Vec<Contact>,
     /// Candidate pairs examined (within reach at the start of the step).
     pub candidates: usize,
-    /// Sweeps used.
+    /// Most sweeps any island used in one round.
     pub sweeps: u32,
     /// Smallest centre-line separation minus contact distance after the step (≥ 0 when
     /// every pair was separated; negative if the sweeps ran out), over the candidates.
@@ -90,6 +93,9 @@ pub struct Outcome {
     /// Fibres the solve moved, ascending (a pair's impulses can cancel to zero after
     /// moving its fibres, so this is not the fibres of `contacts`).
     pub moved: Vec<usize>,
+    /// Fibres of islands the sweeps could not separate, moved as one rigid body over the
+    /// step instead (their pairs are not in `contacts`), ascending.
+    pub locked: Vec<usize>,
 }
 
 impl Outcome {
@@ -731,41 +737,37 @@ fn impulse(
 /// before it left, applied at once to both fibres. A pair is looked at again only when one
 /// of its fibres moved since it was last looked at. Stops when a sweep applies nothing or
 /// `params.sweeps` ran out; returns the sweeps used and the impulses applied.
-#[allow(clippy::too_many_arguments)]
+/// Gauss–Seidel sweeps over one island: `fibres` are its fibres and `cands` its pairs
+/// (indices into `fibres`), in their fixed (fibre, segment) order. Each pair closer than
+/// 10⁻⁶ of its contact distance gets its impulse from the state the pairs before it left,
+/// applied at once to both fibres. A pair is looked at again only when one of its fibres
+/// moved since it was last looked at. Stops when a sweep applies nothing or `max_sweeps`
+/// ran out; returns the sweeps used and the impulses applied.
 fn sweep(
     fibres: &mut [Fibre],
     cands: &mut [Candidate],
     fixed: &[bool],
     max_sweeps: u32,
-    moved_fibres: &mut [bool],
     params: &ContactParams,
     dt: f64,
 ) -> (u32, usize) {
-    let is_fixed = |k: usize| fixed.get(k).copied().unwrap_or(false);
     for c in cands.iter_mut() {
         c.at = None;
     }
-    // the fibres the pairs involve, each with its rigid body (dense slots)
-    let mut slot = vec![u32::MAX; fibres.len()];
-    let mut members: Vec<usize> = cands.iter().flat_map(|c| [c.a.0, c.b.0]).collect();
-    members.sort_unstable();
-    members.dedup();
-    for (n, &k) in members.iter().enumerate() {
-        slot[k] = n as u32;
-    }
-    let mut rigid: Vec<Rigid> = members
+    let mut rigid: Vec<Rigid> = fibres
         .iter()
-        .map(|&k| Rigid::of(&fibres[k], is_fixed(k)))
+        .zip(fixed)
+        .map(|(f, &x)| Rigid::of(f, x))
         .collect();
     // the sweep in which each fibre last moved (pairs of fibres that did not move since
     // they were last looked at are skipped)
-    let mut moved = vec![0u32; members.len()];
+    let mut moved = vec![0u32; fibres.len()];
     let mut used = 0;
     let mut applied = 0;
     for sweep in 1..=max_sweeps.max(1) {
         let mut this_sweep = 0;
         for c in cands.iter_mut() {
-            let (sa, sb) = (slot[c.a.0] as usize, slot[c.b.0] as usize);
+            let (sa, sb) = (c.a.0, c.b.0);
             if sweep > 1 && moved[sa] + 1 < sweep && moved[sb] + 1 < sweep {
                 continue;
             }
@@ -780,8 +782,8 @@ fn sweep(
             }
             let point_b = point - c.shift;
             let w = rigid[sa].mobility(&point) + rigid[sb].mobility(&point_b);
-            let u = point_velocity(&fibres[c.a.0], c.a.1, &point)
-                - point_velocity(&fibres[c.b.0], c.b.1, &point_b);
+            let u = point_velocity(&fibres[sa], c.a.1, &point)
+                - point_velocity(&fibres[sb], c.b.1, &point_b);
             let total = impulse(&c.impulse, &w, &u, &normal, gap, dt, params.friction);
             let j = total - c.impulse;
             // converged: the change would move the contact by less than 10⁻⁷ d
@@ -789,12 +791,10 @@ fn sweep(
                 continue;
             }
             c.impulse = total;
-            push(&mut fibres[c.a.0], &mut rigid[sa], &point, &j, dt);
-            push(&mut fibres[c.b.0], &mut rigid[sb], &point_b, &(-j), dt);
+            push(&mut fibres[sa], &mut rigid[sa], &point, &j, dt);
+            push(&mut fibres[sb], &mut rigid[sb], &point_b, &(-j), dt);
             moved[sa] = sweep;
             moved[sb] = sweep;
-            moved_fibres[c.a.0] = true;
-            moved_fibres[c.b.0] = true;
             this_sweep += 1;
         }
         if this_sweep == 0 {
@@ -803,13 +803,223 @@ fn sweep(
         used = sweep;
         applied += this_sweep;
         // the moved fibres' inertia turned with them
-        for (n, &k) in members.iter().enumerate() {
-            if moved[n] == sweep {
-                rigid[n] = Rigid::of(&fibres[k], is_fixed(k));
+        for (k, f) in fibres.iter().enumerate() {
+            if moved[k] == sweep {
+                rigid[k] = Rigid::of(f, fixed[k]);
             }
         }
     }
     (used, applied)
+}
+
+/// Fibres joined by candidate pairs, solved together: its fibres (ascending) and its pairs
+/// (indices into the candidates, in their order).
+#[derive(Debug, Clone, Default)]
+struct Island {
+    fibres: Vec<usize>,
+    pairs: Vec<usize>,
+}
+
+/// The islands of `cands` among `n` fibres, ordered by their lowest fibre.
+fn islands(n: usize, cands: &[Candidate]) -> Vec<Island> {
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut a: usize) -> usize {
+        while parent[a] != a {
+            parent[a] = parent[parent[a]];
+            a = parent[a];
+        }
+        a
+    }
+    for c in cands {
+        let (ra, rb) = (root(&mut parent, c.a.0), root(&mut parent, c.b.0));
+        if ra != rb {
+            parent[ra.max(rb)] = ra.min(rb);
+        }
+    }
+    // the root is the island's lowest fibre
+    let mut index: std::collections::BTreeMap<usize, Island> = std::collections::BTreeMap::new();
+    for (i, c) in cands.iter().enumerate() {
+        let r = root(&mut parent, c.a.0);
+        let isl = index.entry(r).or_default();
+        isl.pairs.push(i);
+        isl.fibres.push(c.a.0);
+        isl.fibres.push(c.b.0);
+    }
+    index
+        .into_values()
+        .map(|mut isl| {
+            isl.fibres.sort_unstable();
+            isl.fibres.dedup();
+            isl
+        })
+        .collect()
+}
+
+/// What solving one island gave: its fibres and pairs after the sweeps (pairs with their
+/// global fibre indices), the sweeps and impulses used, and whether it had to be locked.
+struct Solved {
+    fibres: Vec<Fibre>,
+    pairs: Vec<Candidate>,
+    sweeps: u32,
+    applied: usize,
+    locked: bool,
+}
+
+/// Solves one island on copies of its fibres. If the sweeps cannot separate it (a fibre
+/// pinched inside a coiled one: separating it needs the coil to bend, which a rigid
+/// response cannot), the island is locked: it moves over the step as one rigid body from
+/// where its fibres started, with their momentum ([`lock`]), so no two of its fibres end
+/// closer than they started.
+fn solve_island(
+    fibres: &[Fibre],
+    before: &[Fibre],
+    cands: &[Candidate],
+    isl: &Island,
+    fixed: &[bool],
+    params: &ContactParams,
+    dt: f64,
+) -> Solved {
+    let local = |k: usize| isl.fibres.binary_search(&k).unwrap_or(0);
+    let mut mine: Vec<Fibre> = isl.fibres.iter().map(|&k| fibres[k].clone()).collect();
+    let held: Vec<bool> = isl
+        .fibres
+        .iter()
+        .map(|&k| fixed.get(k).copied().unwrap_or(false))
+        .collect();
+    let mut pairs: Vec<Candidate> = isl
+        .pairs
+        .iter()
+        .map(|&i| {
+            let mut c = cands[i];
+            c.a.0 = local(c.a.0);
+            c.b.0 = local(c.b.0);
+            c
+        })
+        .collect();
+    let (sweeps, applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
+    let locked = pairs
+        .iter()
+        .any(|c| geometry(&mine, c).2 < -LOCK_GAP * c.reach);
+    if locked {
+        let start: Vec<&Fibre> = isl.fibres.iter().map(|&k| &before[k]).collect();
+        mine = lock(&start, &mine, &held, &images(mine.len(), &pairs), dt);
+        for c in pairs.iter_mut() {
+            c.impulse = Vector3::zeros();
+        }
+    }
+    for c in pairs.iter_mut() {
+        c.a.0 = isl.fibres[c.a.0];
+        c.b.0 = isl.fibres[c.b.0];
+    }
+    Solved {
+        fibres: mine,
+        pairs,
+        sweeps,
+        applied,
+        locked,
+    }
+}
+
+/// An island whose sweeps leave a pair closer than this fraction of its contact distance
+/// is locked.
+const LOCK_GAP: f64 = 0.005;
+
+/// Periodic shifts that put the `n` fibres of an island beside each other: each pair's
+/// second fibre is shifted by the pair's shift plus the first's (a tree of the pairs from
+/// fibre 0; an island that wraps the whole period keeps the first shift found).
+fn images(n: usize, pairs: &[Candidate]) -> Vec<Vector3<f64>> {
+    let mut shift: Vec<Option<Vector3<f64>>> = vec![None; n];
+    if n > 0 {
+        shift[0] = Some(Vector3::zeros());
+    }
+    let mut grown = true;
+    while grown {
+        grown = false;
+        for c in pairs {
+            match (shift[c.a.0], shift[c.b.0]) {
+                (Some(sa), None) => {
+                    shift[c.b.0] = Some(sa + c.shift);
+                    grown = true;
+                }
+                (None, Some(sb)) => {
+                    shift[c.a.0] = Some(sb - c.shift);
+                    grown = true;
+                }
+                _ => {}
+            }
+        }
+    }
+    shift.into_iter().map(|s| s.unwrap_or_else(Vector3::zeros)).collect()
+}
+
+/// The island `now` moved as one rigid body over the step from `start` (its fibres at the
+/// start of the step; fibre k seen at its periodic image `image[k]`): the centre of mass moves with the island's momentum, the island
+/// turns with its angular momentum about it (about the start's inertia tensor), every
+/// segment with the island's velocity field. Momentum is kept exactly; distances between
+/// its fibres are those at the start. With a fixed fibre in it, the island stays where it
+/// started, at rest.
+fn lock(
+    start: &[&Fibre],
+    now: &[Fibre],
+    held: &[bool],
+    image: &[Vector3<f64>],
+    dt: f64,
+) -> Vec<Fibre> {
+    let mut out: Vec<Fibre> = start.iter().map(|f| (*f).clone()).collect();
+    let mut now = now.to_vec();
+    for ((o, n), s) in out.iter_mut().zip(now.iter_mut()).zip(image) {
+        o.segments.iter_mut().for_each(|g| g.r += s);
+        n.segments.iter_mut().for_each(|g| g.r += s);
+    }
+    let segments = |fs: &[Fibre]| -> Vec<(Segment, SegmentProps)> {
+        fs.iter()
+            .flat_map(|f| f.segments.iter().copied().zip(f.props.iter().copied()))
+            .collect()
+    };
+    for (o, n) in out.iter_mut().zip(&now) {
+        for (so, sn) in o.segments.iter_mut().zip(&n.segments) {
+            so.f = sn.f;
+            so.v = Vector3::zeros();
+            so.w = Vector3::zeros();
+        }
+    }
+    let back = |mut out: Vec<Fibre>| {
+        for (o, s) in out.iter_mut().zip(image) {
+            o.segments.iter_mut().for_each(|g| g.r -= s);
+        }
+        out
+    };
+    if held.iter().any(|&h| h) {
+        return back(out);
+    }
+    let was = segments(&out);
+    let is = segments(&now);
+    let mass: f64 = is.iter().map(|(_, p)| p.mass).sum();
+    let com0 = was.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass) / mass;
+    let com = is.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass) / mass;
+    let momentum = is.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.v * p.mass);
+    let spin = is.iter().fold(Vector3::zeros(), |a, (s, p)| {
+        a + (s.r - com).cross(&s.v) * p.mass + p.inertia(&s.z) * s.w
+    });
+    let inertia = was.iter().fold(Matrix3::zeros(), |a, (s, p)| {
+        let rho = s.r - com0;
+        a + p.inertia(&s.z) + p.mass * (rho.dot(&rho) * Matrix3::identity() - rho * rho.transpose())
+    });
+    let v = momentum / mass;
+    let omega = inertia.try_inverse().map_or_else(Vector3::zeros, |i| i * spin);
+    let phi = omega * dt;
+    let com1 = com0 + v * dt;
+    for f in out.iter_mut() {
+        for s in f.segments.iter_mut() {
+            let rho = rotate_vector(&(s.r - com0), &phi);
+            s.r = com1 + rho;
+            s.z = rotate_vector(&s.z, &phi).normalize();
+            s.n = rotate_vector(&s.n, &phi).normalize();
+            s.v = v + omega.cross(&rho);
+            s.w = omega;
+        }
+    }
+    back(out)
 }
 
 /// Gives fibre `f` (rigid body `r`) the impulse `j` at `point`: its velocities change, and
@@ -849,25 +1059,36 @@ pub fn resolve(
         worst_gap: f64::INFINITY,
         ..Default::default()
     };
-    let mut budget = params.sweeps.max(1);
     let mut moved_fibres = vec![false; fibres.len()];
-    loop {
-        let (used, applied) = sweep(
-            fibres,
-            &mut cands,
-            fixed,
-            budget,
-            &mut moved_fibres,
-            params,
-            dt,
-        );
-        outcome.sweeps += used;
-        budget = budget.saturating_sub(used.max(1));
-        if applied == 0 || budget == 0 {
+    let mut locked = vec![false; fibres.len()];
+    for _round in 0..MAX_ROUNDS {
+        // islands are independent: solved in parallel, written back in order
+        let isl = islands(fibres.len(), &cands);
+        let solved: Vec<Solved> = isl
+            .par_iter()
+            .map(|i| solve_island(fibres, before, &cands, i, fixed, params, dt))
+            .collect();
+        let mut changed = false;
+        for (i, s) in isl.iter().zip(solved) {
+            outcome.sweeps = outcome.sweeps.max(s.sweeps);
+            changed |= s.applied > 0 || s.locked;
+            for (&k, f) in i.fibres.iter().zip(s.fibres) {
+                if s.applied > 0 || s.locked {
+                    moved_fibres[k] = true;
+                }
+                locked[k] |= s.locked;
+                fibres[k] = f;
+            }
+            for (&n, c) in i.pairs.iter().zip(s.pairs) {
+                cands[n] = c;
+            }
+        }
+        if !changed {
             break;
         }
         // the corrections moved fibres: pairs they pushed together that were not
-        // candidates join (their side is where they are now), and the sweeps go on
+        // candidates join (their side is where they are now), and the islands they join
+        // are solved again
         let still = vec![Move::default(); moved.len()];
         let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period)
             .into_iter()
@@ -878,19 +1099,14 @@ pub fn resolve(
                     .is_err()
             })
             .collect();
-        let fresh_found = !fresh.is_empty();
-        cands.extend(fresh);
-        cands.sort_by_key(|c| (c.a, c.b));
-        // another round (contact points found afresh) while any pair is still too close
-        if !fresh_found
-            && cands
-                .iter()
-                .all(|c| geometry(fibres, c).2 >= -1e-6 * c.reach)
-        {
+        if fresh.is_empty() {
             break;
         }
+        cands.extend(fresh);
+        cands.sort_by_key(|c| (c.a, c.b));
     }
     outcome.moved = (0..fibres.len()).filter(|&k| moved_fibres[k]).collect();
+    outcome.locked = (0..fibres.len()).filter(|&k| locked[k]).collect();
     outcome.candidates = cands.len();
     for c in &cands {
         let (point, _, gap) = geometry(fibres, c);
@@ -1370,4 +1586,66 @@ mod tests {
             "B and C never touched"
         );
     }
+    /// Three fibres of `launch/flocs.toml` at step 258 (its first run with Gauss–Seidel
+    /// sweeps; states at the start and after the free step, exact bits): the middle
+    /// segment of one fibre sits between two segments of a coiled fibre, and the free step
+    /// closed the coil on it (closer than 0.97 d, with nearly opposite normals on the two
+    /// sides). No rigid response of the two fibres separates both sides, so the sweeps'
+    /// impulses grow sweep after sweep. The island is locked instead: it moves as one body
+    /// from where it started, keeps its momentum, its fibres keep their start shapes, and
+    /// no centre-lines end closer than 0.99 d.
+    #[test]
+    fn a_fibre_pinched_in_a_coil_locks_its_island() {
+        let text = include_str!("testdata/pinched-island.txt");
+        let mut lines = text.lines();
+        let hx = |s: &str| f64::from_bits(u64::from_str_radix(s, 16).unwrap());
+        let head: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+        let (dt, mu) = (hx(head[1]), hx(head[3]));
+        let mut period = [None; 3];
+        for p in period.iter_mut() {
+            let l: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+            *p = Some(hx(l[1])).filter(|&x| x != 0.0);
+        }
+        let (mut before, mut free) = (Vec::new(), Vec::new());
+        while let Some(l) = lines.next() {
+            let h: Vec<&str> = l.split_whitespace().collect();
+            let n: usize = h[2].parse().unwrap();
+            let (len, dia, rho) = (hx(h[3]), hx(h[4]), hx(h[5]));
+            let mut f =
+                Fibre::straight(Vector3::zeros(), Vector3::x(), &vec![len; n], &vec![dia; n], rho)
+                    .unwrap();
+            for s in f.segments.iter_mut() {
+                let v: Vec<f64> = lines.next().unwrap().split_whitespace().map(hx).collect();
+                let g = |k: usize| Vector3::new(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
+                (s.r, s.z, s.v, s.w, s.n, s.f) = (g(0), g(1), g(2), g(3), g(4), g(5));
+            }
+            if h[0] == "B" { before.push(f) } else { free.push(f) }
+        }
+        assert_eq!(before.len(), 3);
+        assert!(min_distance(&before, &period) >= 0.99 * D, "the start overlaps");
+        let closed = min_distance(&free, &period) / D;
+        assert!(closed < 0.97, "the free step did not close the coil: {closed}");
+        let momentum = |fs: &[Fibre]| {
+            fs.iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
+        };
+        let mut fs = free.clone();
+        let c = ContactParams { friction: mu, sweeps: 100, period };
+        let out = resolve(&mut fs, &before, &[], &c, dt);
+        assert!(!out.locked.is_empty(), "the island was not locked");
+        let m = min_distance(&fs, &period);
+        assert!(m >= 0.99 * D, "centre-lines {m} apart");
+        let (p0, p1) = (momentum(&free), momentum(&fs));
+        assert!((p1 - p0).norm() <= 1e-12 * p0.norm().max(1.0), "{p0} → {p1}");
+        // the locked fibres keep their shapes of the start: distances between their own
+        // segments are the start's
+        for k in &out.locked {
+            let (a, b) = (&before[*k].segments, &fs[*k].segments);
+            let d0 = (a[0].r - a[6].r).norm();
+            let d1 = (b[0].r - b[6].r).norm();
+            assert!((d0 - d1).abs() < 1e-9 * d0, "fibre {k} changed shape");
+        }
+    }
+
 }

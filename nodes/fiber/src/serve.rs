@@ -256,6 +256,8 @@ struct Served {
     two_way: bool,
     /// Steps whose contact solve left a pair closer than 0.99 d.
     unresolved_contact_steps: u64,
+    /// Steps whose contact solve locked an island (docs/contact.md).
+    locked_contact_steps: u64,
     checkpoint_every: u64,
     checkpoint_root: Option<PathBuf>,
     dt: f64,
@@ -386,6 +388,7 @@ impl Served {
             full_states_every: ck.full_states_every,
             two_way: ck.two_way,
             unresolved_contact_steps: 0,
+            locked_contact_steps: 0,
             checkpoint_every: ck.every,
             checkpoint_root: ck.root.clone(),
             dt: 0.0,
@@ -620,6 +623,18 @@ impl Served {
                 );
             }
             self.unresolved_contact_steps += 1;
+        }
+        if !out.locked.is_empty() {
+            if self.locked_contact_steps.is_multiple_of(100) {
+                tracing::info!(
+                    node = %self.node,
+                    step,
+                    fibres = out.locked.len(),
+                    steps_so_far = self.locked_contact_steps + 1,
+                    "contact locked fibres the sweeps could not separate (they moved as one body this step)"
+                );
+            }
+            self.locked_contact_steps += 1;
         }
     }
 
