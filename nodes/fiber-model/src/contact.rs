@@ -820,8 +820,9 @@ struct Island {
     pairs: Vec<usize>,
 }
 
-/// The islands of `cands` among `n` fibres, ordered by their lowest fibre.
-fn islands(n: usize, cands: &[Candidate]) -> Vec<Island> {
+/// The islands of the pairs of `cands` that are `live` among `n` fibres, ordered by their
+/// lowest fibre.
+fn islands(n: usize, cands: &[Candidate], live: &[bool]) -> Vec<Island> {
     let mut parent: Vec<usize> = (0..n).collect();
     fn root(parent: &mut [usize], mut a: usize) -> usize {
         while parent[a] != a {
@@ -830,7 +831,7 @@ fn islands(n: usize, cands: &[Candidate]) -> Vec<Island> {
         }
         a
     }
-    for c in cands {
+    for c in cands.iter().zip(live).filter_map(|(c, &l)| l.then_some(c)) {
         let (ra, rb) = (root(&mut parent, c.a.0), root(&mut parent, c.b.0));
         if ra != rb {
             parent[ra.max(rb)] = ra.min(rb);
@@ -838,7 +839,7 @@ fn islands(n: usize, cands: &[Candidate]) -> Vec<Island> {
     }
     // the root is the island's lowest fibre
     let mut index: std::collections::BTreeMap<usize, Island> = std::collections::BTreeMap::new();
-    for (i, c) in cands.iter().enumerate() {
+    for (i, c) in cands.iter().enumerate().filter(|(i, _)| live[*i]) {
         let r = root(&mut parent, c.a.0);
         let isl = index.entry(r).or_default();
         isl.pairs.push(i);
@@ -1062,8 +1063,23 @@ pub fn resolve(
     let mut moved_fibres = vec![false; fibres.len()];
     let mut locked = vec![false; fibres.len()];
     for _round in 0..MAX_ROUNDS {
+        // the pairs that overlap now or have pushed in this step, and the islands of
+        // fibres they join (a floc, not every fibre within reach of another)
+        let gaps: Vec<f64> = cands
+            .par_iter()
+            .with_min_len(1024)
+            .map(|c| geometry(fibres, c).2 / c.reach)
+            .collect();
+        if gaps.iter().all(|&g| g >= -1e-6) {
+            break;
+        }
+        let live: Vec<bool> = cands
+            .iter()
+            .zip(&gaps)
+            .map(|(c, &g)| g < -1e-6 || c.impulse != Vector3::zeros())
+            .collect();
         // islands are independent: solved in parallel, written back in order
-        let isl = islands(fibres.len(), &cands);
+        let isl = islands(fibres.len(), &cands, &live);
         let solved: Vec<Solved> = isl
             .par_iter()
             .map(|i| solve_island(fibres, before, &cands, i, fixed, params, dt))
@@ -1087,8 +1103,7 @@ pub fn resolve(
             break;
         }
         // the corrections moved fibres: pairs they pushed together that were not
-        // candidates join (their side is where they are now), and the islands they join
-        // are solved again
+        // candidates join (their side is where they are now)
         let still = vec![Move::default(); moved.len()];
         let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period)
             .into_iter()
@@ -1099,9 +1114,6 @@ pub fn resolve(
                     .is_err()
             })
             .collect();
-        if fresh.is_empty() {
-            break;
-        }
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
     }
