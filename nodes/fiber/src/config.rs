@@ -155,8 +155,9 @@ pub struct ContactConfig {
     /// makes flocs (Schmid, Switzer & Klingenberg 2000), so vary it.
     #[serde(default = "default_friction")]
     pub friction: f64,
-    /// Most sweeps of the contact solve per step, in 1..=10000 (it stops earlier once no
-    /// pair is closer than its contact distance).
+    /// Most Gauss–Seidel sweeps per floc and round of the contact solve, in 1..=10000 (it
+    /// stops earlier once no pair is closer than its contact distance; a floc still
+    /// overlapping after them moves as one body for the step, docs/contact.md).
     #[serde(default = "default_sweeps")]
     pub sweeps: u32,
 }
