@@ -684,6 +684,15 @@ impl Served {
             cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - self.cpu_from),
             "where the group's time went"
         );
+        if self.group.contact().is_some() {
+            tracing::info!(
+                group = %self.node,
+                steps = self.steps - self.start,
+                steps_with_a_locked_floc = self.locked_contact_steps,
+                steps_left_closer_than_0_99_d = self.unresolved_contact_steps,
+                "contact over the run"
+            );
+        }
         self.hb(lifecycle::DONE, self.steps)?;
         let mut drops = self.samples_in.drops.clone();
         for (k, v) in self.ann_in.drops.by_topic {
