@@ -89,7 +89,7 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
     );
     let mut ratios = Vec::new();
     println!(
-        "| round | off ms/step | on ms/step | on/off | contacts/step |\n|---|---|---|---|---|"
+        "| round | off ms/step | on ms/step | on/off | contacts/step | candidates/step |\n|---|---|---|---|---|---|"
     );
     for r in 0..o.rounds {
         let order = if r % 2 == 0 {

@@ -450,7 +450,14 @@ struct Entry {
 /// the step, in (fibre, segment) order: those whose centre-lines were within reach + skin
 /// at the start, the skin bounding how much closer any two of their points came in the
 /// step (`moves`). Found with a cell list over the segments' mid-step centres.
-fn candidates(before: &[Fibre], moves: &[Move], period: &[Option<f64>; 3]) -> Vec<Candidate> {
+/// With `movers`, only pairs with a segment of a fibre marked in it (the cells around
+/// those fibres are the only ones visited).
+fn candidates(
+    before: &[Fibre],
+    moves: &[Move],
+    period: &[Option<f64>; 3],
+    movers: Option<&[bool]>,
+) -> Vec<Candidate> {
     let mut segs = Vec::new();
     let mut centres = Vec::new();
     let (mut longest, mut widest) = (0.0_f64, 0.0_f64);
@@ -500,6 +507,22 @@ fn candidates(before: &[Fibre], moves: &[Move], period: &[Option<f64>; 3]) -> Ve
         })
         .collect();
     let ncells = cells.start.len() - 1;
+    // with movers: the cells holding a mover's segment and their neighbours
+    let visit: Option<Vec<bool>> = movers.map(|m| {
+        let mut v = vec![false; ncells];
+        for (g, &(k, _)) in segs.iter().enumerate() {
+            if m.get(k).copied().unwrap_or(false) {
+                let c = cells.coords(&mids[g]);
+                for off in &offsets {
+                    if let Some(nc) = cells.neighbour(&c, off) {
+                        v[nc] = true;
+                    }
+                }
+            }
+        }
+        v
+    });
+    let is_mover = |k: usize| movers.is_none_or(|m| m.get(k).copied().unwrap_or(false));
     let widest_limit = longest + widest + 2.0 * (deviation + turn);
     let per_cell = |cell: usize| -> Vec<Candidate> {
         let mut out = Vec::new();
@@ -516,6 +539,9 @@ fn candidates(before: &[Fibre], moves: &[Move], period: &[Option<f64>; 3]) -> Ve
                 };
                 for eb in &sorted[cells.start[nc] as usize..cells.start[nc + 1] as usize] {
                     if eb.index <= ea.index || eb.fibre == ea.fibre {
+                        continue;
+                    }
+                    if !is_mover(ea.fibre) && !is_mover(eb.fibre) {
                         continue;
                     }
                     let shift = image_shift(&ea.centre, &eb.centre, period);
@@ -570,6 +596,7 @@ fn candidates(before: &[Fibre], moves: &[Move], period: &[Option<f64>; 3]) -> Ve
     let mut out: Vec<Candidate> = (0..ncells)
         .into_par_iter()
         .with_min_len(256)
+        .filter(|&c| visit.as_ref().is_none_or(|v| v[c]))
         .map(per_cell)
         .flatten_iter()
         .collect();
@@ -632,6 +659,7 @@ pub fn touching(
         fibres,
         &vec![still; fibres.iter().map(Fibre::len).sum()],
         period,
+        None,
     )
     .iter()
     .filter_map(|c| {
@@ -1054,7 +1082,7 @@ pub fn resolve(
     dt: f64,
 ) -> Outcome {
     let moved = moves(before, fibres);
-    let mut cands = candidates(before, &moved, &params.period);
+    let mut cands = candidates(before, &moved, &params.period, None);
     let mut outcome = Outcome {
         candidates: cands.len(),
         worst_gap: f64::INFINITY,
@@ -1085,12 +1113,14 @@ pub fn resolve(
             .map(|i| solve_island(fibres, before, &cands, i, fixed, params, dt))
             .collect();
         let mut changed = false;
+        let mut round_moved = vec![false; fibres.len()];
         for (i, s) in isl.iter().zip(solved) {
             outcome.sweeps = outcome.sweeps.max(s.sweeps);
             changed |= s.applied > 0 || s.locked;
             for (&k, f) in i.fibres.iter().zip(s.fibres) {
                 if s.applied > 0 || s.locked {
                     moved_fibres[k] = true;
+                    round_moved[k] = true;
                 }
                 locked[k] |= s.locked;
                 fibres[k] = f;
@@ -1105,7 +1135,7 @@ pub fn resolve(
         // the corrections moved fibres: pairs they pushed together that were not
         // candidates join (their side is where they are now)
         let still = vec![Move::default(); moved.len()];
-        let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period)
+        let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period, Some(&round_moved))
             .into_iter()
             .filter(|c| geometry(fibres, c).2 < -1e-6 * c.reach)
             .filter(|c| {
