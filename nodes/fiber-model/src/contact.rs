@@ -978,7 +978,10 @@ fn images(n: usize, pairs: &[Candidate]) -> Vec<Vector3<f64>> {
             }
         }
     }
-    shift.into_iter().map(|s| s.unwrap_or_else(Vector3::zeros)).collect()
+    shift
+        .into_iter()
+        .map(|s| s.unwrap_or_else(Vector3::zeros))
+        .collect()
 }
 
 /// The island `now` moved as one rigid body over the step from `start` (its fibres at the
@@ -1024,9 +1027,17 @@ fn lock(
     let was = segments(&out);
     let is = segments(&now);
     let mass: f64 = is.iter().map(|(_, p)| p.mass).sum();
-    let com0 = was.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass) / mass;
-    let com = is.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass) / mass;
-    let momentum = is.iter().fold(Vector3::zeros(), |a, (s, p)| a + s.v * p.mass);
+    let com0 = was
+        .iter()
+        .fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass)
+        / mass;
+    let com = is
+        .iter()
+        .fold(Vector3::zeros(), |a, (s, p)| a + s.r * p.mass)
+        / mass;
+    let momentum = is
+        .iter()
+        .fold(Vector3::zeros(), |a, (s, p)| a + s.v * p.mass);
     let spin = is.iter().fold(Vector3::zeros(), |a, (s, p)| {
         a + (s.r - com).cross(&s.v) * p.mass + p.inertia(&s.z) * s.w
     });
@@ -1035,7 +1046,9 @@ fn lock(
         a + p.inertia(&s.z) + p.mass * (rho.dot(&rho) * Matrix3::identity() - rho * rho.transpose())
     });
     let v = momentum / mass;
-    let omega = inertia.try_inverse().map_or_else(Vector3::zeros, |i| i * spin);
+    let omega = inertia
+        .try_inverse()
+        .map_or_else(Vector3::zeros, |i| i * spin);
     let phi = omega * dt;
     let com1 = com0 + v * dt;
     for f in out.iter_mut() {
@@ -1653,33 +1666,55 @@ mod tests {
             let h: Vec<&str> = l.split_whitespace().collect();
             let n: usize = h[2].parse().unwrap();
             let (len, dia, rho) = (hx(h[3]), hx(h[4]), hx(h[5]));
-            let mut f =
-                Fibre::straight(Vector3::zeros(), Vector3::x(), &vec![len; n], &vec![dia; n], rho)
-                    .unwrap();
+            let mut f = Fibre::straight(
+                Vector3::zeros(),
+                Vector3::x(),
+                &vec![len; n],
+                &vec![dia; n],
+                rho,
+            )
+            .unwrap();
             for s in f.segments.iter_mut() {
                 let v: Vec<f64> = lines.next().unwrap().split_whitespace().map(hx).collect();
                 let g = |k: usize| Vector3::new(v[3 * k], v[3 * k + 1], v[3 * k + 2]);
                 (s.r, s.z, s.v, s.w, s.n, s.f) = (g(0), g(1), g(2), g(3), g(4), g(5));
             }
-            if h[0] == "B" { before.push(f) } else { free.push(f) }
+            if h[0] == "B" {
+                before.push(f)
+            } else {
+                free.push(f)
+            }
         }
         assert_eq!(before.len(), 3);
-        assert!(min_distance(&before, &period) >= 0.99 * D, "the start overlaps");
+        assert!(
+            min_distance(&before, &period) >= 0.99 * D,
+            "the start overlaps"
+        );
         let closed = min_distance(&free, &period) / D;
-        assert!(closed < 0.97, "the free step did not close the coil: {closed}");
+        assert!(
+            closed < 0.97,
+            "the free step did not close the coil: {closed}"
+        );
         let momentum = |fs: &[Fibre]| {
             fs.iter()
                 .flat_map(|f| f.segments.iter().zip(&f.props))
                 .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
         };
         let mut fs = free.clone();
-        let c = ContactParams { friction: mu, sweeps: 100, period };
+        let c = ContactParams {
+            friction: mu,
+            sweeps: 100,
+            period,
+        };
         let out = resolve(&mut fs, &before, &[], &c, dt);
         assert!(!out.locked.is_empty(), "the island was not locked");
         let m = min_distance(&fs, &period);
         assert!(m >= 0.99 * D, "centre-lines {m} apart");
         let (p0, p1) = (momentum(&free), momentum(&fs));
-        assert!((p1 - p0).norm() <= 1e-12 * p0.norm().max(1.0), "{p0} → {p1}");
+        assert!(
+            (p1 - p0).norm() <= 1e-12 * p0.norm().max(1.0),
+            "{p0} → {p1}"
+        );
         // the locked fibres keep their shapes of the start: distances between their own
         // segments are the start's
         for k in &out.locked {
@@ -1689,5 +1724,4 @@ mod tests {
             assert!((d0 - d1).abs() < 1e-9 * d0, "fibre {k} changed shape");
         }
     }
-
 }
