@@ -6,7 +6,7 @@
 //! A run without contact has fibres that pass through each other: there the same numbers
 //! measure how much they interpenetrate.
 
-use fiberflow_fiber_model::contact::touching;
+use fiberflow_fiber_model::contact::{closest_points, touching};
 use fiberflow_fiber_model::fibre::{Fibre, Segment, SegmentProps};
 use fiberflow_messages::FiberGroupState;
 use nalgebra::Vector3;
@@ -68,6 +68,40 @@ fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
         });
     }
     out
+}
+
+/// Where the segments of different fibres touch in one full state: the midpoint of the
+/// closest points of each pair in contact (within 1% of its contact distance), folded into
+/// the box along the periodic x1 and x3, in (fibre, segment) order of the pairs.
+pub fn contact_points(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<[f64; 3]> {
+    let fibres = fibres_of(s);
+    let period = [Some(box_plus[0]), None, Some(box_plus[2])];
+    let ends = |f: &Fibre, i: usize| {
+        let (sg, h) = (&f.segments[i], 0.5 * f.props[i].shape.length);
+        (sg.r - sg.z * h, sg.r + sg.z * h)
+    };
+    touching(&fibres, &period, CONTACT_TOLERANCE)
+        .into_iter()
+        .map(|(fa, ia, fb, ib, _)| {
+            let (p0, p1) = ends(&fibres[fa], ia);
+            let (q0, q1) = ends(&fibres[fb], ib);
+            // b's nearest image beside a
+            let gap = fibres[fa].segments[ia].r - fibres[fb].segments[ib].r;
+            let shift = Vector3::new(
+                (gap.x / box_plus[0]).round() * box_plus[0],
+                0.0,
+                (gap.z / box_plus[2]).round() * box_plus[2],
+            );
+            let (q0, q1) = (q0 + shift, q1 + shift);
+            let (t_a, t_b) = closest_points(&p0, &p1, &q0, &q1);
+            let m = 0.5 * ((p0 + (p1 - p0) * t_a) + (q0 + (q1 - q0) * t_b));
+            [
+                m.x.rem_euclid(box_plus[0]),
+                m.y,
+                m.z.rem_euclid(box_plus[2]),
+            ]
+        })
+        .collect()
 }
 
 /// Union–find root with path halving.
@@ -279,6 +313,28 @@ mod tests {
             5.0 * std::f64::consts::FRAC_PI_4 * 0.232f64.powi(2) * 21.0 / (942.0 * 300.0 * 471.0);
         let want = 2.0 / 3.0 * cv * (21.0 / 0.232f64).powi(2);
         assert!((r.crowding - want).abs() < 1e-12 * want);
+    }
+
+    /// Contact points are the midpoints between touching centre-lines: two parallel
+    /// fibres 0.232 apart along x3 touch segment by segment, at x1 halfway between them;
+    /// across the periodic boundary the point lies inside the box, on the boundary side.
+    #[test]
+    fn contact_points_lie_between_the_centre_lines_inside_the_box() {
+        let box_plus = [942.0, 300.0, 471.0];
+        let p = contact_points(&state(&[(10.0, 0.0), (10.232, 0.0)]), box_plus);
+        // 7 facing segments, and each touches its neighbours' ends: 7 + 2 × 6 pairs
+        assert_eq!(p.len(), 7 + 2 * 6);
+        for q in &p {
+            assert!((q[0] - 10.116).abs() < 1e-9 && q[1].abs() < 1e-12, "{q:?}");
+            assert!((100.0 - 1.5..=118.0 + 1.5).contains(&q[2]), "{q:?}");
+        }
+        let p = contact_points(&state(&[(0.05, 0.0), (941.95 - 0.132, 0.0)]), box_plus);
+        assert!(!p.is_empty());
+        for q in &p {
+            let x = q[0];
+            assert!((0.0..942.0).contains(&x), "{q:?}");
+            assert!(!(0.05..=941.8).contains(&x), "{q:?}");
+        }
     }
 
     /// Across the periodic boundary in x1 two fibres still touch.

@@ -60,6 +60,7 @@ pub fn view_cmd(
     per_case: usize,
     most_coiled: usize,
     coil_thresholds: Vec<f64>,
+    contacts: bool,
 ) -> Result<()> {
     let sink = match (save, spawn, connect) {
         (Some(p), false, None) => fiberflow_viewer::Sink::Save(p),
@@ -74,6 +75,7 @@ pub fn view_cmd(
             most_coiled,
         },
         coil_thresholds,
+        contacts,
     };
     let s = fiberflow_viewer::view(mcap, &sink, &opts)
         .with_context(|| format!("viewing {}", mcap.display()))?;
@@ -83,6 +85,7 @@ pub fn view_cmd(
         shown = s.shown,
         coiling_events = s.events,
         flow_slices = s.slices,
+        contact_states = s.contact_states,
         "scene written"
     );
     Ok(())

@@ -157,6 +157,10 @@ enum Cmd {
         /// σ² thresholds of the coiling events, comma separated.
         #[arg(long, value_delimiter = ',', default_values_t = fiberflow_analysis::coiling::DEFAULT_THRESHOLDS)]
         coil_thresholds: Vec<f64>,
+        /// Show where fibres touch (red points) in every shown state; a contact search
+        /// over each group's fibres per state (docs/contact.md).
+        #[arg(long)]
+        contacts: bool,
     },
     /// Print every launch-file key with its type, default and meaning (Markdown), or
     /// refresh the generated block of a file with it (docs/launch-files.md).
@@ -320,6 +324,7 @@ fn main() -> Result<()> {
             per_case,
             most_coiled,
             coil_thresholds,
+            contacts,
         } => commands::view_cmd(
             &mcap,
             save,
@@ -329,6 +334,7 @@ fn main() -> Result<()> {
             per_case,
             most_coiled,
             coil_thresholds,
+            contacts,
         ),
         Cmd::Keys { write } => commands::keys_cmd(write),
         Cmd::FlowReport {

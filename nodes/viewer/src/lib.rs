@@ -57,6 +57,10 @@ pub struct ViewOptions {
     pub sampling: select::Sampling,
     /// σ² thresholds of the coiling events.
     pub coil_thresholds: Vec<f64>,
+    /// Show where fibres touch (`world/contacts/<group>`, red points at the midpoints of
+    /// touching centre-lines) in every state whose shapes are shown: computed over all the
+    /// group's fibres, so it costs a contact search per such state (docs/contact.md).
+    pub contacts: bool,
 }
 
 impl Default for ViewOptions {
@@ -65,6 +69,7 @@ impl Default for ViewOptions {
             every: 0,
             sampling: select::Sampling::default(),
             coil_thresholds: fiberflow_analysis::coiling::DEFAULT_THRESHOLDS.to_vec(),
+            contacts: false,
         }
     }
 }
@@ -77,6 +82,8 @@ pub struct SceneSummary {
     pub shown: usize,
     pub events: usize,
     pub slices: usize,
+    /// States whose contact points were logged (with [`ViewOptions::contacts`]).
+    pub contact_states: usize,
 }
 
 /// Colour map for σ² in [0, 1.5]: dark blue (straight) -> teal -> yellow (coiled).
@@ -211,6 +218,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     // pass 2: shapes, series, slices
     let mut log_err: Option<ViewerError> = None;
     let mut slices = 0usize;
+    let mut contact_states = 0usize;
     let mut slice_meshes = slices::Logged::default();
     read::for_each(mcap, |it| {
         if log_err.is_some() {
@@ -223,12 +231,18 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                     0 => shape::whole_t_plus(s.t_plus, dt_plus).is_some(),
                     k => s.step % k == 0,
                 };
+                let due = wanted || s.step == 0 || s.step == last;
                 if let Some(m) = shown.get_mut(&s.group) {
-                    if wanted || s.step == 0 || s.step == last {
+                    if due {
                         collect_state(s, m, box_plus, dt_plus);
                     }
                 }
-                Ok(())
+                if opts.contacts && due {
+                    contact_states += 1;
+                    log_contacts(&rec, s, box_plus, dt_plus)
+                } else {
+                    Ok(())
+                }
             }
             Item::Metrics(mt) => {
                 if let Some(m) = shown.get_mut(&mt.group) {
@@ -269,7 +283,30 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
         shown: entities.len(),
         events,
         slices,
+        contact_states,
     })
+}
+
+/// Logs where the fibres of one state touch, at `world/contacts/<group>` (red points of
+/// about four diameters, so they show at the channel's scale).
+fn log_contacts(
+    rec: &rerun::RecordingStream,
+    s: &fiberflow_messages::FiberGroupState,
+    box_plus: [f64; 3],
+    dt_plus: f64,
+) -> Result<(), ViewerError> {
+    let points: Vec<[f32; 3]> = fiberflow_analysis::flocs::contact_points(s, box_plus)
+        .into_iter()
+        .map(|p| p.map(|x| x as f32))
+        .collect();
+    set_time(rec, s.step, s.t_plus, dt_plus);
+    rec.log(
+        format!("world/contacts/{}", s.group),
+        &rerun::Points3D::new(points)
+            .with_radii([0.5])
+            .with_colors([rerun::Color::from_rgb(230, 40, 40)]),
+    )
+    .map_err(err)
 }
 
 /// What the first pass over a recording finds: the groups (layers, final σ²), the box and
