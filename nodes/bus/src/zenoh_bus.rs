@@ -352,6 +352,20 @@ impl ZenohBus {
         })
     }
 
+    /// The endpoints this session listens on, as the OS bound them (a `:0` port in the
+    /// settings becomes the port it got): what a peer connects to. A node that listens on
+    /// an ephemeral port and reports it holds the port from the moment it is chosen, so
+    /// no other process can take it between choosing and binding.
+    pub fn listening_endpoints(&self) -> Vec<String> {
+        self.session
+            .info()
+            .locators()
+            .wait()
+            .iter()
+            .map(|l| l.to_string())
+            .collect()
+    }
+
     /// How many zenoh peers and routers this session is connected to now.
     pub fn connections(&self) -> usize {
         let info = self.session.info();
@@ -559,19 +573,37 @@ mod tests {
         assert!(!has_ipc_lock(&status("garbage")));
     }
 
-    /// A session listening on a free loopback port, with the endpoint to connect to it.
+    /// A session listening on an ephemeral loopback port, with the endpoint it got.
     fn listening_session() -> (ZenohBus, String) {
-        let port = std::net::TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .unwrap()
-            .port();
-        let endpoint = format!("tcp/127.0.0.1:{port}");
-        let bus = ZenohBus::open(&ZenohSettings {
-            listen: vec![endpoint.clone()],
-            ..ZenohSettings::default()
-        })
-        .unwrap();
+        let bus = ZenohBus::open(&ZenohSettings::default()).unwrap();
+        let endpoints = bus.listening_endpoints();
+        assert_eq!(endpoints.len(), 1, "{endpoints:?}");
+        let endpoint = endpoints[0].clone();
         (bus, endpoint)
+    }
+
+    /// A session asked to listen on port 0 reports the loopback endpoint it was given, with
+    /// a real port, and a second session connected to it carries messages.
+    #[test]
+    fn an_ephemeral_listener_reports_the_port_it_holds() {
+        let (a, endpoint) = listening_session();
+        let port: u16 = endpoint
+            .strip_prefix("tcp/127.0.0.1:")
+            .and_then(|p| p.parse().ok())
+            .unwrap_or_else(|| panic!("not a loopback tcp endpoint: {endpoint}"));
+        assert_ne!(port, 0);
+        // the port is taken: nobody else can bind it
+        assert!(std::net::TcpListener::bind(("127.0.0.1", port)).is_err());
+        let b = connected_session(endpoint);
+        let sub = a.subscribe("z/e").unwrap();
+        let missing = b
+            .await_subscribers(&["z/e".to_string()], Duration::from_secs(20))
+            .unwrap();
+        assert!(missing.is_empty());
+        b.publish("z/e", b"hello").unwrap();
+        let (topic, got) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
+        assert_eq!(topic, "z/e");
+        assert_eq!(&got[..], b"hello");
     }
 
     /// A session connected to `endpoint`.

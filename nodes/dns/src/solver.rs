@@ -51,7 +51,7 @@ pub struct Solver {
     last_divergence: f64,
     /// Two-way coupling: the fibres' body force per unit mass (outer units, staggered like
     /// the velocity), added to every substep of the next step; `None` when one-way.
-    body_force: Option<Velocity>,
+    body_force: Option<crate::spread::BodyForce>,
     /// Where the fluid's x and z momentum came from, when kept (tests and budgets).
     ledger: Option<MomentumLedger>,
 }
@@ -295,16 +295,18 @@ impl Solver {
                     }
                     if let Some(force) = body {
                         // the fibres' reaction, constant over the step (Σ α = 1 over the
-                        // three substeps, so the step's impulse is dt·a exactly)
+                        // three substeps, so the step's impulse is dt·a exactly); only the
+                        // rows the fibres touch hold anything
                         let c = alpha * dt;
                         let at = k * plane;
-                        for (o, bf, jmax) in [
-                            (&mut *ou, &force.u, ny),
-                            (&mut *ov, &force.v, ny - 1),
-                            (&mut *ow, &force.w, ny),
-                        ] {
-                            for j in 1..=jmax {
-                                let r = j * px + 1..j * px + 1 + nx;
+                        let f = &force.field;
+                        for (comp, (o, bf)) in
+                            [(&mut *ou, &f.u), (&mut *ov, &f.v), (&mut *ow, &f.w)]
+                                .into_iter()
+                                .enumerate()
+                        {
+                            for &j in force.rows(comp, k) {
+                                let r = j as usize * px + 1..j as usize * px + 1 + nx;
                                 let src = &bf[at + r.start..at + r.end];
                                 for (o, a) in o[r].iter_mut().zip(src) {
                                     *o += c * a;
@@ -375,8 +377,8 @@ impl Solver {
         let after = self.wall_gradients();
         let body = self.body_force.as_ref().map_or([0.0; 2], |b| {
             [
-                crate::spread::total(g, &b.u, 0),
-                crate::spread::total(g, &b.w, 2),
+                crate::spread::total(g, &b.field.u, 0),
+                crate::spread::total(g, &b.field.w, 2),
             ]
         });
         if let Some(l) = self.ledger.as_mut() {
@@ -411,7 +413,9 @@ impl Solver {
     /// steps adds, until it is set again or cleared.
     pub fn set_body_force(&mut self, points: &[[f64; 3]], forces: &[[f64; 3]]) {
         let g = &self.grid;
-        let out = self.body_force.get_or_insert_with(|| Velocity::zeros(g));
+        let out = self
+            .body_force
+            .get_or_insert_with(|| crate::spread::BodyForce::zeros(g));
         crate::spread::spread(g, points, forces, out);
     }
 
@@ -441,7 +445,7 @@ impl Solver {
 
     /// The body force per unit mass the next step adds (None: none).
     pub fn body_force(&self) -> Option<&Velocity> {
-        self.body_force.as_ref()
+        self.body_force.as_ref().map(|b| &b.field)
     }
 
     /// Max |div u| found by the last periodic check (reported in every step's report).

@@ -138,19 +138,44 @@ fn volume(g: &Grid, c: usize, j: usize) -> f64 {
     g.dx * dy * g.dz
 }
 
+/// The fibres' body force per unit mass on the grid (dense, staggered like the velocity),
+/// and which of its rows hold anything: per component and padded k-plane, the padded y
+/// rows the last spreading wrote, ascending. Clearing and adding visit only those rows, so
+/// a few hundred fibres cost what they touch, not the whole field (`docs/two-way.md`, "Cost").
+#[derive(Debug, Clone)]
+pub struct BodyForce {
+    /// Node accelerations (outer units), zero outside [`Self::rows`].
+    pub field: Velocity,
+    rows: [Vec<Vec<u32>>; 3],
+}
+
+impl BodyForce {
+    /// No force anywhere.
+    pub fn zeros(g: &Grid) -> Self {
+        Self {
+            field: Velocity::zeros(g),
+            rows: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
+        }
+    }
+
+    /// The padded y rows of plane `k` of component `c` (0 u, 1 v, 2 w) that may hold a
+    /// non-zero value, ascending.
+    pub fn rows(&self, c: usize, k: usize) -> &[u32] {
+        &self.rows[c][k]
+    }
+}
+
 /// Spreads point forces onto `out` (overwritten; halos left zero). `points[i]` is a
 /// position in outer units (x, z any real, y within the walls) and `forces[i]` the force
 /// *on the fluid* there, in outer units (ρ = 1): node accelerations are added in the
 /// order of the list.
-pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Velocity) {
+pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut BodyForce) {
     let stencils: Vec<PointStencils> = points.par_iter().map(|&p| stencils(g, p)).collect();
     let plane = g.plane();
     let nz = g.nz;
-    for comp in [&mut out.u, &mut out.v, &mut out.w] {
-        comp.iter_mut().for_each(|x| *x = 0.0);
-    }
-    let Velocity { u, v, w } = out;
-    for (c, field) in [u, v, w].into_iter().enumerate() {
+    let BodyForce { field, rows } = out;
+    let Velocity { u, v, w } = field;
+    for (c, (field, rows)) in [u, v, w].into_iter().zip(rows.iter_mut()).enumerate() {
         // each plane's points, in the list's order (so the sums are those of one pass)
         let mut by_plane: Vec<Vec<(usize, usize)>> = vec![Vec::new(); nz + 2];
         for (n, (st, f)) in stencils.iter().zip(forces).enumerate() {
@@ -166,8 +191,15 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Velo
         }
         field
             .par_chunks_mut(plane)
+            .zip(rows.par_iter_mut())
             .zip(by_plane.par_iter())
-            .for_each(|(pl, points)| {
+            .for_each(|((pl, touched), points)| {
+                // the rows the last spreading wrote go back to zero
+                for &j in touched.iter() {
+                    let r = j as usize * g.px;
+                    pl[r..r + g.px].iter_mut().for_each(|x| *x = 0.0);
+                }
+                touched.clear();
                 for &(n, oz) in points {
                     let st = &stencils[n];
                     let fc = forces[n][c];
@@ -178,6 +210,7 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Velo
                             continue;
                         }
                         let j = (sy.first + oy as isize) as usize;
+                        touched.push(j as u32);
                         let scale = fc * wz * wy / volume(g, c, j);
                         for (ox, &wx) in sx.w.iter().enumerate() {
                             let i = wrap(sx.first + ox as isize, g.nx);
@@ -185,6 +218,8 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Velo
                         }
                     }
                 }
+                touched.sort_unstable();
+                touched.dedup();
             });
     }
 }
@@ -232,7 +267,7 @@ mod tests {
     #[test]
     fn every_point_spreads_its_whole_force() {
         let g = grid();
-        let mut out = Velocity::zeros(&g);
+        let mut out = BodyForce::zeros(&g);
         let y1 = g.yc[1];
         for p in [
             [0.3, 0.1, 0.4],
@@ -245,7 +280,7 @@ mod tests {
             let f = [1.25, -0.75, 2.5];
             spread(&g, &[p], &[f], &mut out);
             for c in 0..3 {
-                let t = total(&g, [&out.u, &out.v, &out.w][c], c);
+                let t = total(&g, [&out.field.u, &out.field.v, &out.field.w][c], c);
                 assert!(
                     (t - f[c]).abs() < 1e-14 * f[c].abs(),
                     "{p:?} c{c}: {t} vs {}",
@@ -260,14 +295,14 @@ mod tests {
     #[test]
     fn spread_force_is_centred_on_the_point() {
         let g = grid();
-        let mut out = Velocity::zeros(&g);
+        let mut out = BodyForce::zeros(&g);
         let p = [0.913, 0.05, 0.377];
         spread(&g, &[p], &[[1.0, 0.0, 0.0]], &mut out);
         let (mut sx, mut sz) = (0.0, 0.0);
         for k in 1..=g.nz {
             for j in 1..=g.ny {
                 for i in 1..=g.nx {
-                    let a = out.u[g.idx(i, j, k)] * volume(&g, 0, j);
+                    let a = out.field.u[g.idx(i, j, k)] * volume(&g, 0, j);
                     sx += a * (i as f64 * g.dx);
                     sz += a * ((k as f64 - 0.5) * g.dz);
                 }
@@ -275,6 +310,37 @@ mod tests {
         }
         assert!((sx - p[0]).abs() < 1e-12, "x centroid {sx}");
         assert!((sz - p[2]).abs() < 1e-12, "z centroid {sz}");
+    }
+
+    /// Spreading again clears what the last spreading wrote: forces at one set of points and
+    /// then at another give the bits of the second set spread onto a fresh field, and the
+    /// touched rows cover every non-zero node.
+    #[test]
+    fn spreading_again_leaves_nothing_of_the_last_points() {
+        let g = grid();
+        let first: Vec<[f64; 3]> = vec![[0.3, -0.99, 0.1], [1.7, 0.2, 0.8], [0.0, 0.999, 0.5]];
+        let second: Vec<[f64; 3]> = vec![[1.1, 0.5, 0.3]];
+        let f = [1.0, -2.0, 0.5];
+        let mut reused = BodyForce::zeros(&g);
+        spread(&g, &first, &[f; 3], &mut reused);
+        spread(&g, &second, &[f], &mut reused);
+        let mut fresh = BodyForce::zeros(&g);
+        spread(&g, &second, &[f], &mut fresh);
+        for c in 0..3 {
+            let [a, b] = [&reused, &fresh].map(|o| [&o.field.u, &o.field.v, &o.field.w][c]);
+            assert!(a
+                .iter()
+                .zip(b.iter())
+                .all(|(p, q)| p.to_bits() == q.to_bits()));
+            for k in 0..g.nz + 2 {
+                for j in 0..g.ny + 2 {
+                    let row = &a[k * g.plane() + j * g.px..k * g.plane() + (j + 1) * g.px];
+                    if row.iter().any(|x| *x != 0.0) {
+                        assert!(reused.rows(c, k).contains(&(j as u32)), "c{c} k{k} j{j}");
+                    }
+                }
+            }
+        }
     }
 
     /// The same points give the same bits on one thread and on four.
@@ -299,12 +365,16 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .unwrap();
-            let mut out = Velocity::zeros(&g);
+            let mut out = BodyForce::zeros(&g);
             pool.install(|| spread(&g, &pts, &fs, &mut out));
             out
         };
         let (a, b) = (run(1), run(4));
-        for (x, y) in [(&a.u, &b.u), (&a.v, &b.v), (&a.w, &b.w)] {
+        for (x, y) in [
+            (&a.field.u, &b.field.u),
+            (&a.field.v, &b.field.v),
+            (&a.field.w, &b.field.w),
+        ] {
             assert!(x
                 .iter()
                 .zip(y.iter())

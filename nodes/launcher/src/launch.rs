@@ -44,9 +44,32 @@ fn die_with_parent(launcher_pid: libc::pid_t) -> std::io::Result<()> {
     Ok(())
 }
 
-fn free_port() -> Result<u16> {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").context("finding a free loopback port")?;
-    Ok(l.local_addr()?.port())
+/// Waits for the flow node to write the endpoint its zenoh session got (a loopback run's
+/// rendezvous); fails at once, naming its log, if the node ends first.
+fn await_endpoint(path: &Path, flow: &mut Node, timeout: Duration) -> Result<String> {
+    let t0 = std::time::Instant::now();
+    loop {
+        if let Ok(text) = std::fs::read_to_string(path) {
+            if !text.trim().is_empty() {
+                return Ok(text.trim().to_string());
+            }
+        }
+        if let Some(status) = flow.child.try_wait()? {
+            bail!(
+                "the flow node ended ({status}) before it listened; see {}",
+                flow.log.display()
+            );
+        }
+        if t0.elapsed() > timeout {
+            bail!(
+                "the flow node did not report its zenoh endpoint in {} s ({}); see {}",
+                timeout.as_secs(),
+                path.display(),
+                flow.log.display()
+            );
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
 }
 
 /// What `fiberflow launch` was asked for besides the file.
@@ -120,6 +143,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         transport: transport.clone(),
         zenoh_listen: vec![],
         zenoh_connect: vec![],
+        zenoh_endpoint_file: None,
         co_nodes: vec![],
         host: host.clone(),
         out_dir: out_dir.clone(),
@@ -608,9 +632,8 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         );
         net.rendezvous.clone()
     } else if zenoh {
-        let r = format!("tcp/127.0.0.1:{}", free_port()?);
-        println!("zenoh rendezvous {r} (loopback only, multicast scouting off)");
-        r
+        // the flow node listens on a port the OS gives it and reports it (below)
+        String::new()
     } else {
         println!(
             "iceoryx2 shared memory, services fiberflow/{}/...",
@@ -618,7 +641,20 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         );
         "iceoryx2".to_string()
     };
-    std::fs::write(base.out_dir.join("endpoint.txt"), &rendezvous)?;
+    let endpoint_file = base.out_dir.join("endpoint.txt");
+    let loopback_zenoh = zenoh && rendezvous.is_empty();
+    if loopback_zenoh {
+        // a stale endpoint of an earlier run must not be read as this one's
+        match std::fs::remove_file(&endpoint_file) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("removing {}", endpoint_file.display()))
+            }
+            _ => {}
+        }
+    } else {
+        std::fs::write(&endpoint_file, &rendezvous)?;
+    }
+    let mut rendezvous = rendezvous;
     let exe = std::env::current_exe().context("locating the fiberflow executable")?;
     let mut children: Vec<Node> = Vec::new();
     let mut pgid: i32 = 0;
@@ -626,6 +662,9 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         let mut spec = process_spec(base, &members);
         if !zenoh {
             // shared memory: nothing to configure
+        } else if n == "flow" && loopback_zenoh {
+            spec.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
+            spec.zenoh_endpoint_file = Some(endpoint_file.clone());
         } else if n == "flow" {
             spec.zenoh_listen = vec![rendezvous.clone()];
         } else {
@@ -675,7 +714,11 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
             child,
             log,
         });
-        if n == "flow" {
+        if n == "flow" && loopback_zenoh {
+            let flow = children.last_mut().context("the flow node's process")?;
+            rendezvous = await_endpoint(&endpoint_file, flow, Duration::from_secs(120))?;
+            println!("zenoh rendezvous {rendezvous} (loopback only, multicast scouting off)");
+        } else if n == "flow" {
             std::thread::sleep(Duration::from_millis(200));
         }
     }
@@ -953,6 +996,8 @@ mod tests {
             transport: "inproc".into(),
             zenoh_listen: vec![],
             zenoh_connect: vec![],
+            zenoh_endpoint_file: None,
+            zenoh_endpoint_file: None,
             co_nodes: vec![],
             host: None,
             out_dir: out.to_path_buf(),

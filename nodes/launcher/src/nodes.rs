@@ -30,6 +30,11 @@ pub struct NodeSpec {
     pub zenoh_listen: Vec<String>,
     #[serde(default)]
     pub zenoh_connect: Vec<String>,
+    /// Where this node writes the endpoint its zenoh session got (the flow node of a
+    /// loopback run listens on port 0; the launcher reads the port here and hands it to
+    /// the other nodes, so no port is ever chosen and then released).
+    #[serde(default)]
+    pub zenoh_endpoint_file: Option<PathBuf>,
     /// Multi-host runs: the `[[network.hosts]]` entry this node runs on.
     #[serde(default)]
     pub host: Option<String>,
@@ -126,9 +131,11 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
     match t {
         Transport::Zenoh => {
             let s = zenoh_settings(spec)?;
-            Ok(Arc::new(
-                ZenohBus::open(&s).context("opening zenoh session")?,
-            ))
+            let bus = ZenohBus::open(&s).context("opening zenoh session")?;
+            if let Some(path) = &spec.zenoh_endpoint_file {
+                write_endpoint(path, &bus.listening_endpoints())?;
+            }
+            Ok(Arc::new(bus))
         }
         Transport::Inproc => Ok(Arc::new(InprocBus::new())),
         Transport::Iceoryx2 => Ok(Arc::new(
@@ -139,6 +146,18 @@ pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
             .context("opening iceoryx2 shared-memory bus")?,
         )),
     }
+}
+
+/// Writes the first of a session's listening endpoints to `path` (a temporary file renamed
+/// into place, so a reader sees all of it or nothing).
+fn write_endpoint(path: &Path, endpoints: &[String]) -> Result<()> {
+    let first = endpoints
+        .first()
+        .context("the zenoh session listens on no endpoint")?;
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, first).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
 }
 
 /// Runs the node named in the spec until the run ends.
