@@ -240,11 +240,51 @@ pub fn scalars(f: &FlowSeries, from: f64, batches: usize) -> Vec<(&'static str, 
 }
 
 /// Profile quantities per row, in [`PROFILE_NAMES`] order.
-pub const PROFILE_NAMES: [&str; 5] = ["u_mean", "u_rms", "v_rms", "w_rms", "minus_uv"];
+pub const PROFILE_NAMES: [&str; 6] = [
+    "u_mean",
+    "u_rms",
+    "v_rms",
+    "w_rms",
+    "minus_uv",
+    "fibre_stress",
+];
+
+/// The shear stress the fibres carry across the channel (wall units): what the mean
+/// streamwise momentum balance of the fluid leaves once viscous and Reynolds stress are
+/// counted, Π (1 − y+/h+) − dU+/dy+ − (−⟨u'v'⟩+), with Π the mean pressure gradient
+/// (outer units, the total stress at the wall). Zero in an unladen channel. `y` the rows
+/// (ascending, above the wall at 0 where U = 0), `u` and `minus_uv` their values; dU/dy
+/// by the three-point formula on the uneven rows (exact for a quadratic), one-sided at the
+/// last row.
+pub fn fibre_stress(y: &[f64], u: &[f64], minus_uv: &[f64], pi: f64, h_plus: f64) -> Vec<f64> {
+    let n = y.len();
+    (0..n)
+        .map(|j| {
+            let (ym, um) = if j == 0 {
+                (0.0, 0.0)
+            } else {
+                (y[j - 1], u[j - 1])
+            };
+            let (a, b, c, ua, ub, uc, at) = if j + 1 < n {
+                (ym, y[j], y[j + 1], um, u[j], u[j + 1], y[j])
+            } else if n >= 3 {
+                (y[j - 2], y[j - 1], y[j], u[j - 2], u[j - 1], u[j], y[j])
+            } else {
+                return f64::NAN;
+            };
+            // derivative at `at` of the parabola through (a, ua), (b, ub), (c, uc)
+            let dudy = ua * (2.0 * at - b - c) / ((a - b) * (a - c))
+                + ub * (2.0 * at - a - c) / ((b - a) * (b - c))
+                + uc * (2.0 * at - a - b) / ((c - a) * (c - b));
+            pi * (1.0 - y[j] / h_plus) - dudy - minus_uv[j]
+        })
+        .collect()
+}
 
 /// Per-batch profiles between consecutive cumulative publications in the window
-/// (`[batch][quantity][row]`), and the rows' y+.
-pub fn profile_batches(f: &FlowSeries, from: f64) -> (Vec<f64>, Vec<[Vec<f64>; 5]>) {
+/// (`[batch][quantity][row]`), and the rows' y+. A batch's fibre stress uses the mean
+/// pressure gradient of the statuses inside it (none: the window's).
+pub fn profile_batches(f: &FlowSeries, from: f64) -> (Vec<f64>, Vec<[Vec<f64>; 6]>) {
     // the last publication at or before `from` opens the window (none: the run's start)
     let first = f.profiles.iter().rposition(|p| p.t_plus <= from + 1e-9);
     let snaps: Vec<Option<&FlowProfiles>> = match first {
@@ -288,7 +328,7 @@ pub fn profile_batches(f: &FlowSeries, from: f64) -> (Vec<f64>, Vec<[Vec<f64>; 5
         if dn <= 0.0 {
             continue;
         }
-        let mut b: [Vec<f64>; 5] = Default::default();
+        let mut b: [Vec<f64>; 6] = Default::default();
         for j in 0..nrow {
             let d = |q: usize| (s1[j][q] - s0[j][q]) / dn;
             let u = d(0);
@@ -298,13 +338,32 @@ pub fn profile_batches(f: &FlowSeries, from: f64) -> (Vec<f64>, Vec<[Vec<f64>; 5
             b[3].push(d(3).max(0.0).sqrt());
             b[4].push(-d(4));
         }
+        let (t0, t1) = (
+            w[0].map_or(f64::NEG_INFINITY, |p| p.t_plus),
+            w[1].map_or(f64::NEG_INFINITY, |p| p.t_plus),
+        );
+        let pi = mean_pressure_gradient(f, t0, t1)
+            .or_else(|| mean_pressure_gradient(f, from, f64::INFINITY))
+            .unwrap_or(f64::NAN);
+        b[5] = fibre_stress(&y, &b[0], &b[4], pi, f.half_height_plus());
         out.push(b);
     }
     (y, out)
 }
 
+/// Mean pressure gradient of the statuses with t+ in (t0, t1].
+fn mean_pressure_gradient(f: &FlowSeries, t0: f64, t1: f64) -> Option<f64> {
+    let v: Vec<f64> = f
+        .status
+        .iter()
+        .filter(|s| s.t_plus > t0 && s.t_plus <= t1)
+        .map(|s| s.pressure_gradient)
+        .collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
 /// Mean and half-width per row of each profile quantity over the batches.
-pub fn profile_estimates(batches: &[[Vec<f64>; 5]]) -> [Vec<Estimate>; 5] {
+pub fn profile_estimates(batches: &[[Vec<f64>; 6]]) -> [Vec<Estimate>; 6] {
     std::array::from_fn(|q| {
         let nrow = batches.first().map_or(0, |b| b[q].len());
         (0..nrow)
@@ -426,10 +485,10 @@ fn scalar_table(
 }
 
 /// Profile means and half-widths per y+ row, with the base run's beside them.
-type BaseProfiles = (Vec<f64>, [Vec<Estimate>; 5]);
+type BaseProfiles = (Vec<f64>, [Vec<Estimate>; 6]);
 
 /// `flow_profiles.csv`: y+, each profile quantity and its half-width (and the base run's).
-fn profiles_csv(y: &[f64], ours_p: &[Vec<Estimate>; 5], theirs_p: Option<&BaseProfiles>) -> String {
+fn profiles_csv(y: &[f64], ours_p: &[Vec<Estimate>; 6], theirs_p: Option<&BaseProfiles>) -> String {
     let mut pcsv = String::from("y_plus");
     for q in PROFILE_NAMES {
         let _ = write!(pcsv, ",{q},{q}_half_width");
@@ -464,7 +523,7 @@ fn profiles_csv(y: &[f64], ours_p: &[Vec<Estimate>; 5], theirs_p: Option<&BasePr
 fn profile_plots(
     out: &Path,
     y: &[f64],
-    ours_p: &[Vec<Estimate>; 5],
+    ours_p: &[Vec<Estimate>; 6],
     theirs_p: Option<&BaseProfiles>,
 ) -> Result<(), AnalysisError> {
     let curve = |yy: &[f64], e: &[Estimate], label: &str, colour: usize, markers: bool| Series {
@@ -486,9 +545,9 @@ fn profile_plots(
         true,
         false,
     )?;
-    let labels = ["u'", "v'", "w'", "-u'v'"];
+    let labels = ["u'", "v'", "w'", "-u'v'", "fibre stress"];
     let mut s = Vec::new();
-    for q in 1..5 {
+    for q in 1..6 {
         s.push(curve(y, &ours_p[q], labels[q - 1], q - 1, false));
         if let Some((yb, tp)) = theirs_p {
             s.push(curve(yb, &tp[q], "", q - 1, true));
@@ -497,9 +556,9 @@ fn profile_plots(
     line_plot(
         &out.join("flow_rms.png"),
         if theirs_p.is_some() {
-            "RMS and Reynolds stress (lines: this run; dots: unladen)"
+            "RMS, Reynolds and fibre stress (lines: this run; dots: unladen)"
         } else {
-            "RMS and Reynolds stress"
+            "RMS, Reynolds and fibre stress"
         },
         "y+",
         "wall units",
@@ -596,6 +655,32 @@ mod tests {
         assert!((b[1][2][0] - 0.5).abs() < 1e-12);
         // from t+ = 100: only the second batch
         assert_eq!(profile_batches(&f, 100.0).1.len(), 1);
+    }
+
+    /// The stress balance on uneven rows: a laminar channel (U+ = Π(y − y²/2h), no
+    /// Reynolds stress) leaves no fibre stress, and a flow whose viscous and Reynolds
+    /// stress (−u'v' = a·y) fall short of Π(1 − y/h) by c(1 − y/h) gives back exactly that
+    /// shortfall (both to 1e-12, the quadratic's derivative being exact).
+    #[test]
+    fn fibre_stress_is_what_the_momentum_balance_leaves() {
+        let (h, pi) = (150.0, 1.02);
+        let y: Vec<f64> = (0..40)
+            .map(|j| 0.33 * (1.11f64).powi(j) + 0.2 * j as f64)
+            .collect();
+        let laminar: Vec<f64> = y.iter().map(|y| pi * (y - y * y / (2.0 * h))).collect();
+        let s = fibre_stress(&y, &laminar, &vec![0.0; y.len()], pi, h);
+        assert!(s.iter().all(|x| x.abs() < 1e-12), "{s:?}");
+        let (a, c) = (0.004, 0.3);
+        // dU/dy = (Π − c)(1 − y/h) − a y
+        let u: Vec<f64> = y
+            .iter()
+            .map(|y| (pi - c) * (y - y * y / (2.0 * h)) - 0.5 * a * y * y)
+            .collect();
+        let uv: Vec<f64> = y.iter().map(|y| a * y).collect();
+        let s = fibre_stress(&y, &u, &uv, pi, h);
+        for (sj, yj) in s.iter().zip(&y) {
+            assert!((sj - c * (1.0 - yj / h)).abs() < 1e-12, "{sj} at y+ {yj}");
+        }
     }
 
     /// The budget terms of a synthetic steady laden run: Re_τ 160 on h+ = 150 (τ_w =

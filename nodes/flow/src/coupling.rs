@@ -59,6 +59,35 @@ fn outbox_depth(run: &RunInfo) -> usize {
 }
 
 /// The coupling loop's state between its stages.
+/// The self-induced correction's kernel weights: being computed on a thread of their
+/// own from the start, or ready.
+enum PendingWidths {
+    Computing(std::thread::JoinHandle<crate::self_induced::Widths>),
+    Ready(crate::self_induced::Widths),
+    /// The thread computing them panicked (reported once, as an error).
+    Failed,
+}
+
+impl PendingWidths {
+    /// The weights, waiting for their thread the first time.
+    fn get(&mut self) -> Result<&crate::self_induced::Widths, FlowError> {
+        if matches!(self, Self::Computing(_)) {
+            if let Self::Computing(h) = std::mem::replace(self, Self::Failed) {
+                if let Ok(w) = h.join() {
+                    *self = Self::Ready(w);
+                }
+            }
+        }
+        match self {
+            Self::Ready(w) => Ok(w),
+            _ => Err(FlowError::Protocol(
+                "computing the self-induced correction's weights failed (its thread panicked)"
+                    .into(),
+            )),
+        }
+    }
+}
+
 pub(crate) struct Coupling<'a> {
     cfg: &'a FlowNodeConfig,
     run: &'a RunInfo,
@@ -79,7 +108,7 @@ pub(crate) struct Coupling<'a> {
     feedback: crate::feedback::Feedback,
     /// The self-induced correction's memories per piece (kept in coupled checkpoints).
     histories: BTreeMap<(String, u32), crate::self_induced::History>,
-    self_widths: Option<crate::self_induced::Widths>,
+    self_widths: Option<PendingWidths>,
     /// The wait for the first step's states is the fibre nodes starting up (once per
     /// run, tens of ms): logged apart from the loop's per-step stages.
     start_wait_s: f64,
@@ -112,9 +141,13 @@ impl<'a> Coupling<'a> {
             _ => BTreeMap::new(),
         };
         let self_widths = match (&field, run.two_way, cfg.self_induced) {
-            (Field::Dns(d), true, crate::config::SelfInduced::History) => Some(
-                crate::self_induced::Widths::new(&d.solver.grid, d.solver.cfg.re_tau),
-            ),
+            (Field::Dns(d), true, crate::config::SelfInduced::History) => {
+                // computed beside the wait for the first states (≈0.5 s on the coarse grid)
+                let (grid, re_tau) = (d.solver.grid.clone(), d.solver.cfg.re_tau);
+                Some(PendingWidths::Computing(std::thread::spawn(move || {
+                    crate::self_induced::Widths::new(&grid, re_tau)
+                })))
+            }
             _ => None,
         };
         if run.two_way {
@@ -248,9 +281,10 @@ impl<'a> Coupling<'a> {
         crate::feedback::gather(step_states, re_tau, &mut self.feedback)?;
         d.solver
             .set_body_force(&self.feedback.points, &self.feedback.forces);
-        let Some(w) = &self.self_widths else {
+        let Some(pending) = self.self_widths.as_mut() else {
             return Ok(());
         };
+        let w = pending.get()?;
         for key in step_states.keys() {
             self.histories.entry(key.clone()).or_default();
         }
