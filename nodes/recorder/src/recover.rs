@@ -134,52 +134,82 @@ fn visit(
     }
 }
 
-/// Copies every readable message (with its schema and channel) of a damaged file into a
-/// new, properly finished MCAP. Returns the number of messages saved.
+/// Copies every readable message (with its schema and channel), and the metadata, of a
+/// damaged file into a new, properly finished MCAP, streaming ([`for_each_record`]: a
+/// chunk at a time, never the whole file in memory; test
+/// `tests/recover_memory.rs`). Returns the number of messages saved.
 pub fn recover(src: &Path, dst: &Path) -> Result<u64, Box<dyn std::error::Error>> {
-    let bytes = std::fs::read(src)?;
+    use mcap::records::Record;
     let mut w = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .profile("ros2")
         .create(BufWriter::new(std::fs::File::create(dst)?))?;
     let mut saved = 0u64;
-    let mut stream = mcap::MessageStream::new(&bytes)?;
-    let mut chan_map: BTreeMap<u16, u16> = BTreeMap::new();
-    for m in stream.by_ref() {
-        let Ok(m) = m else { break };
-        let id = match chan_map.get(&m.channel.id) {
-            Some(&id) => id,
-            None => {
-                let sid = match &m.channel.schema {
-                    Some(s) => w.add_schema(&s.name, &s.encoding, &s.data)?,
-                    None => 0,
-                };
-                let id = w.add_channel(
-                    sid,
-                    &m.channel.topic,
-                    &m.channel.message_encoding,
-                    &m.channel.metadata,
-                )?;
-                chan_map.insert(m.channel.id, id);
-                id
-            }
-        };
-        w.write_to_known_channel(
-            &mcap::records::MessageHeader {
-                channel_id: id,
-                sequence: m.sequence,
-                log_time: m.log_time,
-                publish_time: m.publish_time,
-            },
-            &m.data,
-        )?;
-        saved += 1;
-    }
-    // metadata and attachments of the damaged file, if readable
-    if let Ok(ins) = inspect(src) {
-        for (name, md) in ins.metadata {
-            w.write_metadata(&mcap::records::Metadata { name, metadata: md })?;
+    // the source's schemas (name, encoding, data) and channels, and the ids they got in
+    // the new file once a message used them
+    let mut schemas: BTreeMap<u16, (String, String, Vec<u8>)> = BTreeMap::new();
+    let mut channels: BTreeMap<u16, mcap::records::Channel> = BTreeMap::new();
+    let mut new_schema: BTreeMap<u16, u16> = BTreeMap::new();
+    let mut new_channel: BTreeMap<u16, u16> = BTreeMap::new();
+    let mut failed: Option<mcap::McapError> = None;
+    for_each_record(src, |r| {
+        if failed.is_some() {
+            return;
         }
+        let step = || -> Result<(), mcap::McapError> {
+            match r {
+                Record::Schema { header, data } => {
+                    schemas.insert(header.id, (header.name, header.encoding, data.into_owned()));
+                }
+                Record::Channel(c) => {
+                    channels.insert(c.id, c);
+                }
+                Record::Message { header, data } => {
+                    let id = match new_channel.get(&header.channel_id) {
+                        Some(&id) => id,
+                        None => {
+                            // a message whose channel was never declared is not readable
+                            let Some(c) = channels.get(&header.channel_id) else {
+                                return Ok(());
+                            };
+                            let sid =
+                                match (new_schema.get(&c.schema_id), schemas.get(&c.schema_id)) {
+                                    (Some(&sid), _) => sid,
+                                    (None, Some((name, enc, data))) => {
+                                        let sid = w.add_schema(name, enc, data)?;
+                                        new_schema.insert(c.schema_id, sid);
+                                        sid
+                                    }
+                                    (None, None) => 0,
+                                };
+                            let id =
+                                w.add_channel(sid, &c.topic, &c.message_encoding, &c.metadata)?;
+                            new_channel.insert(header.channel_id, id);
+                            id
+                        }
+                    };
+                    w.write_to_known_channel(
+                        &mcap::records::MessageHeader {
+                            channel_id: id,
+                            sequence: header.sequence,
+                            log_time: header.log_time,
+                            publish_time: header.publish_time,
+                        },
+                        &data,
+                    )?;
+                    saved += 1;
+                }
+                Record::Metadata(m) => w.write_metadata(&m)?,
+                _ => {}
+            }
+            Ok(())
+        };
+        if let Err(e) = step() {
+            failed = Some(e);
+        }
+    })?;
+    if let Some(e) = failed {
+        return Err(e.into());
     }
     w.finish()?;
     Ok(saved)
