@@ -10,6 +10,7 @@ pub mod echo;
 pub mod fuzz;
 pub mod palette;
 pub mod pieces;
+pub mod reading;
 pub mod sanity;
 pub mod schema;
 pub mod segments;

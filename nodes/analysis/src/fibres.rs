@@ -138,34 +138,31 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
     // the box (periodic along x1 and x3) that contacts are found in
     let mut box_plus: Option<[f64; 3]> = None;
     for seg in &segs {
-        let bytes = std::fs::read(seg).map_err(io_err(seg))?;
-        let stream =
-            mcap::MessageStream::new(&bytes).map_err(|e| AnalysisError::Data(e.to_string()))?;
-        for m in stream {
-            let Ok(m) = m else { break }; // a damaged tail: analyse what is there
-            let topic = m.channel.topic.as_str();
+        // streamed a chunk at a time; a damaged tail ends the segment: analyse what is there
+        fiberflow_messages::reading::for_each_message(seg, |m| {
+            let topic = m.topic;
             if topic.ends_with("/control/announce") {
-                if let Ok(a) = decode::<fiberflow_messages::RunAnnouncement>(&m.data) {
+                if let Ok(a) = decode::<fiberflow_messages::RunAnnouncement>(m.data) {
                     if let [x, y, z] = a.box_plus[..] {
                         box_plus.get_or_insert([x, y, z]);
                     }
                 }
             } else if topic.ends_with("/state") {
-                let Ok(s) = decode::<FiberGroupState>(&m.data) else {
-                    continue;
+                let Ok(s) = decode::<FiberGroupState>(m.data) else {
+                    return;
                 };
                 // a lean state (centres only) has no orientation to analyse
                 if s.check().is_err() || s.is_lean() {
-                    continue;
+                    return;
                 }
                 let Some(s) = state_tiles.add_slice(s) else {
-                    continue;
+                    return;
                 };
                 let r = by.entry(s.group.clone()).or_default();
                 if r.shape.get_or_insert_with(|| s.segments_per_fiber.clone())
                     != &s.segments_per_fiber
                 {
-                    continue;
+                    return;
                 }
                 if r.layer.is_empty() {
                     r.layer = s.layer.clone();
@@ -177,11 +174,11 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 }
                 r.from_states.insert(s.step, row_of_state(&s));
             } else if topic.ends_with("/metrics") && topic.contains("/fibers/") {
-                let Ok(mt) = decode::<FiberGroupMetrics>(&m.data) else {
-                    continue;
+                let Ok(mt) = decode::<FiberGroupMetrics>(m.data) else {
+                    return;
                 };
                 if mt.check().is_err() {
-                    continue;
+                    return;
                 }
                 if let Some(mt) = metric_tiles.add_slice(mt) {
                     by.entry(mt.group.clone())
@@ -190,7 +187,8 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                         .insert(mt.step, row_of_metrics(&mt));
                 }
             }
-        }
+        })
+        .map_err(io_err(seg))?;
     }
     let mut out = BTreeMap::new();
     for (g, mut r) in by {

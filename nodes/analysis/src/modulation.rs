@@ -71,18 +71,15 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
     let mut out = FlowSeries::default();
     let mut masses: BTreeMap<(String, u32), f64> = BTreeMap::new();
     for seg in &segs {
-        let bytes = std::fs::read(seg).map_err(io_err(seg))?;
-        let stream =
-            mcap::MessageStream::new(&bytes).map_err(|e| AnalysisError::Data(e.to_string()))?;
-        for m in stream {
-            let Ok(m) = m else { break }; // a damaged tail: analyse what is there
-            let topic = m.channel.topic.as_str();
+        // streamed a chunk at a time; a damaged tail ends the segment: analyse what is there
+        fiberflow_messages::reading::for_each_message(seg, |m| {
+            let topic = m.topic;
             if topic.ends_with("/flow/status") {
-                let Ok(s) = decode::<FlowStatus>(&m.data) else {
-                    continue;
+                let Ok(s) = decode::<FlowStatus>(m.data) else {
+                    return;
                 };
                 if s.check().is_err() || s.re_tau <= 0.0 {
-                    continue;
+                    return;
                 }
                 out.two_way |= s.fibre_force_plus.len() == 3;
                 out.status.push(StatusRow {
@@ -93,29 +90,30 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
                     fibre_force_x_plus: s.fibre_force_plus.first().copied().unwrap_or(0.0),
                 });
             } else if topic.ends_with("/flow/profiles") {
-                if let Ok(p) = decode::<FlowProfiles>(&m.data) {
+                if let Ok(p) = decode::<FlowProfiles>(m.data) {
                     if p.check().is_ok() && p.samples > 0 {
                         out.profiles.push(p);
                     }
                 }
             } else if topic.ends_with("/control/announce") {
-                if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
+                if let Ok(a) = decode::<RunAnnouncement>(m.data) {
                     if let [x, y, z] = a.box_plus[..] {
                         out.box_plus = [x, y, z];
                     }
                 }
             } else if topic.ends_with("/state") {
-                let Ok(s) = decode::<FiberGroupState>(&m.data) else {
-                    continue;
+                let Ok(s) = decode::<FiberGroupState>(m.data) else {
+                    return;
                 };
                 if s.check().is_err() {
-                    continue;
+                    return;
                 }
                 masses
                     .entry((s.group.clone(), s.first_fiber))
                     .or_insert_with(|| state_mass(&s));
             }
-        }
+        })
+        .map_err(io_err(seg))?;
     }
     if out.box_plus[1] <= 0.0 {
         return Err(AnalysisError::Data(format!(

@@ -186,13 +186,12 @@ pub fn replay_cmd(
     // topic has one (as `inject` does), then a little for the others' declarations
     let mut topics: Vec<String> = Vec::new();
     for seg in &segs {
-        let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
-        for m in mcap::MessageStream::new(&bytes)? {
-            let topic = &m?.channel.topic;
-            if wanted(topic) && !topics.contains(topic) {
-                topics.push(topic.clone());
+        fiberflow_messages::reading::for_each_message(seg, |m| {
+            if wanted(m.topic) && !topics.iter().any(|t| t == m.topic) {
+                topics.push(m.topic.to_string());
             }
-        }
+        })
+        .with_context(|| format!("reading {}", seg.display()))?;
     }
     if topics.is_empty() {
         bail!("no recorded topic matches --topics {}", only.join(" "));
@@ -210,22 +209,32 @@ pub fn replay_cmd(
     let mut n = 0u64;
     // the segments of a resumed run follow each other in time; each holds its steps once
     for seg in &segs {
-        let bytes = std::fs::read(seg).with_context(|| format!("reading {}", seg.display()))?;
-        for m in mcap::MessageStream::new(&bytes)? {
-            let m = m?;
-            if !wanted(&m.channel.topic) {
-                continue;
+        // streamed a chunk at a time; the first failure to publish ends the replay
+        let mut failed: Option<fiberflow_bus::BusError> = None;
+        let stopped = fiberflow_messages::reading::for_each_message(seg, |m| {
+            if failed.is_some() || !wanted(m.topic) {
+                return;
             }
-            let t0 = *first.get_or_insert(m.log_time);
+            let t0 = *first.get_or_insert(m.log_time_nanos);
             if speed > 0.0 {
-                let due =
-                    Duration::from_secs_f64(m.log_time.saturating_sub(t0) as f64 / 1e9 / speed);
+                let due = Duration::from_secs_f64(
+                    m.log_time_nanos.saturating_sub(t0) as f64 / 1e9 / speed,
+                );
                 if let Some(wait) = due.checked_sub(start.elapsed()) {
                     std::thread::sleep(wait);
                 }
             }
-            bus.publish(&m.channel.topic, &m.data)?;
-            n += 1;
+            match bus.publish(m.topic, m.data) {
+                Ok(()) => n += 1,
+                Err(e) => failed = Some(e),
+            }
+        })
+        .with_context(|| format!("reading {}", seg.display()))?;
+        if let Some(e) = failed {
+            return Err(e).context("publishing a recorded message");
+        }
+        if let Some(why) = stopped {
+            tracing::warn!(segment = %seg.display(), reason = %why, "the segment ends early; replayed what came before");
         }
     }
     println!(

@@ -184,18 +184,8 @@ impl Modes {
     }
 }
 
-/// sin(x)/x, the shell average of e^{ik·r} for |k| r = x ≥ 0 (its series below 0.5,
-/// where the first term left out is below 1e-8).
-fn sinc(x: f64) -> f64 {
-    if x < 0.5 {
-        let x2 = x * x;
-        1.0 - x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0))
-    } else {
-        x.sin() / x
-    }
-}
-
-/// Nodes per unit of x in [`SincTable`].
+/// sin(x)/x is the shell average of e^{ik·r} for |k| r = x ≥ 0. Nodes per unit of x in
+/// [`SincTable`].
 const SINC_PER_UNIT: f64 = 64.0;
 /// [`SincTable`] covers x in [0, this); beyond it sin(x)/x is evaluated.
 const SINC_TABLE_MAX: f64 = 64.0;

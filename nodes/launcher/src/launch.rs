@@ -997,7 +997,6 @@ mod tests {
             zenoh_listen: vec![],
             zenoh_connect: vec![],
             zenoh_endpoint_file: None,
-            zenoh_endpoint_file: None,
             co_nodes: vec![],
             host: None,
             out_dir: out.to_path_buf(),

@@ -449,6 +449,7 @@ mod tests {
             transport: "inproc".into(),
             zenoh_listen: vec![],
             zenoh_connect: vec![],
+            zenoh_endpoint_file: None,
             host: None,
             out_dir: out.clone(),
             start_step: 0,

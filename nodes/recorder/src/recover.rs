@@ -17,41 +17,7 @@ pub struct Inspection {
     pub damage: Option<String>,
 }
 
-/// The largest record (or chunk, compressed or not) `inspect` reads; a larger length in a
-/// file is damage, not an allocation (a full state of 3 × 10⁵ fibres is ≈ 0.3 GB).
-pub const RECORD_LIMIT_BYTES: usize = 1 << 30;
-
-/// Calls `f` with every record of the file in order (the records inside chunks, not the
-/// chunks), streaming it through mcap's own reader: chunks are decompressed by the crate a
-/// piece at a time and no record longer than [`RECORD_LIMIT_BYTES`] is buffered. A damaged
-/// or truncated tail ends the walk; its reason is returned (None: read to the end).
-fn for_each_record(
-    path: &Path,
-    mut f: impl FnMut(mcap::records::Record<'_>),
-) -> Result<Option<String>, std::io::Error> {
-    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    use std::io::Read;
-    let mut file = std::fs::File::open(path)?;
-    let mut reader = LinearReader::new_with_options(
-        LinearReaderOptions::default().with_record_length_limit(RECORD_LIMIT_BYTES),
-    );
-    while let Some(event) = reader.next_event() {
-        match event {
-            Ok(LinearReadEvent::ReadRequest(need)) => {
-                let read = file.read(reader.insert(need))?;
-                reader.notify_read(read);
-            }
-            Ok(LinearReadEvent::Record { data, opcode }) => {
-                match mcap::parse_record(opcode, data) {
-                    Ok(r) => f(r),
-                    Err(e) => return Ok(Some(e.to_string())),
-                }
-            }
-            Err(e) => return Ok(Some(e.to_string())),
-        }
-    }
-    Ok(None)
-}
+pub use fiberflow_messages::reading::{for_each_record, RECORD_LIMIT_BYTES};
 
 /// Reads every record in order ([`for_each_record`]: streamed, bounded), tolerating a
 /// truncated or damaged tail.
@@ -64,25 +30,13 @@ pub fn inspect(path: &Path) -> Result<Inspection, std::io::Error> {
     Ok(out)
 }
 
-/// Calls `f(topic, payload)` for every message of the file in order ([`for_each_record`]:
-/// streamed, no whole-file read); returns why reading stopped early, if it did.
+/// Calls `f(topic, payload)` for every message of the file in order (streamed,
+/// `fiberflow_messages::reading`); returns why reading stopped early, if it did.
 pub fn for_each_message(
     path: &Path,
     mut f: impl FnMut(&str, &[u8]),
 ) -> Result<Option<String>, std::io::Error> {
-    use mcap::records::Record;
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
-    for_each_record(path, |r| match r {
-        Record::Channel(c) => {
-            topics.insert(c.id, c.topic.clone());
-        }
-        Record::Message { header, data } => {
-            if let Some(t) = topics.get(&header.channel_id) {
-                f(t, &data);
-            }
-        }
-        _ => {}
-    })
+    fiberflow_messages::reading::for_each_message(path, |m| f(m.topic, m.data))
 }
 
 /// True if the file ends with an MCAP footer record and the closing magic: its writer

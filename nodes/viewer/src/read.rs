@@ -29,14 +29,13 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
     let mut states = Tiles::default();
     let mut metrics = Tiles::default();
     for seg in &segs {
-        let bytes = std::fs::read(seg).map_err(|e| read_err(seg, e.to_string()))?;
-        let stream = mcap::MessageStream::new(&bytes).map_err(|e| read_err(seg, e.to_string()))?;
-        // a recording cut short by a killed recorder ends early; what came before is used
-        for m in stream.map_while(Result::ok) {
-            let topic = m.channel.topic.as_str();
+        // streamed a chunk at a time; a recording cut short by a killed recorder ends
+        // early, and what came before is used
+        fiberflow_messages::reading::for_each_message(seg, |m| {
+            let topic = m.topic;
             match fiberflow_messages::topics::type_of(topic) {
                 Some("fiberflow_msgs/msg/FiberGroupState") => {
-                    if let Ok(s) = decode::<FiberGroupState>(&m.data) {
+                    if let Ok(s) = decode::<FiberGroupState>(m.data) {
                         if s.check().is_ok() && !s.is_lean() {
                             if let Some(whole) = states.add_slice(s) {
                                 f(Item::State(whole));
@@ -45,7 +44,7 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
                     }
                 }
                 Some("fiberflow_msgs/msg/FiberGroupMetrics") => {
-                    if let Ok(s) = decode::<FiberGroupMetrics>(&m.data) {
+                    if let Ok(s) = decode::<FiberGroupMetrics>(m.data) {
                         if s.check().is_ok() {
                             if let Some(whole) = metrics.add_slice(s) {
                                 f(Item::Metrics(whole));
@@ -54,14 +53,14 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
                     }
                 }
                 Some("fiberflow_msgs/msg/RunAnnouncement") => {
-                    if let Ok(a) = decode::<RunAnnouncement>(&m.data) {
+                    if let Ok(a) = decode::<RunAnnouncement>(m.data) {
                         if a.check().is_ok() {
                             f(Item::Announce(a));
                         }
                     }
                 }
                 Some("fiberflow_msgs/msg/FlowSlice") => {
-                    if let Ok(s) = decode::<FlowSlice>(&m.data) {
+                    if let Ok(s) = decode::<FlowSlice>(m.data) {
                         if s.check().is_ok() {
                             f(Item::Slice(s));
                         }
@@ -69,7 +68,8 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
                 }
                 _ => {}
             }
-        }
+        })
+        .map_err(|e| read_err(seg, e.to_string()))?;
     }
     Ok(())
 }
