@@ -41,10 +41,15 @@ fn launch_cmd(out: &Path, transport: &str, extra: &[&str]) -> Command {
 
 /// A launch in the background with its output captured to files.
 fn spawn(out: &Path, transport: &str) -> std::process::Child {
+    spawn_with(out, transport, &[])
+}
+
+/// [`spawn`] with more arguments.
+fn spawn_with(out: &Path, transport: &str, extra: &[&str]) -> std::process::Child {
     std::fs::create_dir_all(out).unwrap();
     let so = std::fs::File::create(out.with_extension("stdout")).unwrap();
     let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
-    launch_cmd(out, transport, &[])
+    launch_cmd(out, transport, extra)
         .stdout(so)
         .stderr(se)
         .spawn()
@@ -247,6 +252,52 @@ fn killed_nodes_and_launcher_lose_nothing() {
         csv.lines().count() - 1,
         121 * 50,
         "121 states of 50 fibres, once each"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A fibre node that hangs (SIGSTOP: alive to the kernel and the launcher, silent on the
+/// bus, as a node behind a lost link or on a frozen host is) is found by its missing pulse
+/// after `run.liveness_s` (here 4 s; the step timeout is 60 s): the flow node fails the
+/// step naming it, the launcher rolls every node back to the newest checkpoint (the hung
+/// process killed with the others) and the run completes with every state bitwise that of
+/// an uninterrupted run.
+#[test]
+fn a_hung_fibre_node_is_found_by_its_silence_and_the_run_goes_on() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("hung");
+    let reference_out = dir.join("reference");
+    let o = launch_cmd(&reference_out, "zenoh", &[]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let reference = all_states(&reference_out);
+    let out = dir.join("hung");
+    let mut child = spawn_with(&out, "zenoh", &["--set", "run.liveness_s=4"]);
+    wait_for_checkpoint(&out, 90);
+    std::thread::sleep(random_delay(KILL_WITHIN_MS));
+    let spec = out.join("config/case2.toml").display().to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(pids.len(), 1, "node case2 not found");
+    unsafe { libc::kill(pids[0], libc::SIGSTOP) };
+    let st = child.wait().unwrap();
+    let err = text(out.with_extension("stderr"));
+    assert!(
+        st.success(),
+        "run with a hung case2 did not complete: {err}"
+    );
+    assert!(
+        err.contains("restarting every node from step"),
+        "the launcher must restart the run: {err}"
+    );
+    let flow_log = text(out.join("logs/flow.log"));
+    assert!(
+        flow_log.contains("fibre node(s) case2")
+            && flow_log.contains("silent for more than run.liveness_s"),
+        "the flow node must name the silent node: {flow_log}"
+    );
+    assert_same(&reference, &out, "a hung case2");
+    assert!(
+        pids_with(&out.display().to_string()).is_empty(),
+        "the hung process outlived the run"
     );
     std::fs::remove_dir_all(&dir).ok();
 }

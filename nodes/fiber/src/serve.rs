@@ -130,6 +130,15 @@ pub fn serve_many(
             s.start(a)?;
         }
     }
+    // every node of this process says it is alive once a second until it returns
+    let _pulse = crate::pulse::Pulse::start(
+        bus.clone(),
+        served
+            .iter()
+            .map(|s| (s.t.heartbeat(&s.node), s.node.clone(), s.beat.clone()))
+            .collect(),
+    )
+    .map_err(|e| FiberNodeError::Protocol(format!("starting the pulse thread: {e}")))?;
     let step_timeout = Duration::from_secs_f64(timeout_s);
     // groups large enough to step on the thread pool run a thread each: their serial
     // parts (the samples' check, the state arrays, publishing) then overlap (stepped in
@@ -269,6 +278,8 @@ struct Served {
     /// several resends fit in it) means a message was probably lost.
     longest_wait: Duration,
     cpu_from: f64,
+    /// What this node's pulse shows (`crate::pulse`).
+    beat: std::sync::Arc<crate::pulse::Beat>,
 }
 
 impl Served {
@@ -396,6 +407,7 @@ impl Served {
             timing: (0.0, 0.0, 0.0),
             longest_wait: Duration::ZERO,
             cpu_from: 0.0,
+            beat: Default::default(),
         })
     }
 
@@ -501,6 +513,11 @@ impl Served {
         timeout_s: f64,
         resend_others: &mut dyn FnMut() -> Result<usize, BusError>,
     ) -> Result<(), FiberNodeError> {
+        use std::sync::atomic::Ordering;
+        self.beat.step.store(k, Ordering::Relaxed);
+        self.beat
+            .dropped
+            .store(self.samples_in.drops.total(), Ordering::Relaxed);
         let resend_cap = (step_timeout / 4).max(RESEND_AFTER_MIN);
         let wait_from = Instant::now();
         let mut resent = false;

@@ -28,8 +28,10 @@ fn answer_waiting(
     hb_in: &mut Inbox,
     served: &Served,
     run: &RunInfo,
+    heard: &mut BTreeMap<String, Instant>,
 ) -> Result<(), FlowError> {
     while let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::ZERO) {
+        heard.insert(hb.node.clone(), Instant::now());
         if hb.state != lifecycle::WAITING {
             continue;
         }
@@ -52,6 +54,8 @@ pub(crate) struct States {
     inbox: Inbox,
     pending: BTreeMap<(String, u32), FiberGroupState>,
     spare: Vec<FiberGroupState>,
+    /// When each node was last heard from (any heartbeat: its pulse, WAITING, …).
+    heard: BTreeMap<String, Instant>,
 }
 
 impl States {
@@ -60,6 +64,7 @@ impl States {
             inbox,
             pending: BTreeMap::new(),
             spare: Vec::new(),
+            heard: BTreeMap::new(),
         }
     }
 
@@ -86,6 +91,10 @@ impl States {
     ) -> Result<(), FlowError> {
         let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
         let wait_from = Instant::now();
+        // a node not heard from yet counts as heard now: its silence is timed from here
+        for p in &run.pieces {
+            self.heard.entry(p.node()).or_insert(wait_from);
+        }
         while self.pending.len() < run.pieces.len() {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
@@ -102,7 +111,15 @@ impl States {
                     run.step_timeout_s
                 )));
             }
-            answer_waiting(bus, hb_in, served, run)?;
+            answer_waiting(bus, hb_in, served, run, &mut self.heard)?;
+            if let Some(silent) = self.silent(run) {
+                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
+                return Err(FlowError::Protocol(format!(
+                    "step {k}: fibre node(s) {silent} silent for more than run.liveness_s = {:.0} s \
+                     (no state, no heartbeat: the process hung, or its host or the link to it is gone)",
+                    run.liveness_s
+                )));
+            }
             let Some((topic, bytes)) = self.inbox.recv_raw(left.min(HEARTBEAT_POLL)) else {
                 continue;
             };
@@ -134,6 +151,30 @@ impl States {
             }
         }
         Ok(())
+    }
+
+    /// The fibre nodes whose state is awaited and that have not been heard from for longer
+    /// than `run.liveness_s` (None: all alive, or liveness off).
+    fn silent(&self, run: &RunInfo) -> Option<String> {
+        if run.liveness_s <= 0.0 {
+            return None;
+        }
+        let limit = Duration::from_secs_f64(run.liveness_s);
+        let silent: Vec<String> = run
+            .pieces
+            .iter()
+            .filter(|p| !self.pending.contains_key(&(p.group.clone(), p.first_fiber)))
+            .map(|p| p.node())
+            .filter(|n| self.heard.get(n).is_some_and(|t| t.elapsed() > limit))
+            .map(|n| {
+                let s = self
+                    .heard
+                    .get(&n)
+                    .map_or(0.0, |t| t.elapsed().as_secs_f64());
+                format!("{n} ({s:.0} s)")
+            })
+            .collect();
+        (!silent.is_empty()).then(|| silent.join(", "))
     }
 
     /// The step's states, by (group, first fibre); [`States::recycle`] takes each back
@@ -233,6 +274,7 @@ mod fuzz {
             steps: 400,
             box_plus: [942.0, 300.0, 471.0],
             step_timeout_s: 1.0,
+            liveness_s: 0.0,
             start_step: 0,
             resume_dir: None,
             checkpoint_every: 0,

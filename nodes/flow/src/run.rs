@@ -17,6 +17,10 @@ pub struct RunInfo {
     pub box_plus: [f64; 3],
     /// Seconds to wait for a group's state at one step before giving up.
     pub step_timeout_s: f64,
+    /// A fibre node not heard from (no heartbeat, no pulse) for this many seconds while
+    /// its state is awaited is gone: the step fails at once, naming it (0: only the step
+    /// timeout).
+    pub liveness_s: f64,
     /// First coupling step: 0, or the step of the checkpoint the run resumes from.
     pub start_step: u64,
     /// The checkpoint folder the run resumes from (its step is `start_step`).

@@ -27,6 +27,12 @@ pub struct RunSection {
     /// Seconds any node waits for a peer's message of one step, in (0, 3600].
     #[serde(default = "default_step_timeout")]
     pub step_timeout_s: f64,
+    /// Seconds without a word from a fibre node (every node says it is alive once a
+    /// second) after which the flow node takes it as gone — hung, or its host or link lost —
+    /// and fails the step at once, naming it, for the restart policy to handle: 0 (off:
+    /// only `step_timeout_s`) or in [3, 3600].
+    #[serde(default = "default_liveness")]
+    pub liveness_s: f64,
     /// Default transport when `--transport` is not given: `"inproc"`, `"zenoh"` or
     /// `"iceoryx2"`.
     #[serde(default = "default_transport")]
@@ -138,6 +144,9 @@ impl RunSection {
 
 fn default_step_timeout() -> f64 {
     120.0
+}
+fn default_liveness() -> f64 {
+    30.0
 }
 fn default_transport() -> String {
     "zenoh".into()
@@ -346,6 +355,12 @@ impl LaunchFile {
             bail!(
                 "run.step_timeout_s must be in (0, 3600] (got {})",
                 r.step_timeout_s
+            );
+        }
+        if !(r.liveness_s == 0.0 || (3.0..=3600.0).contains(&r.liveness_s)) {
+            bail!(
+                "run.liveness_s must be 0 (off) or in [3, 3600] (got {})",
+                r.liveness_s
             );
         }
         if !(1..=r.steps).contains(&self.recorder.states_every_steps) {
@@ -673,10 +688,12 @@ pub(crate) mod tests {
                 "fibers.g1.density_ratio=2300.0",
                 "fibers.g1.placement.per_layer=3",
                 "run.restart.max_restarts=1",
+                "run.liveness_s=0",
             ]),
         )
         .unwrap();
         assert_eq!(lf.run.steps, 400);
+        assert_eq!(lf.run.liveness_s, 0.0);
         assert_eq!(lf.run.checkpoint_every_steps(), 20);
         assert_eq!(lf.run.transport, "iceoryx2");
         assert_eq!(lf.run.restart.max_restarts, 1);
@@ -703,6 +720,10 @@ pub(crate) mod tests {
             (
                 "run.fiber_processes=99",
                 "run.fiber_processes must be in 0..=",
+            ),
+            (
+                "run.liveness_s=1",
+                "run.liveness_s must be 0 (off) or in [3, 3600]",
             ),
         ] {
             let e = format!(

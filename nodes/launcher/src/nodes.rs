@@ -182,6 +182,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 steps: lf.run.steps,
                 box_plus: lf.box_plus(),
                 step_timeout_s: lf.run.step_timeout_s,
+                liveness_s: lf.run.liveness_s,
                 start_step: spec.start_step,
                 resume_dir: spec.resume_dir.clone(),
                 checkpoint_every: lf.run.checkpoint_every_steps(),
