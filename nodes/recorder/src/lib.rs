@@ -223,12 +223,60 @@ impl RecordPlan {
     }
 }
 
-/// A step-stamped message: topic, step and first fibre (the slice of a sharded group).
-type Key = (String, u64, u32);
+/// Steps below the newest by more than this count as recorded without being remembered.
+pub const RECORDED_WINDOW_STEPS: u64 = 10_000;
+
+/// The step-stamped messages already recorded, per topic and slice (first fibre of a
+/// sharded group's piece): every step within [`RECORDED_WINDOW_STEPS`] of the newest
+/// exactly, and everything older as recorded. A topic's messages arrive in step order
+/// (a node resends only the step it waits on; a resumed run's earlier segments hold a
+/// prefix of each topic's steps), so this is the set of every recorded step for any run,
+/// while memory grows with the topics, not the steps: a set of every (topic, step) grew
+/// by ≈ 2 MB/s over a 10⁶-step run (docs/architecture.md).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Recorded {
+    by_slice: BTreeMap<(String, u32), (u64, BTreeSet<u64>)>,
+}
+
+impl Recorded {
+    /// Whether step `k` of `topic` (slice `first`) is recorded already.
+    pub fn contains(&self, topic: &str, k: u64, first: u32) -> bool {
+        self.by_slice
+            .get(&(topic.to_string(), first))
+            .is_some_and(|(newest, steps)| {
+                k.saturating_add(RECORDED_WINDOW_STEPS) < *newest || steps.contains(&k)
+            })
+    }
+
+    /// Marks step `k` recorded; false if it was already.
+    pub fn insert(&mut self, topic: &str, k: u64, first: u32) -> bool {
+        if self.contains(topic, k, first) {
+            return false;
+        }
+        let (newest, steps) = self
+            .by_slice
+            .entry((topic.to_string(), first))
+            .or_insert((k, BTreeSet::new()));
+        steps.insert(k);
+        if k > *newest {
+            *newest = k;
+            let floor = newest.saturating_sub(RECORDED_WINDOW_STEPS);
+            if steps.first().is_some_and(|&f| f < floor) {
+                *steps = steps.split_off(&floor);
+            }
+        }
+        true
+    }
+
+    /// Steps remembered exactly, over every topic and slice.
+    pub fn remembered(&self) -> usize {
+        self.by_slice.values().map(|(_, s)| s.len()).sum()
+    }
+}
 
 /// Every step-stamped message in `segments` (a damaged tail ends a file).
-pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<Key> {
-    let mut seen = BTreeSet::new();
+pub fn recorded_steps(segments: &[PathBuf]) -> Recorded {
+    let mut seen = Recorded::default();
     for p in segments {
         // streamed (recordings reach gigabytes); a damaged tail ends the file
         let _ = recover::for_each_message(p, |topic, data| {
@@ -241,7 +289,7 @@ pub fn recorded_steps(segments: &[PathBuf]) -> BTreeSet<Key> {
                 ..
             }) = sanity::check_payload(type_name, data)
             {
-                seen.insert((topic.to_string(), step, first_fiber));
+                seen.insert(topic, step, first_fiber);
             }
         });
     }
@@ -256,7 +304,7 @@ struct Session<'a> {
     drops: DropCounter,
     sim_nanos: u64,
     /// Step-stamped messages already in this or an earlier segment.
-    seen: BTreeSet<Key>,
+    seen: Recorded,
     /// Each fibre node's state of step 0 (by topic and first fibre), held until its next
     /// state: a fluid-velocity start sends step 0 twice (positions first, then with the
     /// fluid's velocity); the last wins.
@@ -362,7 +410,7 @@ impl Session<'_> {
                 }
             }
             let slice = (topic.to_string(), stamp.first_fiber);
-            if is_state && k == 0 && !self.seen.contains(&(topic.to_string(), 0, slice.1)) {
+            if is_state && k == 0 && !self.seen.contains(topic, 0, slice.1) {
                 self.held_first.insert(slice, bytes.to_vec());
                 return Ok(());
             }
@@ -429,7 +477,7 @@ impl Session<'_> {
     ) -> Result<(), RecorderError> {
         if let Some(k) = step {
             let first = st.as_ref().map_or(0, |s| s.first_fiber);
-            if !self.seen.insert((topic.to_string(), k, first)) {
+            if !self.seen.insert(topic, k, first) {
                 self.summary.already_recorded += 1;
                 return Ok(());
             }
@@ -860,6 +908,29 @@ mod tests {
             "fiberflow_msgs/msg/FiberGroupMetrics" => t.fiber_metrics(group),
             _ => t.heartbeat(group),
         }
+    }
+
+    /// The recorded steps: out of order within the window exactly as a set, older steps as
+    /// recorded, and memory bounded by the window however many steps pass.
+    #[test]
+    fn recorded_steps_are_exact_within_the_window_and_bounded() {
+        let mut r = Recorded::default();
+        assert!(!r.contains("t", 0, 0));
+        assert!(r.insert("t", 5, 0));
+        assert!(r.insert("t", 3, 0), "an older step not yet recorded");
+        assert!(!r.insert("t", 3, 0) && !r.insert("t", 5, 0));
+        assert!(!r.contains("t", 4, 0) && r.insert("t", 4, 0));
+        assert!(r.insert("t", 5, 1), "another slice");
+        assert!(r.insert("u", 5, 0), "another topic");
+        for k in 6..200_000u64 {
+            assert!(r.insert("t", k, 0));
+        }
+        assert!(
+            r.contains("t", 7, 0),
+            "far below the newest counts as recorded"
+        );
+        assert!(!r.contains("t", 200_000, 0));
+        assert!(r.remembered() <= RECORDED_WINDOW_STEPS as usize + 3);
     }
 
     /// 10^5 random messages of every type (valid CDR, random lengths and values) through
