@@ -2,7 +2,8 @@
 //! process is alive (a RUNNING heartbeat with the step it works on), whatever the node is
 //! doing — a long fibre step, a wait for samples. The flow node takes a node silent for
 //! `run.liveness_s` as gone (a hung process, a host or link that vanished) and fails the
-//! step at once, naming it, instead of waiting out the step timeout (docs/architecture.md, "Runs that survive").
+//! step at once, naming it, instead of waiting out the step timeout (docs/architecture.md,
+//! "Runs that survive").
 
 use fiberflow_bus::BusHandle;
 use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
