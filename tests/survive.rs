@@ -56,6 +56,23 @@ fn spawn_with(out: &Path, transport: &str, extra: &[&str]) -> std::process::Chil
         .expect("launch")
 }
 
+/// Sends `signal` to the process of `node` in the run in `out` (asserting it is found, one
+/// process, while `child`, the launch, still goes).
+fn signal_node(out: &Path, node: &str, child: &mut std::process::Child, signal: i32) {
+    let spec = out
+        .join(format!("config/{node}.toml"))
+        .display()
+        .to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(
+        pids.len(),
+        1,
+        "node {node} not found (run over already: {})",
+        child.try_wait().ok().flatten().is_some()
+    );
+    unsafe { libc::kill(pids[0], signal) };
+}
+
 /// The kills land this long at most after the first checkpoint (step 20), while the run
 /// still goes: the 100 steps after it took 1.47 s over iceoryx2 on this machine, and a
 /// kill 1.44 s after it found the run over.
@@ -138,18 +155,7 @@ fn killed_nodes_and_launcher_lose_nothing() {
         let mut child = spawn(&out, transport);
         wait_for_checkpoint(&out, 90);
         std::thread::sleep(random_delay(KILL_WITHIN_MS));
-        let spec = out
-            .join(format!("config/{node}.toml"))
-            .display()
-            .to_string();
-        let pids = pids_with(&spec);
-        assert_eq!(
-            pids.len(),
-            1,
-            "node {node} not found (run over already: {})",
-            child.try_wait().ok().flatten().is_some()
-        );
-        unsafe { libc::kill(pids[0], libc::SIGKILL) };
+        signal_node(&out, node, &mut child, libc::SIGKILL);
         let st = child.wait().unwrap();
         let err = text(out.with_extension("stderr"));
         assert!(
@@ -274,10 +280,7 @@ fn a_hung_fibre_node_is_found_by_its_silence_and_the_run_goes_on() {
     let mut child = spawn_with(&out, "zenoh", &["--set", "run.liveness_s=4"]);
     wait_for_checkpoint(&out, 90);
     std::thread::sleep(random_delay(KILL_WITHIN_MS));
-    let spec = out.join("config/case2.toml").display().to_string();
-    let pids = pids_with(&spec);
-    assert_eq!(pids.len(), 1, "node case2 not found");
-    unsafe { libc::kill(pids[0], libc::SIGSTOP) };
+    signal_node(&out, "case2", &mut child, libc::SIGSTOP);
     let st = child.wait().unwrap();
     let err = text(out.with_extension("stderr"));
     assert!(
