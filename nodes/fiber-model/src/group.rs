@@ -71,6 +71,11 @@ pub struct FibreGroup {
     contact: Option<ContactParams>,
     /// What contact did in the last step.
     last_contact: ContactOutcome,
+    /// With contact on: every segment's centre, axis and normal at the start of the step,
+    /// fibre-major (kept between steps for its allocation).
+    start: Vec<[Vector3<f64>; 3]>,
+    /// With contact on: the contact search's cell list, kept for its memory.
+    search: contact::Search,
 }
 
 impl FibreGroup {
@@ -145,6 +150,8 @@ impl FibreGroup {
             work: Work::default(),
             contact: None,
             last_contact: ContactOutcome::default(),
+            start: Vec::new(),
+            search: contact::Search::default(),
         }
     }
 
@@ -163,24 +170,64 @@ impl FibreGroup {
         &self.last_contact
     }
 
-    /// Resolves contact after a free step from `before` (the fibres at its start): the
+    /// Keeps every segment's centre, axis and normal before a step with contact, read in
+    /// the lane storage (in parallel from [`PARALLEL_MIN_SEGMENTS`] on).
+    fn keep_start(&mut self) {
+        let mut start = std::mem::take(&mut self.start);
+        start.resize(self.segment_count(), [Vector3::zeros(); 3]);
+        // each block's fibres are contiguous in the fibre-major order
+        let mut parts = Vec::with_capacity(self.blocks.len());
+        let mut rest = start.as_mut_slice();
+        for b in &self.blocks {
+            let first = b.index * LANES;
+            let n = self.offsets[first + b.used] - self.offsets[first];
+            let (head, tail) = std::mem::take(&mut rest).split_at_mut(n);
+            parts.push((*b, head));
+            rest = tail;
+        }
+        let (state, offsets) = (&self.state, &self.offsets);
+        let copy = |(b, out): (Block, &mut [[Vector3<f64>; 3]])| {
+            let first = b.index * LANES;
+            for l in 0..b.used {
+                let (o, len) = (
+                    offsets[first + l] - offsets[first],
+                    offsets[first + l + 1] - offsets[first + l],
+                );
+                for (i, slot) in out[o..o + len].iter_mut().enumerate() {
+                    let s = &state[b.start + i];
+                    *slot = [s.r.lane(l), s.z.lane(l), s.n.lane(l)].map(Vector3::from);
+                }
+            }
+        };
+        if self.segment_count() < PARALLEL_MIN_SEGMENTS {
+            parts.into_iter().for_each(copy);
+        } else {
+            parts.into_par_iter().for_each(copy);
+        }
+        self.start = start;
+    }
+
+    /// Resolves contact after a free step from the kept start ([`Self::keep_start`]): the
     /// fibres that touched get their corrected segments back, then the walls again (a
-    /// contact must not push a fibre through a wall).
-    fn apply_contact(&mut self, before: &[Fibre], dt: f64) {
+    /// contact must not push a fibre through a wall). Only the fibres of candidate pairs
+    /// are copied out of the lane storage.
+    fn apply_contact(&mut self, dt: f64) {
         let Some(c) = self.contact else {
             return;
         };
-        let mut after = self.fibres();
-        self.last_contact = contact::resolve(&mut after, before, &[], &c, dt);
-        let touched = self.last_contact.moved.clone();
-        for k in touched {
+        let mut search = std::mem::take(&mut self.search);
+        let (outcome, mut solved) =
+            contact::resolve_segments(&Kept { group: self }, &mut search, &[], &c, dt);
+        self.search = search;
+        for &k in &outcome.moved {
             if let Some(hh) = self.params.wall_half_height {
-                crate::step::wall_contact(&mut after[k], hh);
+                crate::step::wall_contact(&mut solved[k], hh);
             }
-            for (i, s) in after[k].segments.iter().enumerate() {
+            for (i, s) in solved[k].segments.iter().enumerate() {
                 self.set_segment(k, i, *s);
             }
         }
+        self.last_contact = outcome;
     }
 
     /// The model parameters shared by the group.
@@ -383,15 +430,15 @@ impl FibreGroup {
     /// With contact on, the fibres that touch are then corrected ([`crate::contact`]).
     pub fn step<'f>(&mut self, fluid: impl Into<Fluid<'f>>, dt: f64) -> Result<(), FibreError> {
         let fluid = fluid.into();
-        let before = self.contact.map(|_| self.fibres());
+        if self.contact.is_some() {
+            self.keep_start();
+        }
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
             self.step_here(fluid, dt, true)?;
         } else {
             self.step_parallel(fluid, dt)?;
         }
-        if let Some(before) = before {
-            self.apply_contact(&before, dt);
-        }
+        self.apply_contact(dt);
         Ok(())
     }
 
@@ -489,6 +536,44 @@ impl FibreGroup {
             use_lanes,
         };
         (ctx, &mut self.state)
+    }
+}
+
+/// A group after its free step, with the start kept by [`FibreGroup::keep_start`]: the
+/// contact search reads both where they are.
+struct Kept<'a> {
+    group: &'a FibreGroup,
+}
+
+impl contact::Segments for Kept<'_> {
+    fn offsets(&self) -> &[usize] {
+        &self.group.offsets
+    }
+    fn props(&self, k: usize, i: usize) -> &SegmentProps {
+        &self.group.props[self.group.offsets[k] + i]
+    }
+    fn start(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        let s = &self.group.start[self.group.offsets[k] + i];
+        (s[0], s[1])
+    }
+    fn end(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        let b = &self.group.blocks[k / LANES];
+        let s = &self.group.state[b.start + i];
+        let l = k % LANES;
+        (Vector3::from(s.r.lane(l)), Vector3::from(s.z.lane(l)))
+    }
+    fn start_fibre(&self, k: usize) -> Fibre {
+        let mut f = self.group.fibre(k);
+        let o = self.group.offsets[k];
+        for (i, s) in f.segments.iter_mut().enumerate() {
+            // velocities and force stay those after the step: a locked island, the one
+            // reader of the start, takes only positions and axes from it
+            [s.r, s.z, s.n] = self.group.start[o + i];
+        }
+        f
+    }
+    fn end_fibre(&self, k: usize) -> Fibre {
+        self.group.fibre(k)
     }
 }
 

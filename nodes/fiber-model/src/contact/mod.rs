@@ -32,7 +32,12 @@
 //! Not yet: contact between non-adjacent segments of one fibre (a rigid response cannot
 //! separate two points of one body; it needs the chain's own mobility).
 
+mod search;
+
 use crate::fibre::{Fibre, Segment, SegmentProps};
+pub(crate) use search::Search;
+pub(crate) use search::Segments;
+use search::Slices;
 
 /// Most rounds of solving islands and searching for the pairs their corrections made.
 const MAX_ROUNDS: usize = 8;
@@ -259,7 +264,7 @@ fn rotate_vector(v: &Vector3<f64>, phi: &Vector3<f64>) -> Vector3<f64> {
 
 /// A pair that may touch in this step.
 #[derive(Debug, Clone, Copy)]
-struct Candidate {
+pub(crate) struct Candidate {
     a: (usize, usize),
     b: (usize, usize),
     /// Shift of b's coordinates to its image nearest a.
@@ -289,344 +294,6 @@ fn image_shift(from: &Vector3<f64>, to: &Vector3<f64>, period: &[Option<f64>; 3]
     shift
 }
 
-/// A dense cell list over points: cells of side at least `cell` (fewer along a periodic
-/// direction so they tile the period), points sorted by cell (counting sort).
-struct CellList {
-    dims: [usize; 3],
-    side: [f64; 3],
-    lo: [f64; 3],
-    periodic: [bool; 3],
-    /// First entry of each cell in `order` (plus the total).
-    start: Vec<u32>,
-    order: Vec<u32>,
-}
-
-impl CellList {
-    fn new(points: &[Vector3<f64>], cell: f64, period: &[Option<f64>; 3]) -> Self {
-        // the extent of the points along each direction that is not periodic
-        let bounds: [(f64, f64); 3] = std::array::from_fn(|k| {
-            points
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
-                    (a.min(r[k]), b.max(r[k]))
-                })
-        });
-        // no smaller than holds about two points each (a sparse grid costs lookups)
-        let mut volume = 1.0;
-        for k in 0..3 {
-            let (mn, mx) = bounds[k];
-            volume *= match period[k] {
-                Some(p) => p,
-                None if mx > mn => mx - mn,
-                None => 1.0,
-            };
-        }
-        let mut cell = cell.max((2.0 * volume / points.len().max(1) as f64).cbrt());
-        loop {
-            let mut dims = [1usize; 3];
-            let mut side = [cell; 3];
-            let mut lo = [0.0; 3];
-            let mut periodic = [false; 3];
-            for k in 0..3 {
-                match period[k] {
-                    Some(p) => {
-                        dims[k] = ((p / cell).floor() as usize).max(1);
-                        side[k] = p / dims[k] as f64;
-                        periodic[k] = true;
-                    }
-                    None => {
-                        let (mn, mx) = bounds[k];
-                        lo[k] = if mn.is_finite() { mn } else { 0.0 };
-                        dims[k] = if mx.is_finite() {
-                            ((mx - lo[k]) / cell).floor() as usize + 1
-                        } else {
-                            1
-                        };
-                    }
-                }
-            }
-            // a sparse cloud spread far apart gets larger cells, not a huge grid
-            if dims.iter().product::<usize>() > 8 * points.len() + 64 {
-                cell *= 2.0;
-                continue;
-            }
-            let mut list = Self {
-                dims,
-                side,
-                lo,
-                periodic,
-                start: Vec::new(),
-                order: Vec::new(),
-            };
-            let ids: Vec<usize> = points.iter().map(|r| list.id(&list.coords(r))).collect();
-            let n = dims.iter().product::<usize>();
-            let mut start = vec![0u32; n + 1];
-            for &c in &ids {
-                start[c + 1] += 1;
-            }
-            for c in 0..n {
-                start[c + 1] += start[c];
-            }
-            let mut fill = start.clone();
-            let mut order = vec![0u32; points.len()];
-            for (i, &c) in ids.iter().enumerate() {
-                order[fill[c] as usize] = i as u32;
-                fill[c] += 1;
-            }
-            list.start = start;
-            list.order = order;
-            return list;
-        }
-    }
-
-    fn coords(&self, r: &Vector3<f64>) -> [i64; 3] {
-        std::array::from_fn(|k| {
-            let x = if self.periodic[k] {
-                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
-            } else {
-                r[k] - self.lo[k]
-            };
-            ((x / self.side[k]).floor() as i64).clamp(0, self.dims[k] as i64 - 1)
-        })
-    }
-
-    fn id(&self, c: &[i64; 3]) -> usize {
-        (c[0] as usize * self.dims[1] + c[1] as usize) * self.dims[2] + c[2] as usize
-    }
-
-    /// Offsets to the cells around a cell (itself and its 26 neighbours), each cell once:
-    /// along a periodic direction of one or two cells, −1 and +1 are the same cell.
-    fn offsets(&self) -> Vec<[i64; 3]> {
-        let along = |k: usize| -> Vec<i64> {
-            match (self.periodic[k], self.dims[k]) {
-                (true, 1) => vec![0],
-                (true, 2) => vec![0, 1],
-                _ => vec![-1, 0, 1],
-            }
-        };
-        let mut out = Vec::with_capacity(27);
-        for &dx in &along(0) {
-            for &dy in &along(1) {
-                for &dz in &along(2) {
-                    out.push([dx, dy, dz]);
-                }
-            }
-        }
-        out
-    }
-
-    /// The cell at `offset` from cell coordinates `c` (None beyond a non-periodic edge).
-    fn neighbour(&self, c: &[i64; 3], offset: &[i64; 3]) -> Option<usize> {
-        let mut n = [0i64; 3];
-        for k in 0..3 {
-            // offsets are −1, 0 or +1: one wrap at most
-            let m = self.dims[k] as i64;
-            n[k] = c[k] + offset[k];
-            if n[k] < 0 || n[k] >= m {
-                if !self.periodic[k] {
-                    return None;
-                }
-                n[k] -= n[k].signum() * m;
-            }
-        }
-        Some(self.id(&n))
-    }
-}
-
-/// A segment in the cell list's order, with what the first test of a pair reads.
-#[derive(Debug, Clone, Copy)]
-struct Entry {
-    centre: Vector3<f64>,
-    shift: Vector3<f64>,
-    turn: f64,
-    half_length: f64,
-    radius: f64,
-    /// Fibre-major index, and the fibre.
-    index: usize,
-    fibre: usize,
-}
-
-/// Pairs of segments of different fibres that may come within their contact distance in
-/// the step, in (fibre, segment) order: those whose centre-lines were within reach + skin
-/// at the start, the skin bounding how much closer any two of their points came in the
-/// step (`moves`). Found with a cell list over the segments' mid-step centres.
-/// With `movers`, only pairs with a segment of a fibre marked in it (the cells around
-/// those fibres are the only ones visited).
-fn candidates(
-    before: &[Fibre],
-    moves: &[Move],
-    period: &[Option<f64>; 3],
-    movers: Option<&[bool]>,
-) -> Vec<Candidate> {
-    let mut segs = Vec::new();
-    let mut centres = Vec::new();
-    let (mut longest, mut widest) = (0.0_f64, 0.0_f64);
-    for (k, f) in before.iter().enumerate() {
-        for (i, p) in f.props.iter().enumerate() {
-            longest = longest.max(p.shape.length);
-            widest = widest.max(p.shape.diameter);
-            segs.push((k, i));
-            centres.push(f.segments[i].r);
-        }
-    }
-    // two segments that touch in the step have mid-step centres within
-    // (l_a + l_b)/2 + D + |Δr_a − Δr_b|/2 + (turn_a + turn_b), and |Δr_a − Δr_b|/2 is at
-    // most the largest deviation of a displacement from the mean one
-    let n = moves.len().max(1) as f64;
-    let mean = moves.iter().fold(Vector3::zeros(), |acc, m| acc + m.shift) / n;
-    let deviation = moves
-        .iter()
-        .map(|m| (m.shift - mean).norm())
-        .fold(0.0, f64::max);
-    let turn = moves.iter().map(|m| m.turn).fold(0.0, f64::max);
-    let mids: Vec<Vector3<f64>> = centres
-        .iter()
-        .zip(moves)
-        .map(|(r, m)| r + m.shift * 0.5)
-        .collect();
-    let cells = CellList::new(&mids, longest + widest + deviation + 2.0 * turn, period);
-    let offsets = cells.offsets();
-    // the segments in cell order, with what the first test needs, so neighbouring work
-    // reads neighbouring memory
-    let sorted: Vec<Entry> = cells
-        .order
-        .iter()
-        .map(|&g| {
-            let g = g as usize;
-            let (k, i) = segs[g];
-            let p = &before[k].props[i];
-            Entry {
-                centre: centres[g],
-                shift: moves[g].shift,
-                turn: moves[g].turn,
-                half_length: 0.5 * p.shape.length,
-                radius: 0.5 * p.shape.diameter,
-                index: g,
-                fibre: k,
-            }
-        })
-        .collect();
-    let ncells = cells.start.len() - 1;
-    // with movers: the cells holding a mover's segment and their neighbours
-    let visit: Option<Vec<bool>> = movers.map(|m| {
-        let mut v = vec![false; ncells];
-        for (g, &(k, _)) in segs.iter().enumerate() {
-            if m.get(k).copied().unwrap_or(false) {
-                let c = cells.coords(&mids[g]);
-                for off in &offsets {
-                    if let Some(nc) = cells.neighbour(&c, off) {
-                        v[nc] = true;
-                    }
-                }
-            }
-        }
-        v
-    });
-    let is_mover = |k: usize| movers.is_none_or(|m| m.get(k).copied().unwrap_or(false));
-    let widest_limit = longest + widest + 2.0 * (deviation + turn);
-    let per_cell = |cell: usize| -> Vec<Candidate> {
-        let mut out = Vec::new();
-        let slots = cells.start[cell] as usize..cells.start[cell + 1] as usize;
-        if slots.is_empty() {
-            return out;
-        }
-        let c = cells.coords(&mids[sorted[slots.start].index]);
-        for slot in slots {
-            let ea = &sorted[slot];
-            for off in &offsets {
-                let Some(nc) = cells.neighbour(&c, off) else {
-                    continue;
-                };
-                for eb in &sorted[cells.start[nc] as usize..cells.start[nc + 1] as usize] {
-                    if eb.index <= ea.index || eb.fibre == ea.fibre {
-                        continue;
-                    }
-                    if !is_mover(ea.fibre) && !is_mover(eb.fibre) {
-                        continue;
-                    }
-                    let shift = image_shift(&ea.centre, &eb.centre, period);
-                    let between = eb.centre + shift - ea.centre;
-                    // first against the largest limit any pair has (no square root)
-                    if between.dot(&between) >= widest_limit * widest_limit {
-                        continue;
-                    }
-                    let skin = (ea.shift - eb.shift).norm() + ea.turn + eb.turn;
-                    let limit = ea.half_length + eb.half_length + ea.radius + eb.radius + skin;
-                    if between.dot(&between) >= limit * limit {
-                        continue;
-                    }
-                    let (ka, ia) = segs[ea.index];
-                    let (kb, ib) = segs[eb.index];
-                    let (fa, fb) = (&before[ka], &before[kb]);
-                    let reach = ea.radius + eb.radius;
-                    let (pa0, pa1) = ends(fa, ia);
-                    let (qb0, qb1) = ends(fb, ib);
-                    let (qb0, qb1) = (qb0 + shift, qb1 + shift);
-                    let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
-                    let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
-                    let dist = v.norm();
-                    if dist >= reach + skin {
-                        continue;
-                    }
-                    let normal0 = if dist > 1e-12 * reach {
-                        v / dist
-                    } else {
-                        // centre-lines meeting at the start: any direction across both axes
-                        let z = fa.segments[ia].z.cross(&fb.segments[ib].z);
-                        if z.norm() > 1e-12 {
-                            z.normalize()
-                        } else {
-                            Vector3::y()
-                        }
-                    };
-                    out.push(Candidate {
-                        a: (ka, ia),
-                        b: (kb, ib),
-                        shift,
-                        normal0,
-                        reach,
-                        impulse: Vector3::zeros(),
-                        at: None,
-                    });
-                }
-            }
-        }
-        out
-    };
-    let mut out: Vec<Candidate> = (0..ncells)
-        .into_par_iter()
-        .with_min_len(256)
-        .filter(|&c| visit.as_ref().is_none_or(|v| v[c]))
-        .map(per_cell)
-        .flatten_iter()
-        .collect();
-    // the pairs are unique, so this order is the same whatever the threads did
-    out.par_sort_unstable_by_key(|c| (c.a, c.b));
-    out
-}
-
-/// How a segment moved in the step: its centre's displacement, and the most any of its
-/// points moved relative to the centre (h |Δẑ|).
-#[derive(Debug, Clone, Copy, Default)]
-struct Move {
-    shift: Vector3<f64>,
-    turn: f64,
-}
-
-/// Every segment's [`Move`] between `before` and `after`, fibre-major.
-fn moves(before: &[Fibre], after: &[Fibre]) -> Vec<Move> {
-    let mut m = Vec::new();
-    for (fb, fa) in before.iter().zip(after) {
-        for ((sb, sa), p) in fb.segments.iter().zip(&fa.segments).zip(&fa.props) {
-            m.push(Move {
-                shift: sa.r - sb.r,
-                turn: 0.5 * p.shape.length * (sa.z - sb.z).norm(),
-            });
-        }
-    }
-    m
-}
-
 /// Pairs of segments of different fibres whose centre-lines are closer than their contact
 /// distance (d_a + d_b)/2: (fibre a, segment, fibre b, segment, distance), a before b. A
 /// suspension with contact must start without any.
@@ -651,22 +318,16 @@ pub fn touching(
         .flat_map(|f| f.props.iter())
         .map(|p| p.shape.diameter)
         .fold(0.0, f64::max);
-    let still = Move {
-        shift: Vector3::zeros(),
-        turn: 0.5 * tolerance * widest,
-    };
-    candidates(
-        fibres,
-        &vec![still; fibres.iter().map(Fibre::len).sum()],
-        period,
-        None,
-    )
-    .iter()
-    .filter_map(|c| {
-        let distance = geometry(fibres, c).2 + c.reach;
-        (distance < c.reach * (1.0 + tolerance)).then_some((c.a.0, c.a.1, c.b.0, c.b.1, distance))
-    })
-    .collect()
+    let segments = Slices::new(fibres, fibres);
+    Search::new(&segments, period, 0.5 * tolerance * widest)
+        .pairs()
+        .iter()
+        .filter_map(|c| {
+            let distance = geometry(fibres, c).2 + c.reach;
+            (distance < c.reach * (1.0 + tolerance))
+                .then_some((c.a.0, c.a.1, c.b.0, c.b.1, distance))
+        })
+        .collect()
 }
 
 /// The state of a candidate at the end of the free step: contact point, normal (on a's
@@ -1094,22 +755,64 @@ pub fn resolve(
     params: &ContactParams,
     dt: f64,
 ) -> Outcome {
-    let moved = moves(before, fibres);
-    let mut cands = candidates(before, &moved, &params.period, None);
+    let mut search = Search::default();
+    let (outcome, solved) =
+        resolve_segments(&Slices::new(before, fibres), &mut search, fixed, params, dt);
+    for &k in &outcome.moved {
+        fibres[k] = solved[k].clone();
+    }
+    outcome
+}
+
+/// [`resolve`] on segments read where they are kept: only the fibres of candidate pairs
+/// are copied out; `search` keeps its memory from step to step. Returns what it did and,
+/// at the indices of `Outcome::moved`, the corrected fibres (every other entry is empty
+/// or unchanged).
+pub(crate) fn resolve_segments<S: Segments>(
+    s: &S,
+    search: &mut Search,
+    fixed: &[bool],
+    params: &ContactParams,
+    dt: f64,
+) -> (Outcome, Vec<Fibre>) {
+    let n = s.offsets().len().saturating_sub(1);
+    search.rebuild(s, &params.period, 0.0);
+    let mut cands = search.pairs();
+    // the fibres the solve reads, copied out as pairs name them
+    let empty = Fibre {
+        segments: Vec::new(),
+        props: Vec::new(),
+        density: 0.0,
+    };
+    let mut fibres = vec![empty.clone(); n];
+    let mut before = vec![empty; n];
+    let mut loaded = vec![false; n];
+    let mut load = |cands: &[Candidate], fibres: &mut [Fibre], before: &mut [Fibre]| {
+        for c in cands {
+            for k in [c.a.0, c.b.0] {
+                if !loaded[k] {
+                    loaded[k] = true;
+                    fibres[k] = s.end_fibre(k);
+                    before[k] = s.start_fibre(k);
+                }
+            }
+        }
+    };
+    load(&cands, &mut fibres, &mut before);
     let mut outcome = Outcome {
         candidates: cands.len(),
         worst_gap: f64::INFINITY,
         ..Default::default()
     };
-    let mut moved_fibres = vec![false; fibres.len()];
-    let mut locked = vec![false; fibres.len()];
+    let mut moved_fibres = vec![false; n];
+    let mut locked = vec![false; n];
     for _round in 0..MAX_ROUNDS {
         // the pairs that overlap now or have pushed in this step, and the islands of
         // fibres they join (a floc, not every fibre within reach of another)
         let gaps: Vec<f64> = cands
             .par_iter()
             .with_min_len(1024)
-            .map(|c| geometry(fibres, c).2 / c.reach)
+            .map(|c| geometry(&fibres, c).2 / c.reach)
             .collect();
         if gaps.iter().all(|&g| g >= -1e-6) {
             break;
@@ -1120,20 +823,20 @@ pub fn resolve(
             .map(|(c, &g)| g < -1e-6 || c.impulse != Vector3::zeros())
             .collect();
         // islands are independent: solved in parallel, written back in order
-        let isl = islands(fibres.len(), &cands, &live);
+        let isl = islands(n, &cands, &live);
         let solved: Vec<Solved> = isl
             .par_iter()
-            .map(|i| solve_island(fibres, before, &cands, i, fixed, params, dt))
+            .map(|i| solve_island(&fibres, &before, &cands, i, fixed, params, dt))
             .collect();
         let mut changed = false;
-        let mut round_moved = vec![false; fibres.len()];
+        let mut round_moved = Vec::new();
         for (i, s) in isl.iter().zip(solved) {
             outcome.sweeps = outcome.sweeps.max(s.sweeps);
             changed |= s.applied > 0 || s.locked;
             for (&k, f) in i.fibres.iter().zip(s.fibres) {
                 if s.applied > 0 || s.locked {
                     moved_fibres[k] = true;
-                    round_moved[k] = true;
+                    round_moved.push(k);
                 }
                 locked[k] |= s.locked;
                 fibres[k] = f;
@@ -1147,24 +850,25 @@ pub fn resolve(
         }
         // the corrections moved fibres: pairs they pushed together that were not
         // candidates join (their side is where they are now)
-        let still = vec![Move::default(); moved.len()];
-        let fresh: Vec<Candidate> = candidates(fibres, &still, &params.period, Some(&round_moved))
+        round_moved.sort_unstable();
+        let fresh: Vec<Candidate> = search
+            .around(s, &fibres, &moved_fibres, &round_moved)
             .into_iter()
-            .filter(|c| geometry(fibres, c).2 < -1e-6 * c.reach)
             .filter(|c| {
                 cands
                     .binary_search_by_key(&(c.a, c.b), |x| (x.a, x.b))
                     .is_err()
             })
             .collect();
+        load(&fresh, &mut fibres, &mut before);
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
     }
-    outcome.moved = (0..fibres.len()).filter(|&k| moved_fibres[k]).collect();
-    outcome.locked = (0..fibres.len()).filter(|&k| locked[k]).collect();
+    outcome.moved = (0..n).filter(|&k| moved_fibres[k]).collect();
+    outcome.locked = (0..n).filter(|&k| locked[k]).collect();
     outcome.candidates = cands.len();
     for c in &cands {
-        let (point, _, gap) = geometry(fibres, c);
+        let (point, _, gap) = geometry(&fibres, c);
         outcome.worst_gap = outcome.worst_gap.min(gap);
         if c.impulse != Vector3::zeros() {
             outcome.contacts.push(Contact {
@@ -1176,7 +880,7 @@ pub fn resolve(
             });
         }
     }
-    outcome
+    (outcome, fibres)
 }
 
 #[cfg(test)]
@@ -1651,7 +1355,7 @@ mod tests {
     /// no centre-lines end closer than 0.99 d.
     #[test]
     fn a_fibre_pinched_in_a_coil_locks_its_island() {
-        let text = include_str!("testdata/pinched-island.txt");
+        let text = include_str!("../testdata/pinched-island.txt");
         let mut lines = text.lines();
         let hx = |s: &str| f64::from_bits(u64::from_str_radix(s, 16).unwrap());
         let head: Vec<&str> = lines.next().unwrap().split_whitespace().collect();

@@ -1,0 +1,1000 @@
+//! Which pairs of segments may touch: a cell list over every segment's mid-step centre,
+//! built once per step and asked again, after each round of corrections, only around the
+//! fibres that moved.
+//!
+//! The cost grows with the segments (one pass to place them, one to sort them by cell)
+//! and with the pairs near each other, not with the fibres a step's contacts touch: the
+//! solve copies out only the fibres of its candidate pairs ([`super::resolve_segments`]).
+
+use super::{closest_points, image_shift, Candidate};
+use crate::fibre::{Fibre, SegmentProps};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+/// The segments of a suspension as the contact step reads them, at the start of the step
+/// and after its free step, fibre by fibre.
+pub(crate) trait Segments: Sync {
+    /// First flat (fibre-major) index of each fibre's segments, plus the total.
+    fn offsets(&self) -> &[usize];
+    /// Properties of segment `i` of fibre `k`.
+    fn props(&self, k: usize, i: usize) -> &SegmentProps;
+    /// Centre and axis of segment `i` of fibre `k` at the start of the step.
+    fn start(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>);
+    /// Centre and axis of segment `i` of fibre `k` after the free step.
+    fn end(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>);
+    /// Fibre `k` at the start of the step (centres, axes and normals are what the solve
+    /// reads of it).
+    fn start_fibre(&self, k: usize) -> Fibre;
+    /// Fibre `k` after the free step.
+    fn end_fibre(&self, k: usize) -> Fibre;
+}
+
+/// [`Segments`] over two slices of fibres: at the start of the step and after it.
+pub(crate) struct Slices<'a> {
+    pub before: &'a [Fibre],
+    pub after: &'a [Fibre],
+    offsets: Vec<usize>,
+}
+
+impl<'a> Slices<'a> {
+    pub(crate) fn new(before: &'a [Fibre], after: &'a [Fibre]) -> Self {
+        let mut offsets = Vec::with_capacity(after.len() + 1);
+        let mut n = 0;
+        for f in after {
+            offsets.push(n);
+            n += f.len();
+        }
+        offsets.push(n);
+        Self {
+            before,
+            after,
+            offsets,
+        }
+    }
+}
+
+impl Segments for Slices<'_> {
+    fn offsets(&self) -> &[usize] {
+        &self.offsets
+    }
+    fn props(&self, k: usize, i: usize) -> &SegmentProps {
+        &self.after[k].props[i]
+    }
+    fn start(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        let s = &self.before[k].segments[i];
+        (s.r, s.z)
+    }
+    fn end(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        let s = &self.after[k].segments[i];
+        (s.r, s.z)
+    }
+    fn start_fibre(&self, k: usize) -> Fibre {
+        self.before[k].clone()
+    }
+    fn end_fibre(&self, k: usize) -> Fibre {
+        self.after[k].clone()
+    }
+}
+
+/// A segment in the cell list's order, with what the tests of a pair read.
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    /// Centre and axis at the start of the step.
+    start: Vector3<f64>,
+    axis: Vector3<f64>,
+    /// Displacement of the centre over the free step.
+    shift: Vector3<f64>,
+    /// The most any point of the segment moved relative to its centre: h |Δẑ| (plus a pad).
+    turn: f64,
+    /// Half length and radius.
+    half: f64,
+    radius: f64,
+    fibre: u32,
+    segment: u32,
+}
+
+impl Entry {
+    /// Centre at the middle of the step (start + half the displacement).
+    fn mid(&self) -> Vector3<f64> {
+        self.start + self.shift * 0.5
+    }
+
+    fn key(&self) -> (usize, usize) {
+        (self.fibre as usize, self.segment as usize)
+    }
+}
+
+/// A dense cell list: cells of side at least `cell` (fewer along a periodic direction so
+/// they tile the period), entries sorted by cell (counting sort). Rebuilt in place, so a
+/// list kept from step to step allocates nothing once it has grown.
+#[derive(Debug, Default)]
+struct CellList {
+    dims: [usize; 3],
+    side: [f64; 3],
+    lo: [f64; 3],
+    periodic: [bool; 3],
+    /// First entry of each cell (plus the total).
+    start: Vec<u32>,
+    /// Offsets to the cells around a cell (itself and its 26 neighbours, each cell once)
+    /// and the difference of their ids away from any edge.
+    around: Vec<([i64; 3], i64)>,
+    /// Each point's cell, and the points by plane of cells (the sort's first level).
+    ids: Vec<u32>,
+    by_plane: Vec<u32>,
+}
+
+impl CellList {
+    /// Places the `n` points `point(i)` (within `bounds` along each direction) and writes
+    /// their indices in the order of the cells to `order`.
+    fn rebuild(
+        &mut self,
+        n: usize,
+        point: impl Fn(usize) -> Vector3<f64> + Sync,
+        bounds: [(f64, f64); 3],
+        cell: f64,
+        period: &[Option<f64>; 3],
+        order: &mut Vec<u32>,
+    ) {
+        let mut cell = cell.max(1e-9);
+        let (dims, side, lo, periodic) = loop {
+            let mut dims = [1usize; 3];
+            let mut side = [cell; 3];
+            let mut lo = [0.0; 3];
+            let mut periodic = [false; 3];
+            for k in 0..3 {
+                match period[k] {
+                    Some(p) => {
+                        dims[k] = ((p / cell).floor() as usize).max(1);
+                        side[k] = p / dims[k] as f64;
+                        periodic[k] = true;
+                    }
+                    None => {
+                        let (mn, mx) = bounds[k];
+                        lo[k] = if mn.is_finite() { mn } else { 0.0 };
+                        dims[k] = if mx.is_finite() {
+                            ((mx - lo[k]) / cell).floor() as usize + 1
+                        } else {
+                            1
+                        };
+                    }
+                }
+            }
+            // a sparse cloud spread far apart gets larger cells, not a huge grid
+            if dims.iter().product::<usize>() > 8 * n + 64 {
+                cell *= 2.0;
+                continue;
+            }
+            break (dims, side, lo, periodic);
+        };
+        self.dims = dims;
+        self.side = side;
+        self.lo = lo;
+        self.periodic = periodic;
+        self.around = self
+            .offsets()
+            .into_iter()
+            .map(|o| {
+                let d = (o[0] * dims[1] as i64 + o[1]) * dims[2] as i64 + o[2];
+                (o, d)
+            })
+            .collect();
+        let mut ids = std::mem::take(&mut self.ids);
+        (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|i| self.id(&self.coords(&point(i))) as u32)
+            .collect_into_vec(&mut ids);
+        // counting sort in two levels: the points by plane of cells across x (few
+        // counters), then each plane's points by cell, planes in parallel (each plane's
+        // counters and slots its own)
+        let plane = dims[1] * dims[2];
+        let cells = dims[0] * plane;
+        let mut first = vec![0usize; dims[0] + 1];
+        for &c in &ids {
+            first[c as usize / plane + 1] += 1;
+        }
+        for x in 0..dims[0] {
+            first[x + 1] += first[x];
+        }
+        let mut by_plane = std::mem::take(&mut self.by_plane);
+        by_plane.clear();
+        by_plane.resize(n, 0);
+        let mut next = first.clone();
+        for (i, &c) in ids.iter().enumerate() {
+            let x = c as usize / plane;
+            by_plane[next[x]] = i as u32;
+            next[x] += 1;
+        }
+        order.clear();
+        order.resize(n, 0);
+        let start = &mut self.start;
+        start.clear();
+        start.resize(cells + 1, 0);
+        start[cells] = n as u32;
+        let mut parts = Vec::with_capacity(dims[0]);
+        let (mut starts, mut slots) = (&mut start[..cells], order.as_mut_slice());
+        for x in 0..dims[0] {
+            let (s_head, s_tail) = std::mem::take(&mut starts).split_at_mut(plane);
+            let (o_head, o_tail) = std::mem::take(&mut slots).split_at_mut(first[x + 1] - first[x]);
+            parts.push((x, s_head, o_head));
+            starts = s_tail;
+            slots = o_tail;
+        }
+        let (id_of, members_of) = (&ids, &by_plane);
+        parts.into_par_iter().for_each(|(x, starts, slots)| {
+            let members = &members_of[first[x]..first[x + 1]];
+            let base = x * plane;
+            for &i in members {
+                starts[id_of[i as usize] as usize - base] += 1;
+            }
+            let mut sum = first[x] as u32;
+            for s in starts.iter_mut() {
+                let count = *s;
+                *s = sum;
+                sum += count;
+            }
+            // each cell's first slot, relative to the plane's, as a cursor
+            let offset = first[x] as u32;
+            let mut cursor: Vec<u32> = starts.iter().map(|&s| s - offset).collect();
+            for &i in members {
+                let c = id_of[i as usize] as usize - base;
+                slots[cursor[c] as usize] = i;
+                cursor[c] += 1;
+            }
+        });
+        self.by_plane = by_plane;
+        self.ids = ids;
+    }
+
+    fn coords(&self, r: &Vector3<f64>) -> [i64; 3] {
+        std::array::from_fn(|k| {
+            let x = if self.periodic[k] {
+                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
+            } else {
+                r[k] - self.lo[k]
+            };
+            ((x / self.side[k]).floor() as i64).clamp(0, self.dims[k] as i64 - 1)
+        })
+    }
+
+    fn id(&self, c: &[i64; 3]) -> usize {
+        (c[0] as usize * self.dims[1] + c[1] as usize) * self.dims[2] + c[2] as usize
+    }
+
+    fn coords_of(&self, id: usize) -> [i64; 3] {
+        let z = id % self.dims[2];
+        let y = (id / self.dims[2]) % self.dims[1];
+        let x = id / (self.dims[1] * self.dims[2]);
+        [x as i64, y as i64, z as i64]
+    }
+
+    /// Away from every edge: all 26 neighbours are `id + difference`.
+    fn inner(&self, c: &[i64; 3]) -> bool {
+        (0..3).all(|k| c[k] >= 1 && c[k] + 1 < self.dims[k] as i64)
+    }
+
+    /// Offsets to the cells around a cell (itself and its 26 neighbours), each cell once:
+    /// along a periodic direction of one or two cells, −1 and +1 are the same cell.
+    fn offsets(&self) -> Vec<[i64; 3]> {
+        let along = |k: usize| -> Vec<i64> {
+            match (self.periodic[k], self.dims[k]) {
+                (true, 1) => vec![0],
+                (true, 2) => vec![0, 1],
+                _ => vec![-1, 0, 1],
+            }
+        };
+        let mut out = Vec::with_capacity(27);
+        for &dx in &along(0) {
+            for &dy in &along(1) {
+                for &dz in &along(2) {
+                    out.push([dx, dy, dz]);
+                }
+            }
+        }
+        out
+    }
+
+    /// The cell at `offset` from cell coordinates `c` (None beyond a non-periodic edge).
+    fn neighbour(&self, c: &[i64; 3], offset: &[i64; 3]) -> Option<usize> {
+        let mut n = [0i64; 3];
+        for k in 0..3 {
+            // offsets are −1, 0 or +1: one wrap at most
+            let m = self.dims[k] as i64;
+            n[k] = c[k] + offset[k];
+            if n[k] < 0 || n[k] >= m {
+                if !self.periodic[k] {
+                    return None;
+                }
+                n[k] -= n[k].signum() * m;
+            }
+        }
+        Some(self.id(&n))
+    }
+
+    /// Every cell around cell `id` (itself included), each once.
+    fn cells_around(&self, id: usize, mut visit: impl FnMut(usize)) {
+        let c = self.coords_of(id);
+        if self.inner(&c) {
+            for &(_, d) in &self.around {
+                visit((id as i64 + d) as usize);
+            }
+        } else {
+            for (o, _) in &self.around {
+                if let Some(n) = self.neighbour(&c, o) {
+                    visit(n);
+                }
+            }
+        }
+    }
+
+    fn slots(&self, id: usize) -> std::ops::Range<usize> {
+        self.start[id] as usize..self.start[id + 1] as usize
+    }
+}
+
+/// A segment's centre, axis, half length and radius.
+type Pose = (Vector3<f64>, Vector3<f64>, f64, f64);
+
+/// A little slack on the necessary conditions the search tests before the exact one, so
+/// rounding in them never drops a pair the exact test would keep.
+fn slack(limit: f64) -> f64 {
+    limit * (1.0 + 1e-9) + 1e-12
+}
+
+/// The candidate pair of segments a and b (a before b in fibre-major order) from their
+/// ends and axes at the moment the pair's side is taken, if their centre-lines come within
+/// their contact distance plus `skin` (the old pairs' rule of [`Search::pairs`], the fresh
+/// ones' of [`Search::around`] with no skin).
+#[allow(clippy::too_many_arguments)]
+fn candidate(
+    a: (usize, usize),
+    b: (usize, usize),
+    (ra, za, ha, rad_a): Pose,
+    (rb, zb, hb, rad_b): Pose,
+    skin: f64,
+    period: &[Option<f64>; 3],
+) -> Option<Candidate> {
+    let reach = rad_a + rad_b;
+    let shift = image_shift(&ra, &rb, period);
+    let between = rb + shift - ra;
+    let limit = ha + hb + rad_a + rad_b + skin;
+    if between.dot(&between) >= limit * limit {
+        return None;
+    }
+    let (pa0, pa1) = (ra - za * ha, ra + za * ha);
+    let (qb0, qb1) = (rb - zb * hb + shift, rb + zb * hb + shift);
+    let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+    let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
+    let dist = v.norm();
+    if dist >= reach + skin {
+        return None;
+    }
+    let normal0 = if dist > 1e-12 * reach {
+        v / dist
+    } else {
+        // centre-lines meeting: any direction across both axes
+        let z = za.cross(&zb);
+        if z.norm() > 1e-12 {
+            z.normalize()
+        } else {
+            Vector3::y()
+        }
+    };
+    Some(Candidate {
+        a,
+        b,
+        shift,
+        normal0,
+        reach,
+        impulse: Vector3::zeros(),
+        at: None,
+    })
+}
+
+/// The candidate pair of two segments in the step ([`Search::pairs`]): segments of
+/// different fibres whose mid-step centres are close enough for them to touch at some
+/// moment of the step — within (l_a + l_b)/2 + (d_a + d_b)/2 + |Δr_a − Δr_b|/2 + turn_a +
+/// turn_b, a necessary condition — and whose centre-lines at the start are within their
+/// contact distance plus the skin |Δr_a − Δr_b| + turn_a + turn_b ([`candidate`]).
+/// `first` is a bound on the first distance that every pair's exceeds.
+fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option<Candidate> {
+    if ea.fibre == eb.fibre {
+        return None;
+    }
+    let (ea, eb) = if ea.key() < eb.key() {
+        (ea, eb)
+    } else {
+        (eb, ea)
+    };
+    let (ma, mb) = (ea.mid(), eb.mid());
+    let between = mb + image_shift(&ma, &mb, period) - ma;
+    let d2 = between.dot(&between);
+    if d2 >= first * first {
+        return None;
+    }
+    let relative = (ea.shift - eb.shift).norm();
+    let mid_limit =
+        slack(ea.half + eb.half + ea.radius + eb.radius + 0.5 * relative + ea.turn + eb.turn);
+    if d2 >= mid_limit * mid_limit {
+        return None;
+    }
+    candidate(
+        ea.key(),
+        eb.key(),
+        (ea.start, ea.axis, ea.half, ea.radius),
+        (eb.start, eb.axis, eb.half, eb.radius),
+        relative + ea.turn + eb.turn,
+        period,
+    )
+}
+
+/// The cell list of one step over every segment's mid-step centre. Kept from step to step
+/// (by the group) for its allocations; [`Search::rebuild`] places the step's segments.
+#[derive(Debug, Default)]
+pub(crate) struct Search {
+    cells: CellList,
+    /// Every segment, fibre-major, then in the order of the cells.
+    entries: Vec<Entry>,
+    sorted: Vec<Entry>,
+    order: Vec<u32>,
+    /// Centre of the box of all the step's displacements: |Δr − this| ≤ `spread` for
+    /// every segment.
+    centre_shift: Vector3<f64>,
+    spread: f64,
+    longest: f64,
+    widest: f64,
+    most_turn: f64,
+    period: [Option<f64>; 3],
+}
+
+/// Only working memory: a copy starts empty (the next step rebuilds it).
+impl Clone for Search {
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl Search {
+    /// Places every segment of `s` by its mid-step centre; `pad` is added to every
+    /// segment's turn (a skin that finds pairs within it, for [`super::touching`]).
+    pub(crate) fn new<S: Segments>(s: &S, period: &[Option<f64>; 3], pad: f64) -> Self {
+        let mut search = Self::default();
+        search.rebuild(s, period, pad);
+        search
+    }
+
+    /// [`Self::new`] in the memory of an earlier step.
+    pub(crate) fn rebuild<S: Segments>(&mut self, s: &S, period: &[Option<f64>; 3], pad: f64) {
+        let offsets = s.offsets();
+        let fibres = offsets.len().saturating_sub(1);
+        let total = offsets.last().copied().unwrap_or(0);
+        let placeholder = Entry {
+            start: Vector3::zeros(),
+            axis: Vector3::zeros(),
+            shift: Vector3::zeros(),
+            turn: 0.0,
+            half: 0.0,
+            radius: 0.0,
+            fibre: 0,
+            segment: 0,
+        };
+        self.entries.clear();
+        self.entries.resize(total, placeholder);
+        // runs of fibres, each writing its own contiguous share
+        const RUN: usize = 512;
+        let mut runs = Vec::with_capacity(fibres.div_ceil(RUN));
+        let mut rest = self.entries.as_mut_slice();
+        for first in (0..fibres).step_by(RUN) {
+            let last = (first + RUN).min(fibres);
+            let (head, tail) =
+                std::mem::take(&mut rest).split_at_mut(offsets[last] - offsets[first]);
+            runs.push((first, last, head));
+            rest = tail;
+        }
+        runs.into_par_iter().for_each(|(first, last, out)| {
+            let base = offsets[first];
+            for k in first..last {
+                for i in 0..offsets[k + 1] - offsets[k] {
+                    let (r0, z0) = s.start(k, i);
+                    let (r1, z1) = s.end(k, i);
+                    let p = s.props(k, i);
+                    let shift = r1 - r0;
+                    let half = 0.5 * p.shape.length;
+                    out[offsets[k] + i - base] = Entry {
+                        start: r0,
+                        axis: z0,
+                        shift,
+                        turn: half * (z1 - z0).norm() + pad,
+                        half,
+                        radius: 0.5 * p.shape.diameter,
+                        fibre: k as u32,
+                        segment: i as u32,
+                    };
+                }
+            }
+        });
+        #[derive(Clone, Copy)]
+        struct Extent {
+            lo: Vector3<f64>,
+            hi: Vector3<f64>,
+            mid_lo: Vector3<f64>,
+            mid_hi: Vector3<f64>,
+            half: f64,
+            radius: f64,
+            turn: f64,
+        }
+        let none = Extent {
+            lo: Vector3::repeat(f64::INFINITY),
+            hi: Vector3::repeat(f64::NEG_INFINITY),
+            mid_lo: Vector3::repeat(f64::INFINITY),
+            mid_hi: Vector3::repeat(f64::NEG_INFINITY),
+            half: 0.0,
+            radius: 0.0,
+            turn: 0.0,
+        };
+        let ext = self
+            .entries
+            .par_iter()
+            .with_min_len(4096)
+            .map(|e| Extent {
+                lo: e.shift,
+                hi: e.shift,
+                mid_lo: e.mid(),
+                mid_hi: e.mid(),
+                half: e.half,
+                radius: e.radius,
+                turn: e.turn,
+            })
+            .reduce(
+                || none,
+                |a, b| Extent {
+                    lo: a.lo.inf(&b.lo),
+                    hi: a.hi.sup(&b.hi),
+                    mid_lo: a.mid_lo.inf(&b.mid_lo),
+                    mid_hi: a.mid_hi.sup(&b.mid_hi),
+                    half: a.half.max(b.half),
+                    radius: a.radius.max(b.radius),
+                    turn: a.turn.max(b.turn),
+                },
+            );
+        (self.centre_shift, self.spread) = if total == 0 {
+            (Vector3::zeros(), 0.0)
+        } else {
+            (0.5 * (ext.lo + ext.hi), 0.5 * (ext.hi - ext.lo).norm())
+        };
+        (self.longest, self.widest, self.most_turn) = (2.0 * ext.half, 2.0 * ext.radius, ext.turn);
+        self.period = *period;
+        // two segments that touch in the step have mid-step centres within
+        // (l_a + l_b)/2 + D + |Δr_a − Δr_b|/2 + turn_a + turn_b (their closest approach is
+        // at most half their relative displacement away from the middle of the step), and
+        // |Δr_a − Δr_b|/2 ≤ spread
+        let side = self.longest + self.widest + self.spread + 2.0 * self.most_turn;
+        let entries = &self.entries;
+        let bounds = std::array::from_fn(|k| (ext.mid_lo[k], ext.mid_hi[k]));
+        self.cells.rebuild(
+            total,
+            |i| entries[i].mid(),
+            bounds,
+            slack(side),
+            period,
+            &mut self.order,
+        );
+        let (sorted, order) = (&mut self.sorted, &self.order);
+        order
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&g| entries[g as usize])
+            .collect_into_vec(sorted);
+    }
+
+    /// Every pair of segments that may come within their contact distance in the step
+    /// ([`pair`]), in (fibre, segment) order; the side each pair is on is taken at the
+    /// start. Cells are at least as wide as the largest mid-step distance of a pair, so
+    /// a pair's cells are neighbours (test
+    /// `the_cell_list_finds_every_pair_the_exact_test_keeps`).
+    pub(crate) fn pairs(&self) -> Vec<Candidate> {
+        let first = slack(self.longest + self.widest + self.spread + 2.0 * self.most_turn);
+        let cells = &self.cells;
+        let sorted = &self.sorted;
+        let period = &self.period;
+        let test = |ea: &Entry, eb: &Entry, out: &mut Vec<Candidate>| {
+            out.extend(pair(ea, eb, first, period));
+        };
+        let [nx, ny, nz] = cells.dims;
+        let start = &cells.start;
+        let at = |x: usize, y: usize, z: usize| (x * ny + y) * nz + z;
+        // one plane of cells across x at a time: away from the edges, the cells after a
+        // cell in id order among its neighbours are the rest of its own column along z
+        // (its next cell) and three cells of four neighbouring columns, contiguous in
+        // the sorted entries; at an edge every neighbour is looked up
+        let plane = |x: usize| -> Vec<Candidate> {
+            let mut out = Vec::new();
+            for y in 0..ny {
+                for z in 0..nz {
+                    let id = at(x, y, z);
+                    let here = start[id] as usize..start[id + 1] as usize;
+                    if here.is_empty() {
+                        continue;
+                    }
+                    let inner =
+                        x >= 1 && x + 1 < nx && y >= 1 && y + 1 < ny && z >= 1 && z + 1 < nz;
+                    if inner {
+                        let next = start[id + 2] as usize;
+                        for a in here.clone() {
+                            for b in a + 1..next {
+                                test(&sorted[a], &sorted[b], &mut out);
+                            }
+                        }
+                        for (cx, cy) in [(x, y + 1), (x + 1, y - 1), (x + 1, y), (x + 1, y + 1)] {
+                            let column = at(cx, cy, z);
+                            let range = start[column - 1] as usize..start[column + 2] as usize;
+                            for a in here.clone() {
+                                for b in range.clone() {
+                                    test(&sorted[a], &sorted[b], &mut out);
+                                }
+                            }
+                        }
+                    } else {
+                        cells.cells_around(id, |n| {
+                            // each pair of cells once, and each pair within a cell once
+                            if n < id {
+                                return;
+                            }
+                            for a in here.clone() {
+                                let from = if n == id { a + 1 } else { start[n] as usize };
+                                for b in from..start[n + 1] as usize {
+                                    test(&sorted[a], &sorted[b], &mut out);
+                                }
+                            }
+                        });
+                    }
+                }
+            }
+            out
+        };
+        let mut out: Vec<Candidate> = (0..nx).into_par_iter().flat_map_iter(plane).collect();
+        // the pairs are unique, so this order is the same whatever the threads did
+        out.par_sort_unstable_by_key(|c| (c.a, c.b));
+        out
+    }
+
+    /// Pairs with a segment of a fibre in `moved` (ascending) that overlap now: closer
+    /// than their contact distance by more than 10⁻⁶ of it, their side taken where they
+    /// are, in (fibre, segment) order, each once. `fibres` holds the fibres the solve has
+    /// corrected (`corrected[k]`), every other fibre is where the free step left it.
+    pub(crate) fn around<S: Segments>(
+        &self,
+        s: &S,
+        fibres: &[Fibre],
+        corrected: &[bool],
+        moved: &[usize],
+    ) -> Vec<Candidate> {
+        let period = &self.period;
+        // the corrected fibres' segments where they are now, in their own small list
+        let here: Vec<(usize, usize)> = (0..fibres.len())
+            .filter(|&k| corrected[k])
+            .flat_map(|k| (0..fibres[k].len()).map(move |i| (k, i)))
+            .collect();
+        let centres: Vec<Vector3<f64>> =
+            here.iter().map(|&(k, i)| fibres[k].segments[i].r).collect();
+        let mut near = CellList::default();
+        let mut order = Vec::new();
+        let bounds = std::array::from_fn(|k| {
+            centres
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), r| {
+                    (a.min(r[k]), b.max(r[k]))
+                })
+        });
+        near.rebuild(
+            centres.len(),
+            |i| centres[i],
+            bounds,
+            slack(self.longest + self.widest),
+            period,
+            &mut order,
+        );
+        let overlap = |a: (usize, usize), b: (usize, usize), pa: Pose, pb: Pose| {
+            let (a, b, pa, pb) = if a < b {
+                (a, b, pa, pb)
+            } else {
+                (b, a, pb, pa)
+            };
+            let c = candidate(a, b, pa, pb, 0.0, period)?;
+            let reach = c.reach;
+            let (pa0, pa1) = (pa.0 - pa.1 * pa.2, pa.0 + pa.1 * pa.2);
+            let (qb0, qb1) = (pb.0 - pb.1 * pb.2 + c.shift, pb.0 + pb.1 * pb.2 + c.shift);
+            let (u, v) = closest_points(&pa0, &pa1, &qb0, &qb1);
+            let gap = ((pa0 + (pa1 - pa0) * u) - (qb0 + (qb1 - qb0) * v)).norm() - reach;
+            (gap < -1e-6 * reach).then_some(c)
+        };
+        let mut out: Vec<Candidate> = moved
+            .par_iter()
+            .flat_map_iter(|&q| {
+                let f = &fibres[q];
+                let mut found = Vec::new();
+                for (i, (sq, pq)) in f.segments.iter().zip(&f.props).enumerate() {
+                    let (hq, rq) = (0.5 * pq.shape.length, 0.5 * pq.shape.diameter);
+                    let pose_q = (sq.r, sq.z, hq, rq);
+                    // fibres the solve has not touched: in the step's list by their
+                    // mid-step centre, which is within `spread` of where they are now
+                    // once the mean displacement's half is taken off
+                    let x = sq.r - self.centre_shift * 0.5;
+                    let id = self.cells.id(&self.cells.coords(&x));
+                    self.cells.cells_around(id, |n| {
+                        for e in &self.sorted[self.cells.slots(n)] {
+                            let kb = e.fibre as usize;
+                            if kb == q || corrected[kb] {
+                                continue;
+                            }
+                            let mid = e.mid();
+                            let d = mid + image_shift(&x, &mid, period) - x;
+                            let limit = slack(
+                                hq + e.half
+                                    + rq
+                                    + e.radius
+                                    + 0.5 * (e.shift - self.centre_shift).norm(),
+                            );
+                            if d.dot(&d) >= limit * limit {
+                                continue;
+                            }
+                            let (rb, zb) = s.end(kb, e.segment as usize);
+                            found.extend(overlap(
+                                (q, i),
+                                e.key(),
+                                pose_q,
+                                (rb, zb, e.half, e.radius),
+                            ));
+                        }
+                    });
+                    // the corrected fibres where they are now
+                    if here.is_empty() {
+                        continue;
+                    }
+                    let id = near.id(&near.coords(&sq.r));
+                    near.cells_around(id, |n| {
+                        for &j in &order[near.slots(n)] {
+                            let (kb, ib) = here[j as usize];
+                            if kb == q {
+                                continue;
+                            }
+                            let sb = &fibres[kb].segments[ib];
+                            let pb = &fibres[kb].props[ib];
+                            found.extend(overlap(
+                                (q, i),
+                                (kb, ib),
+                                pose_q,
+                                (sb.r, sb.z, 0.5 * pb.shape.length, 0.5 * pb.shape.diameter),
+                            ));
+                        }
+                    });
+                }
+                found
+            })
+            .collect();
+        out.par_sort_unstable_by_key(|c| (c.a, c.b));
+        out.dedup_by_key(|c| (c.a, c.b));
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contact::geometry;
+
+    /// A small deterministic generator (xorshift64*), uniform in [0, 1).
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn vector(&mut self, scale: f64) -> Vector3<f64> {
+            Vector3::new(self.next() - 0.5, self.next() - 0.5, self.next() - 0.5) * 2.0 * scale
+        }
+    }
+
+    const PERIOD: [Option<f64>; 3] = [Some(24.0), None, Some(18.0)];
+
+    /// 60 seven-segment fibres (l = 3, d = 0.8) at random in a box periodic in x and z, and
+    /// the same fibres after a step: most moved by up to 0.3, every tenth by up to 4 (a
+    /// large spread of displacements), each segment jittered and turned (bending).
+    fn start_and_end(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
+        let mut rng = Rng(seed);
+        let mut before = Vec::new();
+        let mut after = Vec::new();
+        for k in 0..60 {
+            let centre = Vector3::new(
+                24.0 * rng.next(),
+                12.0 * rng.next() - 6.0,
+                18.0 * rng.next(),
+            );
+            let axis = rng.vector(1.0).normalize();
+            let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
+            let mut g = f.clone();
+            let shift = rng.vector(if k % 10 == 0 { 4.0 } else { 0.3 });
+            for s in g.segments.iter_mut() {
+                s.r += shift + rng.vector(0.05);
+                s.z = (s.z + rng.vector(0.1)).normalize();
+            }
+            before.push(f);
+            after.push(g);
+        }
+        (before, after)
+    }
+
+    fn same(a: &[Candidate], b: &[Candidate]) -> bool {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| {
+                x.a == y.a
+                    && x.b == y.b
+                    && x.shift == y.shift
+                    && x.normal0 == y.normal0
+                    && x.reach.to_bits() == y.reach.to_bits()
+            })
+    }
+
+    /// Every pair of segments of different fibres by [`pair`] alone (no cell list).
+    fn all_pairs(search: &Search) -> Vec<Candidate> {
+        let e = &search.entries;
+        let mut out = Vec::new();
+        for (n, ea) in e.iter().enumerate() {
+            for eb in &e[n + 1..] {
+                out.extend(pair(ea, eb, f64::INFINITY, &PERIOD));
+            }
+        }
+        out
+    }
+
+    /// Every pair of segments of different fibres whose centre-lines overlap now.
+    fn all_overlaps(now: &[Fibre]) -> Vec<Candidate> {
+        let segs: Vec<(usize, usize)> = (0..now.len())
+            .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
+            .collect();
+        let pose = |k: usize, i: usize| {
+            let (s, p) = (&now[k].segments[i], &now[k].props[i]);
+            (s.r, s.z, 0.5 * p.shape.length, 0.5 * p.shape.diameter)
+        };
+        let mut out = Vec::new();
+        for (n, &(ka, ia)) in segs.iter().enumerate() {
+            for &(kb, ib) in &segs[n + 1..] {
+                if ka != kb {
+                    out.extend(candidate(
+                        (ka, ia),
+                        (kb, ib),
+                        pose(ka, ia),
+                        pose(kb, ib),
+                        0.0,
+                        &PERIOD,
+                    ));
+                }
+            }
+        }
+        out.retain(|c| geometry(now, c).2 < -1e-6 * c.reach);
+        out
+    }
+
+    #[test]
+    fn the_cell_list_finds_every_pair_the_exact_test_keeps() {
+        for seed in [1, 2, 3] {
+            let (before, after) = start_and_end(seed);
+            let s = Slices::new(&before, &after);
+            let search = Search::new(&s, &PERIOD, 0.0);
+            let found = search.pairs();
+            let expected = all_pairs(&search);
+            // the case is a real one: many pairs, some across a periodic boundary, and
+            // displacements spread far wider than a diameter
+            assert!(expected.len() > 100, "{} pairs", expected.len());
+            assert!(expected.iter().any(|c| c.shift != Vector3::zeros()));
+            assert!(search.spread > 2.0, "spread {}", search.spread);
+            assert!(
+                same(&found, &expected),
+                "seed {seed}: {} found, {} expected",
+                found.len(),
+                expected.len()
+            );
+        }
+    }
+
+    #[test]
+    fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
+        for seed in [4, 5, 6] {
+            let (before, after) = start_and_end(seed);
+            let s = Slices::new(&before, &after);
+            let search = Search::new(&s, &PERIOD, 0.0);
+            // a third of the fibres corrected (pushed by up to 1.5), half of those in this
+            // round
+            let mut rng = Rng(seed + 100);
+            let mut now = after.clone();
+            let corrected: Vec<bool> = (0..now.len()).map(|k| k % 3 == 0).collect();
+            for (k, f) in now.iter_mut().enumerate() {
+                if corrected[k] {
+                    let push = rng.vector(1.5);
+                    f.segments.iter_mut().for_each(|s| s.r += push);
+                }
+            }
+            let moved: Vec<usize> = (0..now.len()).filter(|k| k % 6 == 0).collect();
+            let found = search.around(&s, &now, &corrected, &moved);
+            // every pair with a moved fibre, from where the fibres are now
+            let mut expected: Vec<Candidate> = all_overlaps(&now)
+                .into_iter()
+                .filter(|c| moved.contains(&c.a.0) || moved.contains(&c.b.0))
+                .collect();
+            expected.sort_by_key(|c| (c.a, c.b));
+            assert!(expected.len() > 10, "{} overlaps", expected.len());
+            assert!(
+                same(&found, &expected),
+                "seed {seed}: {} found, {} expected",
+                found.len(),
+                expected.len()
+            );
+        }
+    }
+
+    /// The conditions of [`pair`] are necessary: two segments that come within their
+    /// contact distance at any moment of the step (centres moving straight, axes turning
+    /// from start to end) are a candidate pair, whatever their motion.
+    #[test]
+    fn a_pair_that_touches_within_the_step_is_a_candidate() {
+        let mut rng = Rng(7);
+        let (mut touching, mut kept) = (0, 0);
+        for _ in 0..20000 {
+            let f = |rng: &mut Rng, k: u32| {
+                let r0 = rng.vector(2.5);
+                let z0 = rng.vector(1.0).normalize();
+                let shift = rng.vector(3.0);
+                let z1 = (z0 + rng.vector(0.6)).normalize();
+                (k, r0, z0, shift, z1)
+            };
+            let (a, b) = (f(&mut rng, 0), f(&mut rng, 1));
+            let (half, radius) = (1.5, 0.116);
+            let entry = |(k, r0, z0, shift, z1): (
+                u32,
+                Vector3<f64>,
+                Vector3<f64>,
+                Vector3<f64>,
+                Vector3<f64>,
+            )| Entry {
+                start: r0,
+                axis: z0,
+                shift,
+                turn: half * (z1 - z0).norm(),
+                half,
+                radius,
+                fibre: k,
+                segment: 0,
+            };
+            let at = |(_, r0, z0, shift, z1): (
+                u32,
+                Vector3<f64>,
+                Vector3<f64>,
+                Vector3<f64>,
+                Vector3<f64>,
+            ),
+                      t: f64| {
+                let r = r0 + shift * t;
+                let z = (z0 + (z1 - z0) * t).normalize();
+                (r - z * half, r + z * half)
+            };
+            let touches = (0..=200).any(|n| {
+                let t = n as f64 / 200.0;
+                let ((p0, p1), (q0, q1)) = (at(a, t), at(b, t));
+                let (s, u) = closest_points(&p0, &p1, &q0, &q1);
+                ((p0 + (p1 - p0) * s) - (q0 + (q1 - q0) * u)).norm() < 2.0 * radius
+            });
+            let found = pair(&entry(a), &entry(b), f64::INFINITY, &[None; 3]).is_some();
+            touching += usize::from(touches);
+            kept += usize::from(found);
+            assert!(
+                !touches || found,
+                "a touching pair was not kept: {a:?} {b:?}"
+            );
+        }
+        // many touch, and the test keeps more than those (a bound, not the answer)
+        assert!(touching > 500, "{touching} touching");
+        assert!(kept > touching, "{kept} kept");
+    }
+}
