@@ -15,6 +15,24 @@ use std::fmt::Write as _;
 /// Centre-lines within this fraction of their contact distance are in contact.
 pub const CONTACT_TOLERANCE: f64 = 0.01;
 
+/// Wall-distance bands of a fibre's centre of mass (wall units from the nearer wall):
+/// below the first edge the wall band (viscous and buffer layers), then the log layer,
+/// from the second edge the centre.
+pub const BAND_EDGES_PLUS: [f64; 2] = [30.0, 100.0];
+
+/// Names of the bands of [`BAND_EDGES_PLUS`], as the CSV's column suffixes.
+pub const BAND_NAMES: [&str; 3] = ["wall", "log", "centre"];
+
+/// Contacts and flocs of the fibres whose centre of mass lies in one wall-distance band.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BandRow {
+    pub fibres: usize,
+    /// Mean number of other fibres (anywhere) each of the band's fibres touches.
+    pub contacts_per_fibre: f64,
+    /// Share of the band's fibres that are in a floc.
+    pub in_flocs: f64,
+}
+
 /// One recorded state's contacts and flocs.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FlocRow {
@@ -36,6 +54,8 @@ pub struct FlocRow {
     pub closest_over_d: f64,
     /// Crowding number N = (2/3) c_v (L/d)² of the group in the box.
     pub crowding: f64,
+    /// The same by where the fibres are ([`BAND_NAMES`]).
+    pub bands: [BandRow; 3],
 }
 
 /// The fibres of a full state (centres and axes) as the model's fibres.
@@ -135,6 +155,40 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         let r = root(&mut parent, k);
         size[r] += 1;
     }
+    // each fibre's band, from its centre of mass's distance to the nearer wall
+    let half_height = 0.5 * box_plus[1];
+    let band_of = |f: &Fibre| {
+        let mass: f64 = f.props.iter().map(|p| p.mass).sum();
+        let y = f
+            .segments
+            .iter()
+            .zip(&f.props)
+            .map(|(s, p)| s.r.y * p.mass)
+            .sum::<f64>()
+            / mass;
+        let wall = half_height - y.abs();
+        BAND_EDGES_PLUS.iter().filter(|&&e| wall >= e).count()
+    };
+    let mut degree = vec![0usize; n];
+    for &(a, b) in &fibre_pairs {
+        degree[a] += 1;
+        degree[b] += 1;
+    }
+    let mut bands = [BandRow::default(); 3];
+    let mut in_band_flocs = [0usize; 3];
+    for (k, f) in fibres.iter().enumerate() {
+        let b = band_of(f);
+        bands[b].fibres += 1;
+        bands[b].contacts_per_fibre += degree[k] as f64;
+        if size[root(&mut parent, k)] >= 2 {
+            in_band_flocs[b] += 1;
+        }
+    }
+    for (b, row) in bands.iter_mut().enumerate() {
+        let m = row.fibres.max(1) as f64;
+        row.contacts_per_fibre /= m;
+        row.in_flocs = in_band_flocs[b] as f64 / m;
+    }
     let flocs = size.iter().filter(|&&c| c >= 2).count();
     let in_flocs = size.iter().filter(|&&c| c >= 2).sum::<usize>();
     let mean_d = s.diameter.iter().sum::<f64>() / s.diameter.len().max(1) as f64;
@@ -161,16 +215,24 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         in_flocs: in_flocs as f64 / n.max(1) as f64,
         closest_over_d: closest / mean_d,
         crowding: 2.0 / 3.0 * cv * (length / mean_d).powi(2),
+        bands,
     }
 }
 
 /// `{group}_flocs.csv`: one row per recorded full state.
 pub fn csv(rows: &[FlocRow]) -> String {
     let mut out = String::from(
-        "step,t_plus,fibres,contacts_per_fibre,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding\n",
+        "step,t_plus,fibres,contacts_per_fibre,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding",
     );
+    for name in BAND_NAMES {
+        let _ = write!(
+            out,
+            ",fibres_{name},contacts_per_fibre_{name},share_in_flocs_{name}"
+        );
+    }
+    out.push('\n');
     for r in rows {
-        let _ = writeln!(
+        let _ = write!(
             out,
             "{},{:.4},{},{:.5},{},{},{},{:.5},{:.5},{:.4}",
             r.step,
@@ -184,6 +246,14 @@ pub fn csv(rows: &[FlocRow]) -> String {
             r.closest_over_d,
             r.crowding
         );
+        for b in &r.bands {
+            let _ = write!(
+                out,
+                ",{},{:.5},{:.5}",
+                b.fibres, b.contacts_per_fibre, b.in_flocs
+            );
+        }
+        out.push('\n');
     }
     out
 }
@@ -191,7 +261,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
 /// The Markdown table of every group's first and last recorded state.
 pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
     let mut out = String::from(
-        "# Contacts and flocs\n\nSegments of different fibres are in contact when their centre-lines are within 1% of a diameter; flocs are clusters of two or more fibres joined by contacts. Without `[fibers.contact]` fibres pass through each other, and these numbers measure how much.\n\n| group | t+ | crowding N | contacts per fibre | flocs | largest floc | share in flocs | closest / d |\n|---|---|---|---|---|---|---|---|\n",
+        "# Contacts and flocs\n\nSegments of different fibres are in contact when their centre-lines are within 1% of a diameter; flocs are clusters of two or more fibres joined by contacts. Without `[fibers.contact]` fibres pass through each other, and these numbers measure how much.\n\n| group | t+ | crowding N | contacts per fibre | flocs | largest floc | share in flocs | closest / d | contacts per fibre: wall / log / centre (fibres) |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for (name, rows) in groups {
         let ends = match (rows.first(), rows.last()) {
@@ -202,7 +272,7 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
         for r in ends {
             let _ = writeln!(
                 out,
-                "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} |",
+                "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} | {} |",
                 r.t_plus,
                 r.crowding,
                 r.contacts_per_fibre,
@@ -213,7 +283,12 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
                     format!("{:.4}", r.closest_over_d)
                 } else {
                     "> 1.01".into()
-                }
+                },
+                r.bands
+                    .iter()
+                    .map(|b| format!("{:.3} ({})", b.contacts_per_fibre, b.fibres))
+                    .collect::<Vec<_>>()
+                    .join(" / ")
             );
         }
     }
@@ -335,6 +410,39 @@ mod tests {
             assert!((0.0..942.0).contains(&x), "{q:?}");
             assert!(!(0.05..=941.8).contains(&x), "{q:?}");
         }
+    }
+
+    /// Fibres are counted in the band of their centre's distance to the nearer wall: a
+    /// touching pair 10 from the lower wall, a lone fibre 60 from the upper one, a chain
+    /// of three at the centre plane (box height 300).
+    #[test]
+    fn contacts_are_counted_by_the_band_of_the_fibres_wall_distance() {
+        let s = state(&[
+            (10.0, -140.0),
+            (10.0, -140.0 + 0.232),
+            (50.0, 90.0),
+            (90.0, 0.0),
+            (90.0, 0.232),
+            (90.0, 0.464),
+        ]);
+        let r = of_state(&s, [942.0, 300.0, 471.0]);
+        let [wall, log, centre] = r.bands;
+        assert_eq!((wall.fibres, log.fibres, centre.fibres), (2, 1, 3));
+        assert!((wall.contacts_per_fibre - 1.0).abs() < 1e-12);
+        assert!((wall.in_flocs - 1.0).abs() < 1e-12);
+        assert_eq!((log.contacts_per_fibre, log.in_flocs), (0.0, 0.0));
+        // the chain: 1, 2 and 1 other fibres
+        assert!((centre.contacts_per_fibre - 4.0 / 3.0).abs() < 1e-12);
+        assert!((centre.in_flocs - 1.0).abs() < 1e-12);
+        let csv = csv(&[r]);
+        assert!(csv.lines().next().unwrap().ends_with(
+            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre"
+        ));
+        assert!(csv
+            .lines()
+            .nth(1)
+            .unwrap()
+            .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000"));
     }
 
     /// Across the periodic boundary in x1 two fibres still touch.

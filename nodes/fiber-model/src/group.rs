@@ -212,9 +212,10 @@ impl FibreGroup {
     /// contact must not push a fibre through a wall). Only the fibres of candidate pairs
     /// are copied out of the lane storage.
     fn apply_contact(&mut self, dt: f64) {
-        let Some(c) = self.contact else {
+        let Some(mut c) = self.contact else {
             return;
         };
+        c.wall_half_height = self.params.wall_half_height;
         let mut search = std::mem::take(&mut self.search);
         let (outcome, mut solved) =
             contact::resolve_segments(&Kept { group: self }, &mut search, &[], &c, dt);

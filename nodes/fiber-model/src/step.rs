@@ -426,6 +426,13 @@ pub fn rotate_pair(
 /// Frictionless, inelastic wall contact: if a segment end leaves |x2| <= H, the whole fibre
 /// is translated back along ê2 (so joints stay closed) and wall-ward ê2 velocities are zeroed.
 pub fn wall_contact(f: &mut Fibre, half_height: f64) {
+    let shift = wall_shift(f, half_height);
+    shift_from_wall(f, shift);
+}
+
+/// How far along ê2 fibre `f` must move to bring every segment end back within |x2| <= H
+/// (0 when it is inside).
+pub fn wall_shift(f: &Fibre, half_height: f64) -> f64 {
     // the joints' x2 (as Fibre::joints computes them, without allocating)
     let (mut ymin, mut ymax) = (f64::INFINITY, f64::NEG_INFINITY);
     for (s, p) in f.segments.iter().zip(&f.props) {
@@ -437,22 +444,28 @@ pub fn wall_contact(f: &mut Fibre, half_height: f64) {
         let hi = s.r.y + 0.5 * p.shape.length * s.z.y;
         (ymin, ymax) = (ymin.min(hi), ymax.max(hi));
     }
-    let mut shift = 0.0;
     if ymax > half_height {
-        shift = half_height - ymax;
-        for s in f.segments.iter_mut() {
-            s.v.y = s.v.y.min(0.0);
-        }
+        half_height - ymax
     } else if ymin < -half_height {
-        shift = -half_height - ymin;
-        for s in f.segments.iter_mut() {
-            s.v.y = s.v.y.max(0.0);
-        }
+        -half_height - ymin
+    } else {
+        0.0
     }
-    if shift != 0.0 {
-        for s in f.segments.iter_mut() {
-            s.r.y += shift;
-        }
+}
+
+/// Moves `f` by `shift` along ê2 away from a wall and zeroes its segments' velocities
+/// towards that wall (nothing when `shift` is 0).
+pub fn shift_from_wall(f: &mut Fibre, shift: f64) {
+    if shift == 0.0 {
+        return;
+    }
+    for s in f.segments.iter_mut() {
+        s.v.y = if shift < 0.0 {
+            s.v.y.min(0.0)
+        } else {
+            s.v.y.max(0.0)
+        };
+        s.r.y += shift;
     }
 }
 

@@ -339,6 +339,8 @@ impl FiberNodeConfig {
             friction: c.friction,
             sweeps: c.sweeps,
             period: [Some(box_plus[0]), None, Some(box_plus[2])],
+            // the group's model walls are set when it steps
+            wall_half_height: None,
         };
         let overlaps = contact::overlaps(&group.fibres(), &params.period);
         if let Some(&(a, i, b, j, dist)) = overlaps.first() {

@@ -56,6 +56,11 @@ pub struct ContactParams {
     /// Periods of the box along x1, x2, x3 (None: not periodic); centres are unwrapped,
     /// pairs are found across periodic boundaries by the nearest image.
     pub period: [Option<f64>; 3],
+    /// Walls at x2 = ±H (the model's wall contact, [`crate::step::wall_contact`]): a
+    /// correction that pushes a fibre's end through a wall moves it back at once, so the
+    /// sweeps separate fibres pressed together against a wall (the group sets it from
+    /// its model's walls).
+    pub wall_half_height: Option<f64>,
 }
 
 impl Default for ContactParams {
@@ -64,6 +69,7 @@ impl Default for ContactParams {
             friction: 0.0,
             sweeps: 100,
             period: [None; 3],
+            wall_half_height: None,
         }
     }
 }
@@ -480,8 +486,9 @@ fn sweep(
                 continue;
             }
             c.impulse = total;
-            push(&mut fibres[sa], &mut rigid[sa], &point, &j, dt);
-            push(&mut fibres[sb], &mut rigid[sb], &point_b, &(-j), dt);
+            let wall = params.wall_half_height;
+            push(&mut fibres[sa], &mut rigid[sa], &point, &j, dt, wall);
+            push(&mut fibres[sb], &mut rigid[sb], &point_b, &(-j), dt, wall);
             moved[sa] = sweep;
             moved[sb] = sweep;
             this_sweep += 1;
@@ -593,6 +600,15 @@ fn solve_island(
     if locked {
         let start: Vec<&Fibre> = isl.fibres.iter().map(|&k| &before[k]).collect();
         mine = lock(&start, &mine, &held, &images(mine.len(), &pairs), dt);
+        // a locked island that went through a wall moves back from it as one body
+        if let Some(hh) = params.wall_half_height {
+            let shift = mine
+                .iter()
+                .map(|f| crate::step::wall_shift(f, hh))
+                .fold(0.0_f64, |a, b| if b.abs() > a.abs() { b } else { a });
+            mine.iter_mut()
+                .for_each(|f| crate::step::shift_from_wall(f, shift));
+        }
         for c in pairs.iter_mut() {
             c.impulse = Vector3::zeros();
         }
@@ -726,8 +742,16 @@ fn lock(
 }
 
 /// Gives fibre `f` (rigid body `r`) the impulse `j` at `point`: its velocities change, and
-/// it moves over the step by Δt times that change (a rigid motion about its centre of mass).
-fn push(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>, dt: f64) {
+/// it moves over the step by Δt times that change (a rigid motion about its centre of mass);
+/// then, with walls at ±`wall`, back from a wall it went through (the model's wall contact).
+fn push(
+    f: &mut Fibre,
+    r: &mut Rigid,
+    point: &Vector3<f64>,
+    j: &Vector3<f64>,
+    dt: f64,
+    wall: Option<f64>,
+) {
     if r.inv_mass == 0.0 {
         return;
     }
@@ -743,6 +767,11 @@ fn push(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>, dt
         s.n = rotate_vector(&s.n, &phi).normalize();
     }
     r.com += dv * dt;
+    if let Some(hh) = wall {
+        let shift = crate::step::wall_shift(f, hh);
+        crate::step::shift_from_wall(f, shift);
+        r.com.y += shift;
+    }
 }
 
 /// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
@@ -785,7 +814,9 @@ pub(crate) fn resolve_segments<S: Segments>(
         density: 0.0,
     };
     let mut fibres = vec![empty.clone(); n];
-    let mut before = vec![empty; n];
+    let mut before = vec![empty.clone(); n];
+    // the fibres a round moved, as they were before it
+    let mut before_round = vec![empty; n];
     let mut loaded = vec![false; n];
     let mut load = |cands: &[Candidate], fibres: &mut [Fibre], before: &mut [Fibre]| {
         for c in cands {
@@ -834,12 +865,14 @@ pub(crate) fn resolve_segments<S: Segments>(
             outcome.sweeps = outcome.sweeps.max(s.sweeps);
             changed |= s.applied > 0 || s.locked;
             for (&k, f) in i.fibres.iter().zip(s.fibres) {
+                locked[k] |= s.locked;
                 if s.applied > 0 || s.locked {
                     moved_fibres[k] = true;
                     round_moved.push(k);
+                    before_round[k] = std::mem::replace(&mut fibres[k], f);
+                } else {
+                    fibres[k] = f;
                 }
-                locked[k] |= s.locked;
-                fibres[k] = f;
             }
             for (&n, c) in i.pairs.iter().zip(s.pairs) {
                 cands[n] = c;
@@ -849,10 +882,10 @@ pub(crate) fn resolve_segments<S: Segments>(
             break;
         }
         // the corrections moved fibres: pairs they pushed together that were not
-        // candidates join (their side is where they are now)
+        // candidates join (their side is where they were before the round)
         round_moved.sort_unstable();
         let fresh: Vec<Candidate> = search
-            .around(s, &fibres, &moved_fibres, &round_moved)
+            .around(s, &fibres, &before_round, &moved_fibres, &round_moved)
             .into_iter()
             .filter(|c| {
                 cands
@@ -1042,6 +1075,58 @@ mod tests {
     /// Head-on: two crossed fibres driven at each other at 2 u_τ each, so that they close
     /// 0.8 wall units (3.4 d) in one step: with contact the centre-lines never come closer
     /// than 0.99 d and the upper fibre stays above; without, they pass through each other.
+    /// A fibre driven down onto one that lies on the lower wall: the sweeps move the lower
+    /// one back out of the wall as they push (the wall is part of the solve), so both stay
+    /// inside the channel and never closer than 0.99 d. Without the wall in the solve, the
+    /// wall's push after it drives them into each other.
+    #[test]
+    fn a_fibre_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
+        const H: f64 = 10.0;
+        let run = |wall_in_solve: bool| -> (f64, f64) {
+            let mut fibres = vec![
+                fibre(Vector3::new(0.0, -H + 0.3, 0.0), Vector3::z()),
+                fibre(Vector3::new(0.0, -H, 0.0), Vector3::x()),
+            ];
+            let p = ModelParams {
+                wall_half_height: Some(H),
+                ..params(Vector3::zeros())
+            };
+            let c = ContactParams {
+                wall_half_height: wall_in_solve.then_some(H),
+                ..Default::default()
+            };
+            let fluid = |k: usize, _: &Vector3<f64>| {
+                uniform(Vector3::new(0.0, if k == 0 { -1.0 } else { 0.0 }, 0.0))
+            };
+            let (mut closest, mut deepest) = (f64::INFINITY, 0.0_f64);
+            for _ in 0..30 {
+                let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+                // as the group does after the solve
+                for &k in &out.moved {
+                    crate::step::wall_contact(&mut fibres[k], H);
+                }
+                closest = closest.min(min_distance(&fibres, &[None; 3]));
+                for f in &fibres {
+                    for j in f.joints() {
+                        deepest = deepest.max(j.y.abs() - H);
+                    }
+                }
+            }
+            (closest, deepest)
+        };
+        let (closest, deepest) = run(true);
+        assert!(
+            closest >= 0.99 * D,
+            "centre-lines {closest} apart (d = {D})"
+        );
+        assert!(deepest <= 1e-12, "a joint {deepest} beyond the wall");
+        let (closest, _) = run(false);
+        assert!(
+            closest < 0.99 * D,
+            "without the wall in the solve: {closest}"
+        );
+    }
+
     #[test]
     fn head_on_fibres_do_not_pass_through() {
         let u = 2.0;
@@ -1409,6 +1494,7 @@ mod tests {
             friction: mu,
             sweeps: 100,
             period,
+            wall_half_height: None,
         };
         let out = resolve(&mut fs, &before, &[], &c, dt);
         assert!(!out.locked.is_empty(), "the island was not locked");

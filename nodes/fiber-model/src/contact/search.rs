@@ -327,6 +327,33 @@ impl CellList {
         }
     }
 
+    /// Every cell holding points within `radius` of `r` (a box of cells around it), each
+    /// once.
+    fn cells_within(&self, r: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
+        let c = self.coords(r);
+        let range = |k: usize| -> Vec<i64> {
+            let m = (radius / self.side[k]).ceil().max(1.0) as i64;
+            let n = self.dims[k] as i64;
+            if self.periodic[k] {
+                if 2 * m + 1 >= n {
+                    (0..n).collect()
+                } else {
+                    (c[k] - m..=c[k] + m).map(|x| x.rem_euclid(n)).collect()
+                }
+            } else {
+                ((c[k] - m).max(0)..=(c[k] + m).min(n - 1)).collect()
+            }
+        };
+        let (xs, ys, zs) = (range(0), range(1), range(2));
+        for &x in &xs {
+            for &y in &ys {
+                for &z in &zs {
+                    visit(self.id(&[x, y, z]));
+                }
+            }
+        }
+    }
+
     fn slots(&self, id: usize) -> std::ops::Range<usize> {
         self.start[id] as usize..self.start[id + 1] as usize
     }
@@ -358,7 +385,8 @@ fn candidate(
     let shift = image_shift(&ra, &rb, period);
     let between = rb + shift - ra;
     let limit = ha + hb + rad_a + rad_b + skin;
-    if between.dot(&between) >= limit * limit {
+    // written so that a non-finite position keeps no pair (every comparison with NaN fails)
+    if !(between.dot(&between) < limit * limit) {
         return None;
     }
     let (pa0, pa1) = (ra - za * ha, ra + za * ha);
@@ -366,7 +394,7 @@ fn candidate(
     let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
     let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
     let dist = v.norm();
-    if dist >= reach + skin {
+    if !(dist < reach + skin) {
         return None;
     }
     let normal0 = if dist > 1e-12 * reach {
@@ -409,13 +437,13 @@ fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option
     let (ma, mb) = (ea.mid(), eb.mid());
     let between = mb + image_shift(&ma, &mb, period) - ma;
     let d2 = between.dot(&between);
-    if d2 >= first * first {
+    if !(d2 < first * first) {
         return None;
     }
     let relative = (ea.shift - eb.shift).norm();
     let mid_limit =
         slack(ea.half + eb.half + ea.radius + eb.radius + 0.5 * relative + ea.turn + eb.turn);
-    if d2 >= mid_limit * mid_limit {
+    if !(d2 < mid_limit * mid_limit) {
         return None;
     }
     candidate(
@@ -536,14 +564,22 @@ impl Search {
             .entries
             .par_iter()
             .with_min_len(4096)
-            .map(|e| Extent {
-                lo: e.shift,
-                hi: e.shift,
-                mid_lo: e.mid(),
-                mid_hi: e.mid(),
-                half: e.half,
-                radius: e.radius,
-                turn: e.turn,
+            // a segment gone non-finite has no extent (it makes no pairs)
+            .map(|e| {
+                let finite = e.start.iter().chain(e.shift.iter()).all(|x| x.is_finite())
+                    && e.turn.is_finite();
+                if !finite {
+                    return none;
+                }
+                Extent {
+                    lo: e.shift,
+                    hi: e.shift,
+                    mid_lo: e.mid(),
+                    mid_hi: e.mid(),
+                    half: e.half,
+                    radius: e.radius,
+                    turn: e.turn,
+                }
             })
             .reduce(
                 || none,
@@ -658,18 +694,49 @@ impl Search {
         out
     }
 
-    /// Pairs with a segment of a fibre in `moved` (ascending) that overlap now: closer
-    /// than their contact distance by more than 10⁻⁶ of it, their side taken where they
-    /// are, in (fibre, segment) order, each once. `fibres` holds the fibres the solve has
-    /// corrected (`corrected[k]`), every other fibre is where the free step left it.
+    /// Pairs with a segment of a fibre in `moved` (ascending: the fibres a round of
+    /// corrections moved) that overlap now, in (fibre, segment) order, each once. As for
+    /// the step's pairs, a pair keeps the side it was on before the motion that brought it
+    /// together — here the round's corrections, from `before_round` (the moved fibres
+    /// before the round) to `fibres` — so a correction that pushed a fibre through
+    /// another is seen as an overlap deeper than d, not as a pair on the other side. A pair
+    /// is looked at if it may have come within reach during the round (the skin is the
+    /// corrections' relative motion). `fibres` holds the fibres the solve has corrected
+    /// (`corrected[k]`), every other fibre is where the free step left it.
     pub(crate) fn around<S: Segments>(
         &self,
         s: &S,
         fibres: &[Fibre],
+        before_round: &[Fibre],
         corrected: &[bool],
         moved: &[usize],
     ) -> Vec<Candidate> {
         let period = &self.period;
+        let is_moved = |k: usize| moved.binary_search(&k).is_ok();
+        // a segment before and after the round: centre, axis, half length, radius
+        let poses = |k: usize, i: usize| -> (Pose, Pose) {
+            let (h, r) = {
+                let p = &fibres[k].props[i];
+                (0.5 * p.shape.length, 0.5 * p.shape.diameter)
+            };
+            let now = &fibres[k].segments[i];
+            let was = if is_moved(k) {
+                &before_round[k].segments[i]
+            } else {
+                now
+            };
+            ((was.r, was.z, h, r), (now.r, now.z, h, r))
+        };
+        let motion = |(was, now): &(Pose, Pose)| (now.0 - was.0, now.2 * (now.1 - was.1).norm());
+        // the most any moved segment moved or turned in the round
+        let (mut far, mut turned) = (0.0_f64, 0.0_f64);
+        for &q in moved {
+            for i in 0..fibres[q].len() {
+                let (d, t) = motion(&poses(q, i));
+                far = far.max(d.norm());
+                turned = turned.max(t);
+            }
+        }
         // the corrected fibres' segments where they are now, in their own small list
         let here: Vec<(usize, usize)> = (0..fibres.len())
             .filter(|&k| corrected[k])
@@ -694,34 +761,47 @@ impl Search {
             period,
             &mut order,
         );
-        let overlap = |a: (usize, usize), b: (usize, usize), pa: Pose, pb: Pose| {
+        // the pair of segments a (moved) and b, oriented, if it may have come within reach
+        // in the round and overlaps now on the side it was on before
+        let test = |a: (usize, usize), pa: (Pose, Pose), b: (usize, usize), pb: (Pose, Pose)| {
             let (a, b, pa, pb) = if a < b {
                 (a, b, pa, pb)
             } else {
                 (b, a, pb, pa)
             };
-            let c = candidate(a, b, pa, pb, 0.0, period)?;
-            let reach = c.reach;
-            let (pa0, pa1) = (pa.0 - pa.1 * pa.2, pa.0 + pa.1 * pa.2);
-            let (qb0, qb1) = (pb.0 - pb.1 * pb.2 + c.shift, pb.0 + pb.1 * pb.2 + c.shift);
+            let ((da, ta), (db, tb)) = (motion(&pa), motion(&pb));
+            let skin = (da - db).norm() + ta + tb;
+            let c = candidate(a, b, pa.0, pb.0, skin, period)?;
+            let (now_a, now_b) = (pa.1, pb.1);
+            let (pa0, pa1) = (now_a.0 - now_a.1 * now_a.2, now_a.0 + now_a.1 * now_a.2);
+            let (qb0, qb1) = (
+                now_b.0 - now_b.1 * now_b.2 + c.shift,
+                now_b.0 + now_b.1 * now_b.2 + c.shift,
+            );
             let (u, v) = closest_points(&pa0, &pa1, &qb0, &qb1);
-            let gap = ((pa0 + (pa1 - pa0) * u) - (qb0 + (qb1 - qb0) * v)).norm() - reach;
-            (gap < -1e-6 * reach).then_some(c)
+            let w = (pa0 + (pa1 - pa0) * u) - (qb0 + (qb1 - qb0) * v);
+            let side = if w.dot(&c.normal0) >= 0.0 { 1.0 } else { -1.0 };
+            let gap = side * w.norm() - c.reach;
+            (gap < -1e-6 * c.reach).then_some(c)
         };
         let mut out: Vec<Candidate> = moved
             .par_iter()
             .flat_map_iter(|&q| {
-                let f = &fibres[q];
                 let mut found = Vec::new();
-                for (i, (sq, pq)) in f.segments.iter().zip(&f.props).enumerate() {
-                    let (hq, rq) = (0.5 * pq.shape.length, 0.5 * pq.shape.diameter);
-                    let pose_q = (sq.r, sq.z, hq, rq);
-                    // fibres the solve has not touched: in the step's list by their
-                    // mid-step centre, which is within `spread` of where they are now
-                    // once the mean displacement's half is taken off
-                    let x = sq.r - self.centre_shift * 0.5;
-                    let id = self.cells.id(&self.cells.coords(&x));
-                    self.cells.cells_around(id, |n| {
+                for i in 0..fibres[q].len() {
+                    let pq = poses(q, i);
+                    let (dq, tq) = motion(&pq);
+                    let (hq, rq) = (pq.1 .2, pq.1 .3);
+                    // fibres no round has moved: in the step's list by their mid-step
+                    // centre, within `spread` of where they are once half the mean
+                    // displacement is taken off; the moved segment came closest to them
+                    // within half its motion of the middle of it
+                    let mid_q = pq.0 .0 + dq * 0.5;
+                    let x = mid_q - self.centre_shift * 0.5;
+                    let reach_q = hq + rq + tq + 0.5 * dq.norm();
+                    let radius =
+                        slack(reach_q + 0.5 * self.longest + 0.5 * self.widest + self.spread);
+                    self.cells.cells_within(&x, radius, |n| {
                         for e in &self.sorted[self.cells.slots(n)] {
                             let kb = e.fibre as usize;
                             if kb == q || corrected[kb] {
@@ -730,42 +810,36 @@ impl Search {
                             let mid = e.mid();
                             let d = mid + image_shift(&x, &mid, period) - x;
                             let limit = slack(
-                                hq + e.half
-                                    + rq
+                                reach_q
+                                    + e.half
                                     + e.radius
                                     + 0.5 * (e.shift - self.centre_shift).norm(),
                             );
-                            if d.dot(&d) >= limit * limit {
+                            if !(d.dot(&d) < limit * limit) {
                                 continue;
                             }
                             let (rb, zb) = s.end(kb, e.segment as usize);
-                            found.extend(overlap(
-                                (q, i),
-                                e.key(),
-                                pose_q,
-                                (rb, zb, e.half, e.radius),
-                            ));
+                            let pb = (rb, zb, e.half, e.radius);
+                            found.extend(test((q, i), pq, e.key(), (pb, pb)));
                         }
                     });
-                    // the corrected fibres where they are now
-                    if here.is_empty() {
-                        continue;
-                    }
-                    let id = near.id(&near.coords(&sq.r));
-                    near.cells_around(id, |n| {
+                    // the corrected fibres, where they are now: a pair that came within
+                    // reach in the round is now within its two motions of that
+                    let radius = slack(
+                        hq + rq
+                            + 0.5 * self.longest
+                            + 0.5 * self.widest
+                            + tq
+                            + turned
+                            + dq.norm()
+                            + far,
+                    );
+                    near.cells_within(&pq.1 .0, radius, |n| {
                         for &j in &order[near.slots(n)] {
                             let (kb, ib) = here[j as usize];
-                            if kb == q {
-                                continue;
+                            if kb != q {
+                                found.extend(test((q, i), pq, (kb, ib), poses(kb, ib)));
                             }
-                            let sb = &fibres[kb].segments[ib];
-                            let pb = &fibres[kb].props[ib];
-                            found.extend(overlap(
-                                (q, i),
-                                (kb, ib),
-                                pose_q,
-                                (sb.r, sb.z, 0.5 * pb.shape.length, 0.5 * pb.shape.diameter),
-                            ));
                         }
                     });
                 }
@@ -849,28 +923,38 @@ mod tests {
         out
     }
 
-    /// Every pair of segments of different fibres whose centre-lines overlap now.
-    fn all_overlaps(now: &[Fibre]) -> Vec<Candidate> {
+    /// Every pair of segments of different fibres, one of them `moved`, that may have
+    /// come within reach between `was` and `now` (skin: their relative motion and turns)
+    /// and overlaps now on the side it was on in `was`.
+    fn all_overlaps(was: &[Fibre], now: &[Fibre], moved: &[usize]) -> Vec<Candidate> {
         let segs: Vec<(usize, usize)> = (0..now.len())
             .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
             .collect();
         let pose = |k: usize, i: usize| {
-            let (s, p) = (&now[k].segments[i], &now[k].props[i]);
+            let (s, p) = (&was[k].segments[i], &was[k].props[i]);
             (s.r, s.z, 0.5 * p.shape.length, 0.5 * p.shape.diameter)
+        };
+        let motion = |k: usize, i: usize| {
+            let (s0, s1) = (&was[k].segments[i], &now[k].segments[i]);
+            let half = 0.5 * now[k].props[i].shape.length;
+            (s1.r - s0.r, half * (s1.z - s0.z).norm())
         };
         let mut out = Vec::new();
         for (n, &(ka, ia)) in segs.iter().enumerate() {
             for &(kb, ib) in &segs[n + 1..] {
-                if ka != kb {
-                    out.extend(candidate(
-                        (ka, ia),
-                        (kb, ib),
-                        pose(ka, ia),
-                        pose(kb, ib),
-                        0.0,
-                        &PERIOD,
-                    ));
+                if ka == kb || !(moved.contains(&ka) || moved.contains(&kb)) {
+                    continue;
                 }
+                let ((da, ta), (db, tb)) = (motion(ka, ia), motion(kb, ib));
+                let skin = (da - db).norm() + ta + tb;
+                out.extend(candidate(
+                    (ka, ia),
+                    (kb, ib),
+                    pose(ka, ia),
+                    pose(kb, ib),
+                    skin,
+                    &PERIOD,
+                ));
             }
         }
         out.retain(|c| geometry(now, c).2 < -1e-6 * c.reach);
@@ -899,32 +983,44 @@ mod tests {
         }
     }
 
+    /// After a round of corrections, the search around the moved fibres finds exactly the
+    /// overlaps a test of every pair finds, each on the side it was on before the round
+    /// (some corrections here push fibres through others).
     #[test]
     fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
         for seed in [4, 5, 6] {
             let (before, after) = start_and_end(seed);
             let s = Slices::new(&before, &after);
             let search = Search::new(&s, &PERIOD, 0.0);
-            // a third of the fibres corrected (pushed by up to 1.5), half of those in this
-            // round
+            // a third of the fibres corrected in earlier rounds (pushed by up to 1.5),
+            // half of those again in this round (pushed by up to 1, and turned)
             let mut rng = Rng(seed + 100);
-            let mut now = after.clone();
-            let corrected: Vec<bool> = (0..now.len()).map(|k| k % 3 == 0).collect();
-            for (k, f) in now.iter_mut().enumerate() {
+            let mut was = after.clone();
+            let corrected: Vec<bool> = (0..was.len()).map(|k| k % 3 == 0).collect();
+            for (k, f) in was.iter_mut().enumerate() {
                 if corrected[k] {
                     let push = rng.vector(1.5);
                     f.segments.iter_mut().for_each(|s| s.r += push);
                 }
             }
-            let moved: Vec<usize> = (0..now.len()).filter(|k| k % 6 == 0).collect();
-            let found = search.around(&s, &now, &corrected, &moved);
-            // every pair with a moved fibre, from where the fibres are now
-            let mut expected: Vec<Candidate> = all_overlaps(&now)
-                .into_iter()
-                .filter(|c| moved.contains(&c.a.0) || moved.contains(&c.b.0))
-                .collect();
+            let moved: Vec<usize> = (0..was.len()).filter(|k| k % 6 == 0).collect();
+            let mut now = was.clone();
+            for &k in &moved {
+                let push = rng.vector(1.0);
+                for s in now[k].segments.iter_mut() {
+                    s.r += push;
+                    s.z = (s.z + rng.vector(0.05)).normalize();
+                }
+            }
+            let found = search.around(&s, &now, &was, &corrected, &moved);
+            let mut expected = all_overlaps(&was, &now, &moved);
             expected.sort_by_key(|c| (c.a, c.b));
             assert!(expected.len() > 10, "{} overlaps", expected.len());
+            // some of them crossed in the round: deeper than a diameter on their old side
+            assert!(
+                expected.iter().any(|c| geometry(&now, c).2 < -c.reach),
+                "no pair crossed"
+            );
             assert!(
                 same(&found, &expected),
                 "seed {seed}: {} found, {} expected",
@@ -996,5 +1092,26 @@ mod tests {
         // many touch, and the test keeps more than those (a bound, not the answer)
         assert!(touching > 500, "{touching} touching");
         assert!(kept > touching, "{kept} kept");
+    }
+
+    /// A fibre whose state went non-finite makes no pairs (every comparison with NaN
+    /// fails), instead of pairing with every other segment; the others' pairs stay.
+    #[test]
+    fn a_fibre_gone_non_finite_makes_no_pairs() {
+        let (before, mut after) = start_and_end(1);
+        let clean = Search::new(&Slices::new(&before, &after), &PERIOD, 0.0).pairs();
+        after[3].segments[2].r.x = f64::NAN;
+        let found = Search::new(&Slices::new(&before, &after), &PERIOD, 0.0).pairs();
+        let without: Vec<Candidate> = clean
+            .into_iter()
+            .filter(|c| c.a != (3, 2) && c.b != (3, 2))
+            .collect();
+        assert!(!without.is_empty());
+        assert!(
+            same(&found, &without),
+            "{} found, {} expected",
+            found.len(),
+            without.len()
+        );
     }
 }
