@@ -814,9 +814,8 @@ pub(crate) fn resolve_segments<S: Segments>(
         density: 0.0,
     };
     let mut fibres = vec![empty.clone(); n];
-    let mut before = vec![empty.clone(); n];
-    // the fibres a round moved, as they were before it
-    let mut before_round = vec![empty; n];
+    let mut before = vec![empty; n];
+
     let mut loaded = vec![false; n];
     let mut load = |cands: &[Candidate], fibres: &mut [Fibre], before: &mut [Fibre]| {
         for c in cands {
@@ -869,10 +868,8 @@ pub(crate) fn resolve_segments<S: Segments>(
                 if s.applied > 0 || s.locked {
                     moved_fibres[k] = true;
                     round_moved.push(k);
-                    before_round[k] = std::mem::replace(&mut fibres[k], f);
-                } else {
-                    fibres[k] = f;
                 }
+                fibres[k] = f;
             }
             for (&n, c) in i.pairs.iter().zip(s.pairs) {
                 cands[n] = c;
@@ -882,10 +879,10 @@ pub(crate) fn resolve_segments<S: Segments>(
             break;
         }
         // the corrections moved fibres: pairs they pushed together that were not
-        // candidates join (their side is where they were before the round)
+        // candidates join (their side is where they were at the start of the step)
         round_moved.sort_unstable();
         let fresh: Vec<Candidate> = search
-            .around(s, &fibres, &before_round, &moved_fibres, &round_moved)
+            .around(s, &fibres, &before, &moved_fibres, &round_moved)
             .into_iter()
             .filter(|c| {
                 cands

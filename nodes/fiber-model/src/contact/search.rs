@@ -695,53 +695,44 @@ impl Search {
     }
 
     /// Pairs with a segment of a fibre in `moved` (ascending: the fibres a round of
-    /// corrections moved) that overlap now, in (fibre, segment) order, each once. As for
-    /// the step's pairs, a pair keeps the side it was on before the motion that brought it
-    /// together — here the round's corrections, from `before_round` (the moved fibres
-    /// before the round) to `fibres` — so a correction that pushed a fibre through
-    /// another is seen as an overlap deeper than d, not as a pair on the other side. A pair
-    /// is looked at if it may have come within reach during the round (the skin is the
-    /// corrections' relative motion). `fibres` holds the fibres the solve has corrected
-    /// (`corrected[k]`), every other fibre is where the free step left it.
+    /// corrections moved) that overlap now, in (fibre, segment) order, each once. As the
+    /// step's pairs do, a pair keeps the side it was on at the start of the step, with the
+    /// fibres' whole motion since (free step and corrections) as the skin: a correction
+    /// that pushed a fibre through another (in a crowded floc they can be larger than a
+    /// diameter; a locked island moves from where it started) is an overlap deeper than
+    /// d, not a pair on the other side. `fibres` and `before` hold the fibres the solve
+    /// has corrected (`corrected[k]`) now and at the start; every other fibre is where
+    /// the free step left it.
     pub(crate) fn around<S: Segments>(
         &self,
         s: &S,
         fibres: &[Fibre],
-        before_round: &[Fibre],
+        before: &[Fibre],
         corrected: &[bool],
         moved: &[usize],
     ) -> Vec<Candidate> {
         let period = &self.period;
-        let is_moved = |k: usize| moved.binary_search(&k).is_ok();
-        // a segment before and after the round: centre, axis, half length, radius
+        // a corrected segment at the start of the step and now: centre, axis, half
+        // length, radius
         let poses = |k: usize, i: usize| -> (Pose, Pose) {
-            let (h, r) = {
-                let p = &fibres[k].props[i];
-                (0.5 * p.shape.length, 0.5 * p.shape.diameter)
-            };
-            let now = &fibres[k].segments[i];
-            let was = if is_moved(k) {
-                &before_round[k].segments[i]
-            } else {
-                now
-            };
+            let p = &fibres[k].props[i];
+            let (h, r) = (0.5 * p.shape.length, 0.5 * p.shape.diameter);
+            let (was, now) = (&before[k].segments[i], &fibres[k].segments[i]);
             ((was.r, was.z, h, r), (now.r, now.z, h, r))
         };
         let motion = |(was, now): &(Pose, Pose)| (now.0 - was.0, now.2 * (now.1 - was.1).norm());
-        // the most any moved segment moved or turned in the round
-        let (mut far, mut turned) = (0.0_f64, 0.0_f64);
-        for &q in moved {
-            for i in 0..fibres[q].len() {
-                let (d, t) = motion(&poses(q, i));
-                far = far.max(d.norm());
-                turned = turned.max(t);
-            }
-        }
-        // the corrected fibres' segments where they are now, in their own small list
+        // the corrected fibres' segments where they are now, in their own small list,
+        // and the most any of them moved or turned since the start
         let here: Vec<(usize, usize)> = (0..fibres.len())
             .filter(|&k| corrected[k])
             .flat_map(|k| (0..fibres[k].len()).map(move |i| (k, i)))
             .collect();
+        let (mut far, mut turned) = (0.0_f64, 0.0_f64);
+        for &(k, i) in &here {
+            let (d, t) = motion(&poses(k, i));
+            far = far.max(d.norm());
+            turned = turned.max(t);
+        }
         let centres: Vec<Vector3<f64>> =
             here.iter().map(|&(k, i)| fibres[k].segments[i].r).collect();
         let mut near = CellList::default();
@@ -761,8 +752,8 @@ impl Search {
             period,
             &mut order,
         );
-        // the pair of segments a (moved) and b, oriented, if it may have come within reach
-        // in the round and overlaps now on the side it was on before
+        // the pair of segments a and b (each at the start and now), oriented, if it may
+        // have come within reach since the start and overlaps now on its side at the start
         let test = |a: (usize, usize), pa: (Pose, Pose), b: (usize, usize), pb: (Pose, Pose)| {
             let (a, b, pa, pb) = if a < b {
                 (a, b, pa, pb)
@@ -792,47 +783,48 @@ impl Search {
                     let pq = poses(q, i);
                     let (dq, tq) = motion(&pq);
                     let (hq, rq) = (pq.1 .2, pq.1 .3);
-                    // fibres no round has moved: in the step's list by their mid-step
-                    // centre, within `spread` of where they are once half the mean
-                    // displacement is taken off; the moved segment came closest to them
-                    // within half its motion of the middle of it
+                    // fibres no round has moved, in the step's list by their mid-step
+                    // centre: the pair's mid-step centres are within the sum of their
+                    // reaches, half their relative motion and their turns, as for the
+                    // step's pairs, and half the relative motion is within half of this
+                    // one's from the centre of all displacements plus `spread`
                     let mid_q = pq.0 .0 + dq * 0.5;
-                    let x = mid_q - self.centre_shift * 0.5;
-                    let reach_q = hq + rq + tq + 0.5 * dq.norm();
-                    let radius =
-                        slack(reach_q + 0.5 * self.longest + 0.5 * self.widest + self.spread);
-                    self.cells.cells_within(&x, radius, |n| {
+                    let own = hq + rq + tq;
+                    let radius = slack(
+                        own + 0.5 * (dq - self.centre_shift).norm()
+                            + 0.5 * self.longest
+                            + 0.5 * self.widest
+                            + self.spread
+                            + self.most_turn,
+                    );
+                    self.cells.cells_within(&mid_q, radius, |n| {
                         for e in &self.sorted[self.cells.slots(n)] {
                             let kb = e.fibre as usize;
                             if kb == q || corrected[kb] {
                                 continue;
                             }
                             let mid = e.mid();
-                            let d = mid + image_shift(&x, &mid, period) - x;
+                            let d = mid + image_shift(&mid_q, &mid, period) - mid_q;
                             let limit = slack(
-                                reach_q
-                                    + e.half
-                                    + e.radius
-                                    + 0.5 * (e.shift - self.centre_shift).norm(),
+                                own + e.half + e.radius + e.turn + 0.5 * (dq - e.shift).norm(),
                             );
                             if !(d.dot(&d) < limit * limit) {
                                 continue;
                             }
                             let (rb, zb) = s.end(kb, e.segment as usize);
-                            let pb = (rb, zb, e.half, e.radius);
-                            found.extend(test((q, i), pq, e.key(), (pb, pb)));
+                            let was = (e.start, e.axis, e.half, e.radius);
+                            found.extend(test(
+                                (q, i),
+                                pq,
+                                e.key(),
+                                (was, (rb, zb, e.half, e.radius)),
+                            ));
                         }
                     });
                     // the corrected fibres, where they are now: a pair that came within
-                    // reach in the round is now within its two motions of that
+                    // reach is now within its two motions of that
                     let radius = slack(
-                        hq + rq
-                            + 0.5 * self.longest
-                            + 0.5 * self.widest
-                            + tq
-                            + turned
-                            + dq.norm()
-                            + far,
+                        own + 0.5 * self.longest + 0.5 * self.widest + turned + dq.norm() + far,
                     );
                     near.cells_within(&pq.1 .0, radius, |n| {
                         for &j in &order[near.slots(n)] {
@@ -924,8 +916,8 @@ mod tests {
     }
 
     /// Every pair of segments of different fibres, one of them `moved`, that may have
-    /// come within reach between `was` and `now` (skin: their relative motion and turns)
-    /// and overlaps now on the side it was on in `was`.
+    /// come within reach between `was` (the start of the step) and `now` (skin: their
+    /// relative motion and turns) and overlaps now on the side it was on in `was`.
     fn all_overlaps(was: &[Fibre], now: &[Fibre], moved: &[usize]) -> Vec<Candidate> {
         let segs: Vec<(usize, usize)> = (0..now.len())
             .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
@@ -984,8 +976,8 @@ mod tests {
     }
 
     /// After a round of corrections, the search around the moved fibres finds exactly the
-    /// overlaps a test of every pair finds, each on the side it was on before the round
-    /// (some corrections here push fibres through others).
+    /// overlaps a test of every pair finds, each on the side it was on at the start of
+    /// the step (some corrections here push fibres through others).
     #[test]
     fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
         for seed in [4, 5, 6] {
@@ -1012,8 +1004,18 @@ mod tests {
                     s.z = (s.z + rng.vector(0.05)).normalize();
                 }
             }
-            let found = search.around(&s, &now, &was, &corrected, &moved);
-            let mut expected = all_overlaps(&was, &now, &moved);
+            let found = search.around(&s, &now, &before, &corrected, &moved);
+            // every fibre not corrected is where the free step left it
+            let now: Vec<Fibre> = (0..now.len())
+                .map(|k| {
+                    if corrected[k] {
+                        now[k].clone()
+                    } else {
+                        after[k].clone()
+                    }
+                })
+                .collect();
+            let mut expected = all_overlaps(&before, &now, &moved);
             expected.sort_by_key(|c| (c.a, c.b));
             assert!(expected.len() > 10, "{} overlaps", expected.len());
             // some of them crossed in the round: deeper than a diameter on their old side
