@@ -3,10 +3,14 @@
 //! `placement.kind = "random"` does), stepped in a steady shear flow with a spanwise swirl
 //! so neighbours move against each other, with contact off and on in alternating rounds
 //! (off, on, on, off, …) from the same start; prints the wall per step of each, their
-//! ratio per pair of rounds, and the contacts per step.
+//! ratio per pair of rounds, the contacts per step and, of the steps with contact, the
+//! closest approach of any two fibres (searched apart from the timing). `--near-wall`
+//! puts the fibres in a band next to the lower wall, in a near-wall shear with
+//! wall-normal sweeps, where fibres are pressed onto the wall and onto each other.
 
 use anyhow::{Context, Result};
 use fiberflow_fiber::FiberNodeConfig;
+use fiberflow_fiber_model::contact;
 use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::FluidSample;
 use nalgebra::{Matrix3, Vector3};
@@ -17,6 +21,7 @@ const BOX_PLUS: [f64; 3] = [942.48, 300.0, 471.24];
 
 pub struct ContactOptions {
     pub fibres: usize,
+    pub near_wall: bool,
     pub steps: usize,
     pub rounds: usize,
     pub friction: f64,
@@ -43,10 +48,52 @@ fn flow(r: &Vector3<f64>) -> FluidSample {
     }
 }
 
+/// Near the lower wall (y from the centre, wall at −150): u+ = y+ up to 15 and
+/// v = 1.5 sin(2π x/40) sin(2π z/40), faded in over the first 10 wall units.
+fn near_wall_flow(r: &Vector3<f64>) -> FluidSample {
+    let k = std::f64::consts::TAU / 40.0;
+    let wall = r.y + 0.5 * BOX_PLUS[1];
+    let (u, dudy) = if wall < 15.0 {
+        (wall, 1.0)
+    } else {
+        (15.0, 0.0)
+    };
+    let (fade, dfade) = if wall < 10.0 {
+        (wall / 10.0, 0.1)
+    } else {
+        (1.0, 0.0)
+    };
+    let (sx, cx, sz, cz) = (
+        (k * r.x).sin(),
+        (k * r.x).cos(),
+        (k * r.z).sin(),
+        (k * r.z).cos(),
+    );
+    FluidSample {
+        vel: Vector3::new(u, 1.5 * sx * sz * fade, 0.0),
+        grad: Matrix3::new(
+            0.0,
+            dudy,
+            0.0,
+            1.5 * k * cx * sz * fade,
+            1.5 * sx * sz * dfade,
+            1.5 * k * sx * cz * fade,
+            0.0,
+            0.0,
+            0.0,
+        ),
+    }
+}
+
 fn build(o: &ContactOptions, contact: bool) -> Result<FibreGroup> {
     let text = format!(
-        "group = \"bench\"\ncase = \"case1\"\nplacement = {{ kind = \"random\", count = {}, seed = 1 }}\n{}",
+        "group = \"bench\"\ncase = \"case1\"\nplacement = {{ kind = \"random\", count = {}, seed = 1{} }}\n{}",
         o.fibres,
+        if o.near_wall {
+            ", band_plus = [1.0, 31.0]"
+        } else {
+            ""
+        },
         if contact {
             format!("contact = {{ friction = {} }}\n", o.friction)
         } else {
@@ -57,39 +104,74 @@ fn build(o: &ContactOptions, contact: bool) -> Result<FibreGroup> {
     Ok(cfg.build(BOX_PLUS)?.group)
 }
 
-/// Steps `group` `steps` times; wall seconds per step, contacts and candidate pairs per
-/// step.
-fn run(mut group: FibreGroup, steps: usize) -> Result<(f64, f64, f64)> {
+/// What a round of steps measured.
+#[derive(Clone, Copy, Default)]
+struct Round {
+    /// Wall seconds per step.
+    wall: f64,
+    contacts: f64,
+    candidates: f64,
+    /// Closest centre-lines of segments of different fibres over d, over the steps
+    /// (with contact only; ∞ when none within d).
+    closest_over_d: f64,
+}
+
+/// Steps `group` `steps` times.
+fn run(mut group: FibreGroup, steps: usize, near_wall: bool) -> Result<Round> {
     let dt = 0.2;
-    let mut contacts = 0usize;
-    let mut candidates = 0usize;
-    let mut wall = 0.0;
+    let mut r = Round {
+        closest_over_d: f64::INFINITY,
+        ..Default::default()
+    };
+    let period = [Some(BOX_PLUS[0]), None, Some(BOX_PLUS[2])];
     for _ in 0..steps {
-        let fluid: Vec<FluidSample> = group.segment_centres().iter().map(flow).collect();
+        let fluid: Vec<FluidSample> = group
+            .segment_centres()
+            .iter()
+            .map(if near_wall { near_wall_flow } else { flow })
+            .collect();
         let t = Instant::now();
         group.step(&fluid, dt)?;
-        wall += t.elapsed().as_secs_f64();
-        contacts += group.last_contact().contacts.len();
-        candidates += group.last_contact().candidates;
+        r.wall += t.elapsed().as_secs_f64();
+        r.contacts += group.last_contact().contacts.len() as f64;
+        r.candidates += group.last_contact().candidates as f64;
+        if group.contact().is_some() {
+            let fibres = group.fibres();
+            for (a, i, _, _, distance) in contact::overlaps(&fibres, &period) {
+                let d = fibres[a].props[i].shape.diameter;
+                r.closest_over_d = r.closest_over_d.min(distance / d);
+            }
+        }
     }
     let n = steps as f64;
-    Ok((wall / n, contacts as f64 / n, candidates as f64 / n))
+    r.wall /= n;
+    r.contacts /= n;
+    r.candidates /= n;
+    Ok(r)
 }
 
 pub fn run_contact(o: &ContactOptions) -> Result<()> {
     let t = Instant::now();
     let off = build(o, false)?;
     let on = build(o, true)?;
+    let (where_, n) = if o.near_wall {
+        // the band is a tenth of the channel's height
+        (
+            "in a band 1-31 wall units from the lower wall",
+            10.0 * crowding(o.fibres),
+        )
+    } else {
+        ("at random in the fine-grid box", crowding(o.fibres))
+    };
     println!(
-        "{} case-1 fibres at random in the fine-grid box (crowding N = {:.2}), placed in {:.1} s; {} steps per round",
+        "{} case-1 fibres {where_} (crowding N = {n:.2} there), placed in {:.1} s; {} steps per round",
         o.fibres,
-        crowding(o.fibres),
         t.elapsed().as_secs_f64(),
         o.steps
     );
     let mut ratios = Vec::new();
     println!(
-        "| round | off ms/step | on ms/step | on/off | contacts/step | candidates/step |\n|---|---|---|---|---|---|"
+        "| round | off ms/step | on ms/step | on/off | contacts/step | candidates/step | closest / d |\n|---|---|---|---|---|---|---|"
     );
     for r in 0..o.rounds {
         let order = if r % 2 == 0 {
@@ -97,20 +179,29 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
         } else {
             [true, false]
         };
-        let mut got = [(0.0, 0.0, 0.0); 2];
+        let mut got = [Round::default(); 2];
         for c in order {
-            got[usize::from(c)] = run(if c { on.clone() } else { off.clone() }, o.steps)?;
+            got[usize::from(c)] = run(
+                if c { on.clone() } else { off.clone() },
+                o.steps,
+                o.near_wall,
+            )?;
         }
-        let ratio = got[1].0 / got[0].0;
+        let ratio = got[1].wall / got[0].wall;
         ratios.push(ratio);
         println!(
-            "| {} | {:.1} | {:.1} | {:.3} | {:.0} | {:.0} |",
+            "| {} | {:.1} | {:.1} | {:.3} | {:.0} | {:.0} | {} |",
             r + 1,
-            1e3 * got[0].0,
-            1e3 * got[1].0,
+            1e3 * got[0].wall,
+            1e3 * got[1].wall,
             ratio,
-            got[1].1,
-            got[1].2
+            got[1].contacts,
+            got[1].candidates,
+            if got[1].closest_over_d.is_finite() {
+                format!("{:.4}", got[1].closest_over_d)
+            } else {
+                "≥ 1".into()
+            }
         );
     }
     ratios.sort_by(f64::total_cmp);

@@ -91,6 +91,11 @@ enum Cmd {
         /// Friction coefficient of the runs with contact.
         #[arg(long, default_value_t = 0.5)]
         friction: f64,
+        /// Fibres in a band 1–31 wall units from the lower wall, in a near-wall shear
+        /// (u+ = y+ up to 15) with wall-normal sweeps of amplitude 1.5 towards and away
+        /// from the wall, instead of the whole box in a gentle shear.
+        #[arg(long)]
+        near_wall: bool,
     },
 }
 
@@ -135,8 +140,10 @@ fn main() -> Result<()> {
             steps,
             rounds,
             friction,
+            near_wall,
         } => contact::run_contact(&contact::ContactOptions {
             fibres: fibers,
+            near_wall,
             steps,
             rounds,
             friction,

@@ -327,21 +327,30 @@ impl CellList {
         }
     }
 
-    /// Every cell holding points within `radius` of `r` (a box of cells around it), each
-    /// once.
+    /// Every cell that may hold points within `radius` of `r` (the cells the box
+    /// r ± radius touches), each once.
     fn cells_within(&self, r: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
-        let c = self.coords(r);
         let range = |k: usize| -> Vec<i64> {
-            let m = (radius / self.side[k]).ceil().max(1.0) as i64;
             let n = self.dims[k] as i64;
+            let x = if self.periodic[k] {
+                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
+            } else {
+                r[k] - self.lo[k]
+            };
+            let lo = ((x - radius) / self.side[k]).floor();
+            let hi = ((x + radius) / self.side[k]).floor();
+            if !(lo.is_finite() && hi.is_finite()) {
+                return Vec::new();
+            }
+            let (lo, hi) = (lo as i64, hi as i64);
             if self.periodic[k] {
-                if 2 * m + 1 >= n {
+                if hi - lo + 1 >= n {
                     (0..n).collect()
                 } else {
-                    (c[k] - m..=c[k] + m).map(|x| x.rem_euclid(n)).collect()
+                    (lo..=hi).map(|c| c.rem_euclid(n)).collect()
                 }
             } else {
-                ((c[k] - m).max(0)..=(c[k] + m).min(n - 1)).collect()
+                (lo.max(0)..=hi.min(n - 1)).collect()
             }
         };
         let (xs, ys, zs) = (range(0), range(1), range(2));
@@ -727,14 +736,17 @@ impl Search {
             .filter(|&k| corrected[k])
             .flat_map(|k| (0..fibres[k].len()).map(move |i| (k, i)))
             .collect();
+        // (placed by their centres in the middle of their motion since the start, and the
+        // most any of them moved apart from the mean displacement, or turned)
         let (mut far, mut turned) = (0.0_f64, 0.0_f64);
+        let mut centres = Vec::with_capacity(here.len());
         for &(k, i) in &here {
-            let (d, t) = motion(&poses(k, i));
-            far = far.max(d.norm());
+            let p = poses(k, i);
+            let (d, t) = motion(&p);
+            far = far.max((d - self.centre_shift).norm());
             turned = turned.max(t);
+            centres.push(p.0 .0 + d * 0.5);
         }
-        let centres: Vec<Vector3<f64>> =
-            here.iter().map(|&(k, i)| fibres[k].segments[i].r).collect();
         let mut near = CellList::default();
         let mut order = Vec::new();
         let bounds = std::array::from_fn(|k| {
@@ -821,12 +833,15 @@ impl Search {
                             ));
                         }
                     });
-                    // the corrected fibres, where they are now: a pair that came within
-                    // reach is now within its two motions of that
+                    // the corrected fibres, by the middle of their motion too
                     let radius = slack(
-                        own + 0.5 * self.longest + 0.5 * self.widest + turned + dq.norm() + far,
+                        own + 0.5 * (dq - self.centre_shift).norm()
+                            + 0.5 * far
+                            + 0.5 * self.longest
+                            + 0.5 * self.widest
+                            + turned,
                     );
-                    near.cells_within(&pq.1 .0, radius, |n| {
+                    near.cells_within(&mid_q, radius, |n| {
                         for &j in &order[near.slots(n)] {
                             let (kb, ib) = here[j as usize];
                             if kb != q {
