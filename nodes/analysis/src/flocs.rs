@@ -133,6 +133,46 @@ fn root(parent: &mut [usize], mut a: usize) -> usize {
     a
 }
 
+/// The clusters of `n` fibres joined by `fibre_pairs`: each fibre's root, the lowest
+/// fibre of its cluster.
+fn clusters(n: usize, fibre_pairs: &[(usize, usize)]) -> Vec<usize> {
+    let mut parent: Vec<usize> = (0..n).collect();
+    for &(a, b) in fibre_pairs {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        if ra != rb {
+            parent[ra.max(rb)] = ra.min(rb);
+        }
+    }
+    (0..n).map(|k| root(&mut parent, k)).collect()
+}
+
+/// The pairs of fibres in contact in one full state, each once, ascending.
+fn fibre_pairs(pairs: &[(usize, usize, usize, usize, f64)]) -> Vec<(usize, usize)> {
+    let mut out: Vec<(usize, usize)> = pairs.iter().map(|p| (p.0, p.2)).collect();
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// The fibres of one full state that are in a floc (a cluster of two or more joined by
+/// contacts), ascending, each with its floc's name: the floc's lowest fibre.
+pub fn floc_members(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<(usize, usize)> {
+    let fibres = fibres_of(s);
+    let period = [Some(box_plus[0]), None, Some(box_plus[2])];
+    let pairs = fibre_pairs(&touching(&fibres, &period, CONTACT_TOLERANCE));
+    let roots = clusters(fibres.len(), &pairs);
+    let mut size = vec![0usize; fibres.len()];
+    for &r in &roots {
+        size[r] += 1;
+    }
+    roots
+        .iter()
+        .enumerate()
+        .filter(|&(_, &r)| size[r] >= 2)
+        .map(|(k, &r)| (k, r))
+        .collect()
+}
+
 /// Contacts and flocs of one full state of a whole group in a box periodic along x1
 /// and x3 (`box_plus` its lengths).
 pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
@@ -140,19 +180,10 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
     let n = fibres.len();
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
     let pairs = touching(&fibres, &period, CONTACT_TOLERANCE);
-    let mut parent: Vec<usize> = (0..n).collect();
-    let mut fibre_pairs: Vec<(usize, usize)> = pairs.iter().map(|p| (p.0, p.2)).collect();
-    fibre_pairs.sort_unstable();
-    fibre_pairs.dedup();
-    for &(a, b) in &fibre_pairs {
-        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-        if ra != rb {
-            parent[ra.max(rb)] = ra.min(rb);
-        }
-    }
+    let fibre_pairs = fibre_pairs(&pairs);
+    let roots = clusters(n, &fibre_pairs);
     let mut size = vec![0usize; n];
-    for k in 0..n {
-        let r = root(&mut parent, k);
+    for &r in &roots {
         size[r] += 1;
     }
     // each fibre's band, from its centre of mass's distance to the nearer wall
@@ -180,7 +211,7 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         let b = band_of(f);
         bands[b].fibres += 1;
         bands[b].contacts_per_fibre += degree[k] as f64;
-        if size[root(&mut parent, k)] >= 2 {
+        if size[roots[k]] >= 2 {
             in_band_flocs[b] += 1;
         }
     }
@@ -443,6 +474,21 @@ mod tests {
             .nth(1)
             .unwrap()
             .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000"));
+    }
+
+    /// Floc members are named by their floc's lowest fibre; a lone fibre is in none.
+    #[test]
+    fn floc_members_name_each_floc_by_its_lowest_fibre() {
+        let s = state(&[
+            (50.0, 0.0),
+            (10.0, 0.0),
+            (10.0, 0.232),
+            (50.0, 0.232),
+            (90.0, 0.0),
+            (10.0, 0.464),
+        ]);
+        let m = floc_members(&s, [942.0, 300.0, 471.0]);
+        assert_eq!(m, vec![(0, 0), (1, 1), (2, 1), (3, 0), (5, 1)]);
     }
 
     /// Across the periodic boundary in x1 two fibres still touch.

@@ -86,6 +86,7 @@ pub fn view_cmd(
         coiling_events = s.events,
         flow_slices = s.slices,
         contact_states = s.contact_states,
+        floc_fibres = s.floc_fibres,
         "scene written"
     );
     Ok(())

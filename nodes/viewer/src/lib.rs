@@ -58,8 +58,9 @@ pub struct ViewOptions {
     /// σ² thresholds of the coiling events.
     pub coil_thresholds: Vec<f64>,
     /// Show where fibres touch (`world/contacts/<group>`, red points at the midpoints of
-    /// touching centre-lines) in every state whose shapes are shown: computed over all the
-    /// group's fibres, so it costs a contact search per such state (docs/contact.md).
+    /// touching centre-lines) and the fibres of every floc, each floc in its own colour
+    /// (`world/flocs/<group>`), in every state whose shapes are shown: computed over all
+    /// the group's fibres, so it costs a contact search per such state (docs/contact.md).
     pub contacts: bool,
 }
 
@@ -84,6 +85,8 @@ pub struct SceneSummary {
     pub slices: usize,
     /// States whose contact points were logged (with [`ViewOptions::contacts`]).
     pub contact_states: usize,
+    /// Fibres drawn in their floc's colour, summed over those states.
+    pub floc_fibres: usize,
 }
 
 /// Colour map for σ² in [0, 1.5]: dark blue (straight) -> teal -> yellow (coiled).
@@ -219,6 +222,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     let mut log_err: Option<ViewerError> = None;
     let mut slices = 0usize;
     let mut contact_states = 0usize;
+    let mut floc_fibres = 0usize;
     let mut slice_meshes = slices::Logged::default();
     read::for_each(mcap, |it| {
         if log_err.is_some() {
@@ -239,7 +243,10 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                 }
                 if opts.contacts && due {
                     contact_states += 1;
-                    log_contacts(&rec, s, box_plus, dt_plus)
+                    log_contacts(&rec, s, box_plus, dt_plus).and_then(|()| {
+                        floc_fibres += log_flocs(&rec, s, box_plus)?;
+                        Ok(())
+                    })
                 } else {
                     Ok(())
                 }
@@ -284,7 +291,96 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
         events,
         slices,
         contact_states,
+        floc_fibres,
     })
+}
+
+/// Floc colours (a qualitative palette; no red, which marks the contact points).
+const FLOC_COLOURS: [[u8; 3]; 9] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [188, 189, 34],
+    [23, 190, 207],
+    [127, 127, 127],
+];
+
+/// The colour of the floc named by its lowest fibre `root` (neighbouring names spread
+/// over the palette).
+pub fn floc_colour(root: usize) -> [u8; 3] {
+    FLOC_COLOURS[(root.wrapping_mul(2_654_435_761) >> 7) % FLOC_COLOURS.len()]
+}
+
+/// The centre-line of fibre `k` of a full state (its joints, first end to last), moved by
+/// whole periods so that its centre of mass lies in the box.
+pub fn folded_centre_line(
+    s: &fiberflow_messages::FiberGroupState,
+    first_segment: usize,
+    k: usize,
+    box_plus: [f64; 3],
+) -> Vec<[f32; 3]> {
+    let n = s.segments_per_fiber[k] as usize;
+    let h = 0.5 * s.segment_length[k];
+    let at = |i: usize, v: &[f64]| [v[3 * i], v[3 * i + 1], v[3 * i + 2]];
+    let mut line = Vec::with_capacity(n + 1);
+    for i in first_segment..first_segment + n {
+        let (r, z) = (at(i, &s.centre), at(i, &s.axis));
+        line.push([r[0] - h * z[0], r[1] - h * z[1], r[2] - h * z[2]]);
+    }
+    let last = first_segment + n - 1;
+    let (r, z) = (at(last, &s.centre), at(last, &s.axis));
+    line.push([r[0] + h * z[0], r[1] + h * z[1], r[2] + h * z[2]]);
+    let com: Vec<f64> = (0..3)
+        .map(|c| {
+            (first_segment..=last)
+                .map(|i| s.centre[3 * i + c])
+                .sum::<f64>()
+                / n as f64
+        })
+        .collect();
+    let shift = [
+        com[0].rem_euclid(box_plus[0]) - com[0],
+        0.0,
+        com[2].rem_euclid(box_plus[2]) - com[2],
+    ];
+    line.iter()
+        .map(|p| [0, 1, 2].map(|c| (p[c] + shift[c]) as f32))
+        .collect()
+}
+
+/// Logs the fibres of every floc of one state at `world/flocs/<group>`, each floc in its
+/// own colour ([`floc_colour`]); returns how many fibres it drew.
+fn log_flocs(
+    rec: &rerun::RecordingStream,
+    s: &fiberflow_messages::FiberGroupState,
+    box_plus: [f64; 3],
+) -> Result<usize, ViewerError> {
+    let members = fiberflow_analysis::flocs::floc_members(s, box_plus);
+    let mut first = Vec::with_capacity(s.segments_per_fiber.len());
+    let mut o = 0usize;
+    for &n in &s.segments_per_fiber {
+        first.push(o);
+        o += n as usize;
+    }
+    let strips: Vec<Vec<[f32; 3]>> = members
+        .iter()
+        .map(|&(k, _)| folded_centre_line(s, first[k], k, box_plus))
+        .collect();
+    let colours = members.iter().map(|&(_, r)| {
+        let [red, green, blue] = floc_colour(r);
+        rerun::Color::from_rgb(red, green, blue)
+    });
+    rec.log(
+        format!("world/flocs/{}", s.group),
+        &rerun::LineStrips3D::new(strips)
+            .with_radii([0.3])
+            .with_colors(colours),
+    )
+    .map_err(err)?;
+    Ok(members.len())
 }
 
 /// Logs where the fibres of one state touch, at `world/contacts/<group>` (red points of
@@ -686,6 +782,31 @@ fn log_events(
         .map_err(err)?;
     }
     Ok(events.len())
+}
+
+#[cfg(test)]
+mod floc_tests {
+    use super::*;
+
+    /// A fibre of two segments along x1 whose centre of mass lies one period beyond the
+    /// box is drawn at its joints, moved back by that period; flocs next to each other by
+    /// name get different colours.
+    #[test]
+    fn a_floc_fibre_is_drawn_at_its_joints_inside_the_box() {
+        let s = fiberflow_messages::FiberGroupState {
+            segments_per_fiber: vec![2],
+            segment_length: vec![3.0],
+            centre: vec![1001.5, 10.0, 5.0, 1004.5, 10.0, 5.0],
+            axis: vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        let line = folded_centre_line(&s, 0, 0, [1000.0, 300.0, 400.0]);
+        assert_eq!(
+            line,
+            vec![[0.0, 10.0, 5.0], [3.0, 10.0, 5.0], [6.0, 10.0, 5.0]]
+        );
+        assert_ne!(floc_colour(3), floc_colour(4));
+    }
 }
 
 #[cfg(test)]

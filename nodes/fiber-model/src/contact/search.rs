@@ -428,6 +428,58 @@ fn candidate(
     })
 }
 
+/// A pair found after a round of corrections ([`Search::around`]), segments a and b each
+/// at the start of the step and now, if it overlaps now: centre-lines closer than the
+/// contact distance by more than 10⁻⁶ of it. Its side: where they are now, unless their
+/// centre-lines came within half a contact distance of each other somewhere on the
+/// straight way from the start to now (sampled at 17 moments) — then they may have been
+/// pushed through each other, and the pair keeps the side it had at the start (an overlap
+/// deeper than d to undo). A pair far apart at the start whose closest points merely
+/// turned keeps its side where it is.
+fn fresh_pair(
+    a: (usize, usize),
+    pa: (Pose, Pose),
+    b: (usize, usize),
+    pb: (Pose, Pose),
+    period: &[Option<f64>; 3],
+) -> Option<Candidate> {
+    let (a, b, pa, pb) = if a < b {
+        (a, b, pa, pb)
+    } else {
+        (b, a, pb, pa)
+    };
+    let motion = |(was, now): &(Pose, Pose)| (now.0 - was.0, now.2 * (now.1 - was.1).norm());
+    let ((da, ta), (db, tb)) = (motion(&pa), motion(&pb));
+    let skin = (da - db).norm() + ta + tb;
+    let mut c = candidate(a, b, pa.0, pb.0, skin, period)?;
+    let ends = |p: &Pose, shift: Vector3<f64>| (p.0 - p.1 * p.2 + shift, p.0 + p.1 * p.2 + shift);
+    let separation = |(p0, p1): (Vector3<f64>, Vector3<f64>),
+                      (q0, q1): (Vector3<f64>, Vector3<f64>)| {
+        let (u, v) = closest_points(&p0, &p1, &q0, &q1);
+        (p0 + (p1 - p0) * u) - (q0 + (q1 - q0) * v)
+    };
+    let zero = Vector3::zeros();
+    let w = separation(ends(&pa.1, zero), ends(&pb.1, c.shift));
+    let dist = w.norm();
+    if !(dist < c.reach * (1.0 - 1e-6)) {
+        return None;
+    }
+    let (a0, a1) = (ends(&pa.0, zero), ends(&pa.1, zero));
+    let (b0, b1) = (ends(&pb.0, c.shift), ends(&pb.1, c.shift));
+    let lerp = |x: (Vector3<f64>, Vector3<f64>), y: (Vector3<f64>, Vector3<f64>), t: f64| {
+        (x.0 + (y.0 - x.0) * t, x.1 + (y.1 - x.1) * t)
+    };
+    let passed = (0..=16).any(|k| {
+        let t = f64::from(k) / 16.0;
+        separation(lerp(a0, a1, t), lerp(b0, b1, t)).norm() < 0.5 * c.reach
+    });
+    // passed close: the side at the start (in `c`); else where they are now
+    if !passed && dist > 1e-12 * c.reach {
+        c.normal0 = w / dist;
+    }
+    Some(c)
+}
+
 /// The candidate pair of two segments in the step ([`Search::pairs`]): segments of
 /// different fibres whose mid-step centres are close enough for them to touch at some
 /// moment of the step — within (l_a + l_b)/2 + (d_a + d_b)/2 + |Δr_a − Δr_b|/2 + turn_a +
@@ -767,25 +819,7 @@ impl Search {
         // the pair of segments a and b (each at the start and now), oriented, if it may
         // have come within reach since the start and overlaps now on its side at the start
         let test = |a: (usize, usize), pa: (Pose, Pose), b: (usize, usize), pb: (Pose, Pose)| {
-            let (a, b, pa, pb) = if a < b {
-                (a, b, pa, pb)
-            } else {
-                (b, a, pb, pa)
-            };
-            let ((da, ta), (db, tb)) = (motion(&pa), motion(&pb));
-            let skin = (da - db).norm() + ta + tb;
-            let c = candidate(a, b, pa.0, pb.0, skin, period)?;
-            let (now_a, now_b) = (pa.1, pb.1);
-            let (pa0, pa1) = (now_a.0 - now_a.1 * now_a.2, now_a.0 + now_a.1 * now_a.2);
-            let (qb0, qb1) = (
-                now_b.0 - now_b.1 * now_b.2 + c.shift,
-                now_b.0 + now_b.1 * now_b.2 + c.shift,
-            );
-            let (u, v) = closest_points(&pa0, &pa1, &qb0, &qb1);
-            let w = (pa0 + (pa1 - pa0) * u) - (qb0 + (qb1 - qb0) * v);
-            let side = if w.dot(&c.normal0) >= 0.0 { 1.0 } else { -1.0 };
-            let gap = side * w.norm() - c.reach;
-            (gap < -1e-6 * c.reach).then_some(c)
+            fresh_pair(a, pa, b, pb, period)
         };
         let mut out: Vec<Candidate> = moved
             .par_iter()
@@ -937,14 +971,9 @@ mod tests {
         let segs: Vec<(usize, usize)> = (0..now.len())
             .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
             .collect();
-        let pose = |k: usize, i: usize| {
-            let (s, p) = (&was[k].segments[i], &was[k].props[i]);
+        let pose = |f: &[Fibre], k: usize, i: usize| {
+            let (s, p) = (&f[k].segments[i], &f[k].props[i]);
             (s.r, s.z, 0.5 * p.shape.length, 0.5 * p.shape.diameter)
-        };
-        let motion = |k: usize, i: usize| {
-            let (s0, s1) = (&was[k].segments[i], &now[k].segments[i]);
-            let half = 0.5 * now[k].props[i].shape.length;
-            (s1.r - s0.r, half * (s1.z - s0.z).norm())
         };
         let mut out = Vec::new();
         for (n, &(ka, ia)) in segs.iter().enumerate() {
@@ -952,20 +981,53 @@ mod tests {
                 if ka == kb || !(moved.contains(&ka) || moved.contains(&kb)) {
                     continue;
                 }
-                let ((da, ta), (db, tb)) = (motion(ka, ia), motion(kb, ib));
-                let skin = (da - db).norm() + ta + tb;
-                out.extend(candidate(
+                out.extend(fresh_pair(
                     (ka, ia),
+                    (pose(was, ka, ia), pose(now, ka, ia)),
                     (kb, ib),
-                    pose(ka, ia),
-                    pose(kb, ib),
-                    skin,
+                    (pose(was, kb, ib), pose(now, kb, ib)),
                     &PERIOD,
                 ));
             }
         }
-        out.retain(|c| geometry(now, c).2 < -1e-6 * c.reach);
         out
+    }
+
+    /// A pair pushed through each other keeps its side at the start (an overlap deeper
+    /// than d); a pair that was far apart and only turned into touch takes its side where
+    /// it is now.
+    #[test]
+    fn a_pair_pushed_through_keeps_its_side_and_one_that_turned_takes_its_own() {
+        let seg = |r: Vector3<f64>, z: Vector3<f64>| (r, z, 1.5, 0.116);
+        // b along z at the origin; a along x, 0.3 above, pushed to 0.1 below
+        let b = seg(Vector3::zeros(), Vector3::z());
+        let c = fresh_pair(
+            (0, 0),
+            (
+                seg(Vector3::new(0.0, 0.3, 0.0), Vector3::x()),
+                seg(Vector3::new(0.0, -0.1, 0.0), Vector3::x()),
+            ),
+            (1, 0),
+            (b, b),
+            &[None; 3],
+        )
+        .unwrap();
+        assert!(c.normal0.y > 0.99, "{:?}", c.normal0);
+        // a along x, its end 2 to the side of b and 1 below, moved so its end meets b from
+        // above: never closer than 0.17 on the way (the side at the start, from b to a's
+        // end, points down)
+        let c = fresh_pair(
+            (0, 0),
+            (
+                seg(Vector3::new(3.5, -1.0, 0.0), Vector3::x()),
+                seg(Vector3::new(1.5, 0.2, 0.0), Vector3::x()),
+            ),
+            (1, 0),
+            (b, b),
+            &[None; 3],
+        )
+        .unwrap();
+        assert!(c.normal0.y > 0.99, "{:?}", c.normal0);
     }
 
     #[test]
