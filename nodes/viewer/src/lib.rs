@@ -579,7 +579,9 @@ fn log_static(
          and a cross-section at x1 = 0; blue slow, red fast, white = the plane's mean, \
          ±4 u_tau. In two-way runs, beyond the channel (at lower x3): the fibres' \
          streamwise force on the fluid in the same plane, red pushing it forward, blue \
-         holding it back (the strongest 1% saturate).\n\n\
+         holding it back (the strongest 1% saturate). With `--contacts`: red points where \
+         fibres touch, and the fibres of every floc (fibres joined by contacts) drawn in \
+         their floc's colour, one colour per floc, from all of the group's fibres.\n\n\
          **Plots** (right): one tab per series (σ², |z1|, end-to-end distance, wall distance \
          x2+), in each one plot per case with every shown fibre of that case, coloured by \
          initial layer: blue near wall, orange next, green middle. **Click a fibre** in the \
