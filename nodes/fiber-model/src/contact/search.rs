@@ -38,17 +38,10 @@ pub(crate) struct Slices<'a> {
 
 impl<'a> Slices<'a> {
     pub(crate) fn new(before: &'a [Fibre], after: &'a [Fibre]) -> Self {
-        let mut offsets = Vec::with_capacity(after.len() + 1);
-        let mut n = 0;
-        for f in after {
-            offsets.push(n);
-            n += f.len();
-        }
-        offsets.push(n);
         Self {
             before,
             after,
-            offsets,
+            offsets: super::offsets(after),
         }
     }
 }
