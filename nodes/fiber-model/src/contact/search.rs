@@ -421,6 +421,12 @@ fn candidate(
     })
 }
 
+/// How a segment moved from one pose to another: its centre's displacement, and the most
+/// any of its points moved relative to the centre (h |Δẑ|).
+fn motion((was, now): &(Pose, Pose)) -> (Vector3<f64>, f64) {
+    (now.0 - was.0, now.2 * (now.1 - was.1).norm())
+}
+
 /// A pair found after a round of corrections ([`Search::around`]), segments a and b each
 /// at the start of the step and now, if it overlaps now: centre-lines closer than the
 /// contact distance by more than 10⁻⁶ of it. Its side: where they are now, unless their
@@ -441,7 +447,6 @@ fn fresh_pair(
     } else {
         (b, a, pb, pa)
     };
-    let motion = |(was, now): &(Pose, Pose)| (now.0 - was.0, now.2 * (now.1 - was.1).norm());
     let ((da, ta), (db, tb)) = (motion(&pa), motion(&pb));
     let skin = (da - db).norm() + ta + tb;
     let mut c = candidate(a, b, pa.0, pb.0, skin, period)?;
@@ -774,7 +779,6 @@ impl Search {
             let (was, now) = (&before[k].segments[i], &fibres[k].segments[i]);
             ((was.r, was.z, h, r), (now.r, now.z, h, r))
         };
-        let motion = |(was, now): &(Pose, Pose)| (now.0 - was.0, now.2 * (now.1 - was.1).norm());
         // the corrected fibres' segments where they are now, in their own small list,
         // and the most any of them moved or turned since the start
         let here: Vec<(usize, usize)> = (0..fibres.len())
@@ -811,9 +815,6 @@ impl Search {
         );
         // the pair of segments a and b (each at the start and now), oriented, if it may
         // have come within reach since the start and overlaps now on its side at the start
-        let test = |a: (usize, usize), pa: (Pose, Pose), b: (usize, usize), pb: (Pose, Pose)| {
-            fresh_pair(a, pa, b, pb, period)
-        };
         let mut out: Vec<Candidate> = moved
             .par_iter()
             .flat_map_iter(|&q| {
@@ -852,11 +853,12 @@ impl Search {
                             }
                             let (rb, zb) = s.end(kb, e.segment as usize);
                             let was = (e.start, e.axis, e.half, e.radius);
-                            found.extend(test(
+                            found.extend(fresh_pair(
                                 (q, i),
                                 pq,
                                 e.key(),
                                 (was, (rb, zb, e.half, e.radius)),
+                                period,
                             ));
                         }
                     });
@@ -872,7 +874,13 @@ impl Search {
                         for &j in &order[near.slots(n)] {
                             let (kb, ib) = here[j as usize];
                             if kb != q {
-                                found.extend(test((q, i), pq, (kb, ib), poses(kb, ib)));
+                                found.extend(fresh_pair(
+                                    (q, i),
+                                    pq,
+                                    (kb, ib),
+                                    poses(kb, ib),
+                                    period,
+                                ));
                             }
                         }
                     });
