@@ -284,6 +284,9 @@ pub(crate) struct Candidate {
     /// each segment and the normal when it first acted (so every impulse of the pair acts
     /// at the same material points, and taking one back undoes its torque too).
     at: Option<(f64, f64, Vector3<f64>)>,
+    /// Whether the pair joined its fibres into an island in an earlier round of this
+    /// step (it then keeps them in one island for the rest of the step).
+    joined: bool,
 }
 
 /// Nearest-image shift of `to` towards `from` along the periodic directions.
@@ -564,9 +567,9 @@ struct Solved {
 
 /// Solves one island on copies of its fibres. If the sweeps cannot separate it (a fibre
 /// pinched inside a coiled one: separating it needs the coil to bend, which a rigid
-/// response cannot), the island is locked: it moves over the step as one rigid body from
-/// where its fibres started, with their momentum ([`lock`]), so no two of its fibres end
-/// closer than they started.
+/// response cannot) or they ran away ([`ran_away`]), the island is locked: it moves over
+/// the step as one rigid body from where its fibres started, with the momentum they came
+/// to this round with ([`lock`]), so no two of its fibres end closer than they started.
 fn solve_island(
     fibres: &[Fibre],
     before: &[Fibre],
@@ -593,13 +596,15 @@ fn solve_island(
             c
         })
         .collect();
+    let came = mine.clone();
     let (sweeps, applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
     let locked = pairs
         .iter()
-        .any(|c| geometry(&mine, c).2 < -LOCK_GAP * c.reach);
+        .any(|c| geometry(&mine, c).2 < -LOCK_GAP * c.reach)
+        || ran_away(&came, &mine, &pairs, dt);
     if locked {
         let start: Vec<&Fibre> = isl.fibres.iter().map(|&k| &before[k]).collect();
-        mine = lock(&start, &mine, &held, &images(mine.len(), &pairs), dt);
+        mine = lock(&start, &came, &held, &images(mine.len(), &pairs), dt);
         // a locked island that went through a wall moves back from it as one body
         if let Some(hh) = params.wall_half_height {
             let shift = mine
@@ -609,8 +614,19 @@ fn solve_island(
             mine.iter_mut()
                 .for_each(|f| crate::step::shift_from_wall(f, shift));
         }
+        // a rigid motion from a start without overlaps crosses no pair of the island: each
+        // pair's side is where the lock put it (one taken after an earlier round's push
+        // may point the other way)
         for c in pairs.iter_mut() {
             c.impulse = Vector3::zeros();
+            let (pa0, pa1) = ends(&mine[c.a.0], c.a.1);
+            let (qb0, qb1) = ends(&mine[c.b.0], c.b.1);
+            let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
+            let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+            let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
+            if v.norm() > 1e-12 * c.reach {
+                c.normal0 = v.normalize();
+            }
         }
     }
     for c in pairs.iter_mut() {
@@ -629,6 +645,44 @@ fn solve_island(
 /// An island whose sweeps leave a pair closer than this fraction of its contact distance
 /// is locked.
 const LOCK_GAP: f64 = 0.005;
+
+/// Kinetic energy of `fibres` in their centre-of-mass frame (segments' translation and
+/// spin) and their total mass.
+fn internal_energy(fibres: &[Fibre]) -> (f64, f64) {
+    let seg = || fibres.iter().flat_map(|f| f.segments.iter().zip(&f.props));
+    let mass: f64 = seg().map(|(_, p)| p.mass).sum();
+    if mass <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let v = seg().fold(Vector3::zeros(), |a, (s, p)| a + s.v * p.mass) / mass;
+    let e = seg()
+        .map(|(s, p)| {
+            let u = s.v - v;
+            0.5 * (p.mass * u.dot(&u) + s.w.dot(&(p.inertia(&s.z) * s.w)))
+        })
+        .sum();
+    (e, mass)
+}
+
+/// Whether the sweeps over an island ran away: contact impulses are inelastic (they stop
+/// fibres moving into each other and stop sliding) apart from the part that closes the
+/// overlaps within the step, so sweeps that raise the island's kinetic energy about its
+/// centre of mass by more than moving all of it by its deepest overlap within Δt would
+/// are taken as jammed. That happens where no rigid response of the fibres separates
+/// them: a fibre's end wedged in another's bent joint with friction above the wedge's
+/// tan α (the normal impulses squeeze, friction holds, and the impulses grow sweep after
+/// sweep; test `contact::tests::an_end_wedged_in_a_bent_joint_slides_out_below_tan_alpha_and_jams_above`).
+/// A jammed island is locked, from the momentum it came with.
+fn ran_away(came: &[Fibre], now: &[Fibre], pairs: &[Candidate], dt: f64) -> bool {
+    let (before, mass) = internal_energy(came);
+    let (after, _) = internal_energy(now);
+    let deepest = pairs
+        .iter()
+        .map(|c| (-geometry(came, c).2).max(0.0))
+        .fold(0.0_f64, f64::max);
+    let closing = 0.5 * mass * (deepest / dt).powi(2);
+    !(after <= before + closing)
+}
 
 /// Periodic shifts that put the `n` fibres of an island beside each other: each pair's
 /// second fibre is shifted by the pair's shift plus the first's (a tree of the pairs from
@@ -661,11 +715,13 @@ fn images(n: usize, pairs: &[Candidate]) -> Vec<Vector3<f64>> {
         .collect()
 }
 
-/// The island `now` moved as one rigid body over the step from `start` (its fibres at the
-/// start of the step; fibre k seen at its periodic image `image[k]`): the centre of mass moves with the island's momentum, the island
-/// turns with its angular momentum about it (about the start's inertia tensor), every
-/// segment with the island's velocity field. Momentum is kept exactly; distances between
-/// its fibres are those at the start. With a fixed fibre in it, the island stays where it
+/// The island `now` (as it came to this round of the solve: the impulses between its own
+/// fibres add nothing to its momentum) moved as one rigid body over the step from `start`
+/// (its fibres at the start of the step; fibre k seen at its periodic image `image[k]`):
+/// the centre of mass moves with the island's momentum, the island turns with its angular
+/// momentum about it (about the start's inertia tensor), every segment with the island's
+/// velocity field. Momentum is kept exactly; distances between its fibres are those at
+/// the start. With a fixed fibre in it, the island stays where it
 /// started, at rest.
 fn lock(
     start: &[&Fibre],
@@ -850,8 +906,11 @@ pub(crate) fn resolve_segments<S: Segments>(
         let live: Vec<bool> = cands
             .iter()
             .zip(&gaps)
-            .map(|(c, &g)| g < -1e-6 || c.impulse != Vector3::zeros())
+            .map(|(c, &g)| g < -1e-6 || c.impulse != Vector3::zeros() || c.joined)
             .collect();
+        for (c, &l) in cands.iter_mut().zip(&live) {
+            c.joined |= l;
+        }
         // islands are independent: solved in parallel, written back in order
         let isl = islands(n, &cands, &live);
         let solved: Vec<Solved> = isl
@@ -1427,21 +1486,26 @@ mod tests {
             "B and C never touched"
         );
     }
-    /// Three fibres of `launch/flocs.toml` at step 258 (its first run with Gauss–Seidel
-    /// sweeps; states at the start and after the free step, exact bits): the middle
-    /// segment of one fibre sits between two segments of a coiled fibre, and the free step
-    /// closed the coil on it (closer than 0.97 d, with nearly opposite normals on the two
-    /// sides). No rigid response of the two fibres separates both sides, so the sweeps'
-    /// impulses grow sweep after sweep. The island is locked instead: it moves as one body
-    /// from where it started, keeps its momentum, its fibres keep their start shapes, and
-    /// no centre-lines end closer than 0.99 d.
-    #[test]
-    fn a_fibre_pinched_in_a_coil_locks_its_island() {
-        let text = include_str!("../testdata/pinched-island.txt");
+    /// An island written by a run (exact bits, see `testdata/`): time step, friction,
+    /// sweeps, wall half-height (0: none), periods (0: none), the fibres at the start of
+    /// the step and after the free step.
+    struct Recorded {
+        dt: f64,
+        params: ContactParams,
+        before: Vec<Fibre>,
+        free: Vec<Fibre>,
+    }
+
+    fn recorded(text: &str) -> Recorded {
         let mut lines = text.lines();
         let hx = |s: &str| f64::from_bits(u64::from_str_radix(s, 16).unwrap());
         let head: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
         let (dt, mu) = (hx(head[1]), hx(head[3]));
+        let wall = head
+            .iter()
+            .position(|&w| w == "wall")
+            .map(|i| hx(head[i + 1]))
+            .filter(|&h| h != 0.0);
         let mut period = [None; 3];
         for p in period.iter_mut() {
             let l: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
@@ -1471,6 +1535,36 @@ mod tests {
                 free.push(f)
             }
         }
+        Recorded {
+            dt,
+            params: ContactParams {
+                friction: mu,
+                sweeps: 100,
+                period,
+                wall_half_height: wall,
+            },
+            before,
+            free,
+        }
+    }
+
+    /// Three fibres of `launch/flocs.toml` at step 258 (its first run with Gauss–Seidel
+    /// sweeps; states at the start and after the free step, exact bits): the middle
+    /// segment of one fibre sits between two segments of a coiled fibre, and the free step
+    /// closed the coil on it (closer than 0.97 d, with nearly opposite normals on the two
+    /// sides). No rigid response of the two fibres separates both sides, so the sweeps'
+    /// impulses grow sweep after sweep. The island is locked instead: it moves as one body
+    /// from where it started, keeps its momentum, its fibres keep their start shapes, and
+    /// no centre-lines end closer than 0.99 d.
+    #[test]
+    fn a_fibre_pinched_in_a_coil_locks_its_island() {
+        let Recorded {
+            dt,
+            params: c,
+            before,
+            free,
+        } = recorded(include_str!("../testdata/pinched-island.txt"));
+        let period = c.period;
         assert_eq!(before.len(), 3);
         assert!(
             min_distance(&before, &period) >= 0.99 * D,
@@ -1487,12 +1581,6 @@ mod tests {
                 .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
         };
         let mut fs = free.clone();
-        let c = ContactParams {
-            friction: mu,
-            sweeps: 100,
-            period,
-            wall_half_height: None,
-        };
         let out = resolve(&mut fs, &before, &[], &c, dt);
         assert!(!out.locked.is_empty(), "the island was not locked");
         let m = min_distance(&fs, &period);
@@ -1510,5 +1598,139 @@ mod tests {
             let d1 = (b[0].r - b[6].r).norm();
             assert!((d0 - d1).abs() < 1e-9 * d0, "fibre {k} changed shape");
         }
+    }
+
+    /// Eleven fibres of a band at y+ 1–31 stepped by the DNS (friction 0.5, walls at
+    /// ±150; step 21, exact bits, reduced from the 278 fibres joined by candidate pairs
+    /// there). A push in an early round made two of them overlap from one side; their pair
+    /// took that side. Their island was then locked, which put them back where the start
+    /// had them, on the other side of each other, 4.3 d apart: the pair looked crossed
+    /// (−5.3 d), and its side would have driven the next corrections through. A locked
+    /// island's pairs take their side from where the lock put them.
+    #[test]
+    fn a_locked_island_next_to_the_wall_keeps_every_pair_on_its_side() {
+        let r = recorded(include_str!("../testdata/wall-island.txt"));
+        assert_eq!(r.before.len(), 11);
+        let period = r.params.period;
+        assert!(
+            min_distance(&r.before, &period) >= 0.99 * D,
+            "the start overlaps"
+        );
+        let mut fs = r.free.clone();
+        let out = resolve(&mut fs, &r.before, &[], &r.params, r.dt);
+        assert!(!out.locked.is_empty(), "no island was locked");
+        assert!(
+            out.worst_gap >= -0.01 * D,
+            "worst gap {}",
+            out.worst_gap / D
+        );
+        let m = min_distance(&fs, &period);
+        assert!(m >= 0.99 * D, "centre-lines {m} apart");
+        for (k, f) in fs.iter().enumerate() {
+            assert_eq!(
+                crate::step::wall_shift(f, 150.0),
+                0.0,
+                "fibre {k} in the wall"
+            );
+        }
+    }
+
+    /// Two fibres of a band at y+ 1–31 stepped by the DNS (step ≈ 20, exact bits): the
+    /// end of one sits inside the bent joint of the other, touching both segments there
+    /// from inside the bend, the free step drove it 2.4 d in. The normals of the two
+    /// pairs are 133° apart, a wedge of half-angle α ≈ 23.6° (tan α ≈ 0.44). Without
+    /// friction, or with μ well below tan α, the sweeps push the end out and converge;
+    /// with μ above it the wedge holds (normal impulses squeeze, friction holds) and the
+    /// sweeps raise the pair's kinetic energy sweep after sweep: the two are locked
+    /// together over the step, with the momentum they came with, from where they started.
+    /// Measured on these bits: no lock up to μ = 0.41, a lock from μ = 0.45.
+    #[test]
+    fn an_end_wedged_in_a_bent_joint_slides_out_below_tan_alpha_and_jams_above() {
+        let r = recorded(include_str!("../testdata/wedged-end.txt"));
+        let period = r.params.period;
+        assert!(
+            min_distance(&r.before, &period) >= 0.99 * D,
+            "the start overlaps"
+        );
+        assert!(
+            min_distance(&r.free, &period) < 0.6 * D,
+            "the free step did not wedge it"
+        );
+        let momentum = |fs: &[Fibre]| {
+            fs.iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
+        };
+        let energy = |fs: &[Fibre]| internal_energy(fs).0 / internal_energy(fs).1;
+        for mu in [0.0, 0.2, 0.3] {
+            let mut fs = r.free.clone();
+            let c = ContactParams {
+                friction: mu,
+                ..r.params
+            };
+            let out = resolve(&mut fs, &r.before, &[], &c, r.dt);
+            assert!(out.locked.is_empty(), "μ = {mu}: locked");
+            assert!(
+                out.sweeps < c.sweeps,
+                "μ = {mu}: the sweeps did not converge"
+            );
+            let m = min_distance(&fs, &period);
+            assert!(m >= 0.99 * D, "μ = {mu}: centre-lines {m} apart");
+            assert!(
+                energy(&fs) <= energy(&r.free),
+                "μ = {mu}: contact added energy"
+            );
+        }
+        for mu in [0.5, 0.6, 1.0] {
+            let mut fs = r.free.clone();
+            let c = ContactParams {
+                friction: mu,
+                ..r.params
+            };
+            let out = resolve(&mut fs, &r.before, &[], &c, r.dt);
+            assert_eq!(out.locked, vec![0, 1], "μ = {mu}: not locked");
+            let m = min_distance(&fs, &period);
+            assert!(m >= 0.99 * D, "μ = {mu}: centre-lines {m} apart");
+            // locked with the momentum they came with, their shapes and distances those
+            // of the start
+            let (p0, p1) = (momentum(&r.free), momentum(&fs));
+            assert!(
+                (p1 - p0).norm() <= 1e-12 * p0.norm(),
+                "μ = {mu}: {p0} → {p1}"
+            );
+            let d0 = (r.before[0].segments[6].r - r.before[1].segments[4].r).norm();
+            let d1 = (fs[0].segments[6].r - fs[1].segments[4].r).norm();
+            assert!(
+                (d0 - d1).abs() < 1e-9 * d0,
+                "μ = {mu}: the pair moved apart"
+            );
+        }
+    }
+
+    /// Thirteen fibres of the DNS-driven near-wall band (μ = 0.5, exact bits). Rounds
+    /// form islands from the pairs that overlap or pushed; a locked island's impulses
+    /// are zero, so in the next round a fibre of it could be solved in another island
+    /// with a third fibre and pushed back into its locked partner, and the first version
+    /// went round so for all 8 rounds and left a pair 0.46 d apart. A pair that joined
+    /// two fibres into an island keeps them in one for the rest of the step.
+    #[test]
+    fn fibres_locked_together_stay_one_island_for_the_step() {
+        let r = recorded(include_str!("../testdata/split-lock.txt"));
+        assert_eq!(r.before.len(), 13);
+        let period = r.params.period;
+        assert!(
+            min_distance(&r.before, &period) >= 0.99 * D,
+            "the start overlaps"
+        );
+        let mut fs = r.free.clone();
+        let out = resolve(&mut fs, &r.before, &[], &r.params, r.dt);
+        assert!(!out.locked.is_empty(), "nothing was locked");
+        assert!(
+            out.worst_gap >= -0.01 * D,
+            "worst gap {} d",
+            out.worst_gap / D
+        );
+        let m = min_distance(&fs, &period);
+        assert!(m >= 0.99 * D, "centre-lines {m} apart");
     }
 }

@@ -418,6 +418,7 @@ fn candidate(
         reach,
         impulse: Vector3::zeros(),
         at: None,
+        joined: false,
     })
 }
 
@@ -427,14 +428,19 @@ fn motion((was, now): &(Pose, Pose)) -> (Vector3<f64>, f64) {
     (now.0 - was.0, now.2 * (now.1 - was.1).norm())
 }
 
+/// Most moments at which [`fresh_pair`] looks along a pair's way (enough for a relative
+/// motion of 2048 contact distances within the step).
+const MAX_WAY_MOMENTS: u32 = 4096;
+
 /// A pair found after a round of corrections ([`Search::around`]), segments a and b each
 /// at the start of the step and now, if it overlaps now: centre-lines closer than the
 /// contact distance by more than 10⁻⁶ of it. Its side: where they are now, unless their
 /// centre-lines came within half a contact distance of each other somewhere on the
-/// straight way from the start to now (sampled at 17 moments) — then they may have been
-/// pushed through each other, and the pair keeps the side it had at the start (an overlap
-/// deeper than d to undo). A pair far apart at the start whose closest points merely
-/// turned keeps its side where it is.
+/// straight way from the start to now — then they may have been pushed through each
+/// other, and the pair keeps the side it had at the start (an overlap deeper than d to
+/// undo). The way is looked at often enough that no passage closer than a quarter contact
+/// distance falls between two looks, however far the pair moved. A pair far apart at the
+/// start whose closest points merely turned keeps its side where it is.
 fn fresh_pair(
     a: (usize, usize),
     pa: (Pose, Pose),
@@ -467,8 +473,11 @@ fn fresh_pair(
     let lerp = |x: (Vector3<f64>, Vector3<f64>), y: (Vector3<f64>, Vector3<f64>), t: f64| {
         (x.0 + (y.0 - x.0) * t, x.1 + (y.1 - x.1) * t)
     };
-    let passed = (0..=16).any(|k| {
-        let t = f64::from(k) / 16.0;
+    // the separation changes by at most `skin` over the way, so moments 1/n apart with
+    // n ≥ 2 skin / reach find every passage closer than a quarter contact distance
+    let n = ((2.0 * skin / c.reach).ceil() as u32).clamp(16, MAX_WAY_MOMENTS);
+    let passed = (0..=n).any(|k| {
+        let t = f64::from(k) / f64::from(n);
         separation(lerp(a0, a1, t), lerp(b0, b1, t)).norm() < 0.5 * c.reach
     });
     // passed close: the side at the start (in `c`); else where they are now
@@ -1029,6 +1038,32 @@ mod tests {
         )
         .unwrap();
         assert!(c.normal0.y > 0.99, "{:?}", c.normal0);
+    }
+
+    /// A segment pushed fast through another within one step (40 d across, ending 0.6 d
+    /// on the far side) passes it between any 17 evenly spaced moments of its way; the
+    /// way is looked at often enough for its motion, so the pair keeps its start side.
+    #[test]
+    fn a_pair_pushed_fast_through_keeps_its_side_however_far_it_moved() {
+        let d = 0.232;
+        let seg = |r: Vector3<f64>, z: Vector3<f64>| (r, z, 1.5, 0.5 * d);
+        let b = seg(Vector3::zeros(), Vector3::z());
+        let (from, to) = (40.0 * d, -0.6 * d);
+        // at 17 moments the closest is 15/16 of the way: still above half a diameter
+        let at = |t: f64| from + (to - from) * t;
+        assert!(at(15.0 / 16.0) > 0.5 * d && at(1.0).abs() > 0.5 * d);
+        let c = fresh_pair(
+            (0, 0),
+            (
+                seg(Vector3::new(0.0, from, 0.0), Vector3::x()),
+                seg(Vector3::new(0.0, to, 0.0), Vector3::x()),
+            ),
+            (1, 0),
+            (b, b),
+            &[None; 3],
+        )
+        .unwrap();
+        assert!(c.normal0.y > 0.99, "took the far side: {:?}", c.normal0);
     }
 
     #[test]
