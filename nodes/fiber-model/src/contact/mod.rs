@@ -799,7 +799,8 @@ fn lock(
 
 /// Gives fibre `f` (rigid body `r`) the impulse `j` at `point`: its velocities change, and
 /// it moves over the step by Δt times that change (a rigid motion about its centre of mass);
-/// then, with walls at ±`wall`, back from a wall it went through (the model's wall contact).
+/// then, with walls at ±`wall`, the walls push back any end it drove through them
+/// ([`hold_off_walls`]).
 fn push(
     f: &mut Fibre,
     r: &mut Rigid,
@@ -808,6 +809,65 @@ fn push(
     dt: f64,
     wall: Option<f64>,
 ) {
+    if r.inv_mass == 0.0 {
+        return;
+    }
+    move_by(f, r, point, j, dt);
+    if let Some(hh) = wall {
+        hold_off_walls(f, r, hh, dt);
+    }
+}
+
+/// The walls at x2 = ±`hh` as contacts of the sweeps: the joint deepest beyond a wall
+/// gets the impulse along the wall's normal that brings it back onto the wall by the end
+/// of the step (through the fibre's rigid mobility at that joint, so it turns the fibre
+/// as a push at that point would), until no joint is beyond; what 8 such pushes leave,
+/// the model's wall contact moves back along x2. A shift alone (the first version) let a
+/// push at one end of a fibre lying on the wall turn it into the wall sweep after sweep,
+/// adding energy that no shift took back.
+fn hold_off_walls(f: &mut Fibre, r: &mut Rigid, hh: f64, dt: f64) {
+    for _ in 0..8 {
+        let Some((point, normal, depth)) = deepest_beyond_wall(f, hh) else {
+            return;
+        };
+        let m = normal.dot(&(r.mobility(&point) * normal));
+        if !(m > 0.0) {
+            break;
+        }
+        move_by(f, r, &point, &(normal * (depth / (dt * m))), dt);
+    }
+    let shift = crate::step::wall_shift(f, hh);
+    crate::step::shift_from_wall(f, shift);
+    r.com.y += shift;
+}
+
+/// The joint of `f` deepest beyond a wall at x2 = ±`hh`: the joint, the wall's normal
+/// into the channel and the depth (None when every joint is inside).
+fn deepest_beyond_wall(f: &Fibre, hh: f64) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+    let mut deepest: Option<(Vector3<f64>, Vector3<f64>, f64)> = None;
+    let mut look = |p: Vector3<f64>| {
+        let (depth, normal) = if p.y < -hh {
+            (-hh - p.y, Vector3::y())
+        } else if p.y > hh {
+            (p.y - hh, -Vector3::y())
+        } else {
+            return;
+        };
+        if deepest.is_none_or(|(_, _, d)| depth > d) {
+            deepest = Some((p, normal, depth));
+        }
+    };
+    for (s, p) in f.segments.iter().zip(&f.props) {
+        look(s.r - s.z * (0.5 * p.shape.length));
+    }
+    if let (Some(s), Some(p)) = (f.segments.last(), f.props.last()) {
+        look(s.r + s.z * (0.5 * p.shape.length));
+    }
+    deepest
+}
+
+/// The rigid motion of [`push`] without the walls.
+fn move_by(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>, dt: f64) {
     if r.inv_mass == 0.0 {
         return;
     }
@@ -823,11 +883,6 @@ fn push(
         s.n = rotate_vector(&s.n, &phi).normalize();
     }
     r.com += dv * dt;
-    if let Some(hh) = wall {
-        let shift = crate::step::wall_shift(f, hh);
-        crate::step::shift_from_wall(f, shift);
-        r.com.y += shift;
-    }
 }
 
 /// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
@@ -1135,6 +1190,50 @@ mod tests {
     /// one back out of the wall as they push (the wall is part of the solve), so both stay
     /// inside the channel and never closer than 0.99 d. Without the wall in the solve, the
     /// wall's push after it drives them into each other.
+    /// A fibre driven down onto the end of one that lies flat on the lower wall: the wall
+    /// holds that end up, so the lying fibre neither turns nor lifts its other end (a
+    /// rigid rod pressed at one end onto a floor stays on the floor), and the two stay
+    /// apart. With the wall as a shift after each push (the first version) every push
+    /// turned the lying fibre into the wall and the shift lifted it whole.
+    #[test]
+    fn a_fibre_pressed_onto_the_end_of_one_lying_on_the_wall_does_not_lift_its_other_end() {
+        const H: f64 = 10.0;
+        let mut fibres = vec![
+            fibre(Vector3::new(9.0, -H + 0.3, 0.0), Vector3::z()),
+            fibre(Vector3::new(0.0, -H, 0.0), Vector3::x()),
+        ];
+        let p = ModelParams {
+            wall_half_height: Some(H),
+            ..params(Vector3::zeros())
+        };
+        let c = ContactParams {
+            wall_half_height: Some(H),
+            ..Default::default()
+        };
+        let fluid = |k: usize, _: &Vector3<f64>| {
+            uniform(Vector3::new(0.0, if k == 0 { -1.0 } else { 0.0 }, 0.0))
+        };
+        let (mut closest, mut lifted, mut locked) = (f64::INFINITY, 0.0_f64, 0);
+        for _ in 0..30 {
+            let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+            locked += usize::from(!out.locked.is_empty());
+            for &k in &out.moved {
+                crate::step::wall_contact(&mut fibres[k], H);
+            }
+            closest = closest.min(min_distance(&fibres, &[None; 3]));
+            let far = fibres[1].joints()[0];
+            lifted = lifted.max(far.y + H);
+        }
+        eprintln!(
+            "closest {} d, far end lifted {} d, locked {locked}",
+            closest / D,
+            lifted / D
+        );
+        assert!(closest >= 0.99 * D, "centre-lines {} d apart", closest / D);
+        assert!(lifted <= 0.01 * D, "the far end rose {} d", lifted / D);
+        assert_eq!(locked, 0, "the solve locked");
+    }
+
     #[test]
     fn a_fibre_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
         const H: f64 = 10.0;
