@@ -598,10 +598,12 @@ fn solve_island(
         .collect();
     let came = mine.clone();
     let (sweeps, applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
-    let locked = pairs
+    let gap_left = pairs
         .iter()
-        .any(|c| geometry(&mine, c).2 < -LOCK_GAP * c.reach)
-        || ran_away(&came, &mine, &pairs, dt);
+        .map(|c| geometry(&mine, c).2 / c.reach)
+        .fold(0.0_f64, f64::min);
+    let ran = sweeps >= params.sweeps && ran_away(&came, &mine, &pairs, dt);
+    let locked = gap_left < -LOCK_GAP || ran;
     if locked {
         let start: Vec<&Fibre> = isl.fibres.iter().map(|&k| &before[k]).collect();
         mine = lock(&start, &came, &held, &images(mine.len(), &pairs), dt);
@@ -672,6 +674,9 @@ fn internal_energy(fibres: &[Fibre]) -> (f64, f64) {
 /// them: a fibre's end wedged in another's bent joint with friction above the wedge's
 /// tan α (the normal impulses squeeze, friction holds, and the impulses grow sweep after
 /// sweep; test `contact::tests::an_end_wedged_in_a_bent_joint_slides_out_below_tan_alpha_and_jams_above`).
+/// Only sweeps that did not converge are judged so: a flexible fibre's segments do not
+/// move as a rigid body, so a converged rigid response can leave the energy a little
+/// higher (test `contact::tests::an_island_whose_sweeps_converge_is_not_locked`).
 /// A jammed island is locked, from the momentum it came with.
 fn ran_away(came: &[Fibre], now: &[Fibre], pairs: &[Candidate], dt: f64) -> bool {
     let (before, mass) = internal_energy(came);
@@ -1806,12 +1811,40 @@ mod tests {
         }
     }
 
-    /// Thirteen fibres of the DNS-driven near-wall band (μ = 0.5, exact bits). Rounds
-    /// form islands from the pairs that overlap or pushed; a locked island's impulses
-    /// are zero, so in the next round a fibre of it could be solved in another island
-    /// with a third fibre and pushed back into its locked partner, and the first version
-    /// went round so for all 8 rounds and left a pair 0.46 d apart. A pair that joined
-    /// two fibres into an island keeps them in one for the rest of the step.
+    /// Two fibres of the DNS-driven near-wall band at its second step (μ = 0.5, exact
+    /// bits): their sweeps converge in a few sweeps, but the fibres bend in the shear, so
+    /// the rigid response of each leaves the island's kinetic energy a little higher
+    /// (segments' velocities are not a rigid body's). The lock for run-away sweeps takes
+    /// only sweeps that did not converge; taking every island whose energy rose locked
+    /// ≈ 10% of the band's fibres every step and left pairs closer than 0.99 d in 287 of
+    /// 300 steps.
+    #[test]
+    fn an_island_whose_sweeps_converge_is_not_locked() {
+        let r = recorded(include_str!("../testdata/converged-pair.txt"));
+        assert_eq!(r.before.len(), 2);
+        let period = r.params.period;
+        let mut fs = r.free.clone();
+        let out = resolve(&mut fs, &r.before, &[], &r.params, r.dt);
+        assert!(out.locked.is_empty(), "locked {:?}", out.locked);
+        assert!(!out.contacts.is_empty(), "the two fibres do not touch");
+        assert!(
+            out.worst_gap >= -1e-6 * D,
+            "worst gap {} d",
+            out.worst_gap / D
+        );
+        let m = min_distance(&fs, &period);
+        assert!(m >= 0.99 * D, "centre-lines {m} apart");
+    }
+
+    /// Thirteen fibres of the DNS-driven near-wall band (μ = 0.5, exact bits), with two
+    /// sweeps per island and round so that a floc of 7 is locked. Rounds form islands from
+    /// the pairs that overlap or pushed; a locked island's impulses are zero, so in the
+    /// next round a fibre of it could be solved in another island with a third fibre and
+    /// pushed back into its locked partner: a pair that joined two fibres into an island
+    /// keeps them in one for the rest of the step. (Found when islands that had converged
+    /// were locked too, which left a pair 0.46 d apart after 8 rounds; since the lock for
+    /// run-away sweeps needs sweeps that did not converge, these bits end the same with
+    /// or without the rule, and the test keeps the outcome of a lock.)
     #[test]
     fn fibres_locked_together_stay_one_island_for_the_step() {
         let r = recorded(include_str!("../testdata/split-lock.txt"));
@@ -1821,8 +1854,13 @@ mod tests {
             min_distance(&r.before, &period) >= 0.99 * D,
             "the start overlaps"
         );
+        // two sweeps per island and round: a floc of 7 is locked in the first round
+        let p = ContactParams {
+            sweeps: 2,
+            ..r.params.clone()
+        };
         let mut fs = r.free.clone();
-        let out = resolve(&mut fs, &r.before, &[], &r.params, r.dt);
+        let out = resolve(&mut fs, &r.before, &[], &p, r.dt);
         assert!(!out.locked.is_empty(), "nothing was locked");
         assert!(
             out.worst_gap >= -0.01 * D,
