@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Creates a private CA and one TLS identity per host for a multi-host fiberflow run
 # (launch/multi-host/multi-host.toml). Usage:
-#   launch/multi-host/make-certs.sh OUT_DIR HOST_NAME[=DNS_NAME] ...
+#   launch/multi-host/make-certs.sh OUT_DIR HOST_NAME[=DNS_NAME or IPv4 address] ...
 # e.g. launch/multi-host/make-certs.sh launch/certs head=head.lab.example worker=worker.lab.example
 # Writes OUT_DIR/ca.pem (give it to every host), OUT_DIR/<host>.pem and
 # OUT_DIR/<host>-key.pem (give each host only its own). The certificate common name is
@@ -22,9 +22,11 @@ for spec in "$@"; do
   [ "$dns" = "$spec" ] && dns=localhost
   openssl req -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes \
     -keyout "$out/$host-key.pem" -out "$out/$host.csr" -subj "/CN=fiberflow-$host" 2>/dev/null
-  printf 'subjectAltName=DNS:%s,DNS:localhost,IP:127.0.0.1\nextendedKeyUsage=serverAuth,clientAuth\n' "$dns" > "$out/$host.ext"
+  # a host named by its address (e.g. head=10.0.0.1) gets it as an IP name
+  if [[ $dns =~ ^[0-9]+\.[0-9]+\.[0-9]+\.[0-9]+$ ]]; then san="IP:$dns"; else san="DNS:$dns"; fi
+  printf 'subjectAltName=%s,DNS:localhost,IP:127.0.0.1\nextendedKeyUsage=serverAuth,clientAuth\n' "$san" > "$out/$host.ext"
   openssl x509 -req -in "$out/$host.csr" -CA "$out/ca.pem" -CAkey "$out/ca-key.pem" \
     -CAcreateserial -out "$out/$host.pem" -days 30 -extfile "$out/$host.ext" 2>/dev/null
   rm -f "$out/$host.csr" "$out/$host.ext"
-  echo "$out/$host.pem  (CN fiberflow-$host, DNS $dns)"
+  echo "$out/$host.pem  (CN fiberflow-$host, $san)"
 done

@@ -23,25 +23,15 @@ pub(crate) type Served = BTreeMap<(String, u32), (u64, String, Arc<Encode<FlowSa
 /// Answers fibre nodes that wait (lifecycle WAITING) for samples this node already
 /// published: the message was lost in transit, so it goes out again. A node waiting for a
 /// step not served yet has re-sent its state instead; nothing to do here.
-/// Every heartbeat also marks its node as heard from, and the recorder's RUNNING
-/// heartbeats say how far it has recorded (`recorded`). The first heartbeat is waited for
-/// up to `first_wait`.
 fn answer_waiting(
     bus: &BusHandle,
     hb_in: &mut Inbox,
     served: &Served,
     run: &RunInfo,
     heard: &mut BTreeMap<String, Instant>,
-    recorded: &mut u64,
-    first_wait: Duration,
 ) -> Result<(), FlowError> {
-    let mut wait = first_wait;
-    while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
-        wait = Duration::ZERO;
+    while let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::ZERO) {
         heard.insert(hb.node.clone(), Instant::now());
-        if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
-            *recorded = (*recorded).max(hb.step);
-        }
         if hb.state != lifecycle::WAITING {
             continue;
         }
@@ -66,8 +56,6 @@ pub(crate) struct States {
     spare: Vec<FiberGroupState>,
     /// When each node was last heard from (any heartbeat: its pulse, WAITING, …).
     heard: BTreeMap<String, Instant>,
-    /// The step the recorder holds every piece's state through (its RUNNING heartbeats).
-    recorded: u64,
 }
 
 impl States {
@@ -77,7 +65,6 @@ impl States {
             pending: BTreeMap::new(),
             spare: Vec::new(),
             heard: BTreeMap::new(),
-            recorded: 0,
         }
     }
 
@@ -124,15 +111,7 @@ impl States {
                     run.step_timeout_s
                 )));
             }
-            answer_waiting(
-                bus,
-                hb_in,
-                served,
-                run,
-                &mut self.heard,
-                &mut self.recorded,
-                Duration::ZERO,
-            )?;
+            answer_waiting(bus, hb_in, served, run, &mut self.heard)?;
             if let Some(silent) = self.silent(run) {
                 heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
                 return Err(FlowError::Protocol(format!(
@@ -172,62 +151,6 @@ impl States {
             }
         }
         Ok(())
-    }
-
-    /// Waits until the recorder (when the run has one) holds every piece's state through
-    /// step k − [`lifecycle::RECORDER_LAG_STEPS`], so a slow recorder slows the run rather
-    /// than letting messages pile up in its queue; fails, naming the recorder, when it is
-    /// silent for `run.liveness_s` (or, with liveness off, after the step timeout).
-    pub(crate) fn await_recorder(
-        &mut self,
-        k: u64,
-        run: &RunInfo,
-        bus: &BusHandle,
-        t: &Topics,
-        hb_in: &mut Inbox,
-        served: &Served,
-    ) -> Result<(), FlowError> {
-        if !run.expected_nodes.iter().any(|n| n == "recorder") {
-            return Ok(());
-        }
-        let wait_from = Instant::now();
-        // not heard from yet: its silence is timed from here
-        self.heard.entry("recorder".into()).or_insert(wait_from);
-        let mut first_wait = Duration::ZERO;
-        loop {
-            answer_waiting(
-                bus,
-                hb_in,
-                served,
-                run,
-                &mut self.heard,
-                &mut self.recorded,
-                first_wait,
-            )?;
-            let through = self.recorded.max(run.start_step);
-            if through + lifecycle::RECORDER_LAG_STEPS >= k {
-                return Ok(());
-            }
-            let silent_s = self
-                .heard
-                .get("recorder")
-                .map_or(0.0, |t| t.elapsed().as_secs_f64());
-            let limit_s = if run.liveness_s > 0.0 {
-                run.liveness_s
-            } else {
-                run.step_timeout_s
-            };
-            if silent_s > limit_s || wait_from.elapsed().as_secs_f64() > run.step_timeout_s {
-                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
-                return Err(FlowError::Protocol(format!(
-                    "step {k}: the recorder has recorded only through step {through} and was \
-                     silent for {silent_s:.0} s (run.liveness_s = {:.0} s, run.step_timeout_s = \
-                     {:.0} s): the process hung, or its host or the link to it is gone",
-                    run.liveness_s, run.step_timeout_s
-                )));
-            }
-            first_wait = HEARTBEAT_POLL;
-        }
     }
 
     /// The fibre nodes whose state is awaited and that have not been heard from for longer

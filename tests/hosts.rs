@@ -1,0 +1,156 @@
+//! Runs across hosts that are really apart: two launchers in two Linux network
+//! namespaces (each with its own network stack and its own /dev/shm), joined by a veth
+//! pair through a bridge, zenoh over mutual TLS between them, with faults on the worker's
+//! link (`launch/multi-host/netns.sh`). Needs root, iproute2 and nftables; skipped, saying
+//! so, when not run as root.
+
+use fiberflow_e2e::*;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+/// The namespaces of one test, removed when dropped.
+struct Hosts {
+    prefix: String,
+}
+
+impl Hosts {
+    fn script() -> PathBuf {
+        root().join("launch/multi-host/netns.sh")
+    }
+
+    fn up(prefix: &str) -> Self {
+        let h = Self {
+            prefix: prefix.to_string(),
+        };
+        h.down();
+        h.call(&["up"]);
+        h
+    }
+
+    fn command(&self, args: &[&str]) -> Command {
+        let mut c = Command::new(Self::script());
+        c.args(args).env("FFNS", &self.prefix);
+        c
+    }
+
+    fn call(&self, args: &[&str]) {
+        let o = self.command(args).output().expect("running netns.sh");
+        assert!(
+            o.status.success(),
+            "netns.sh {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+
+    fn down(&self) {
+        let _ = self.command(&["down"]).output();
+    }
+
+    /// `fiberflow launch FILE --host HOST` on the namespace `ns` (head, w1).
+    fn launch(&self, ns: &str, file: &Path, host: &str, out: &Path, sets: &[&str]) -> std::process::Child {
+        let mut c = self.command(&["run", ns]);
+        c.arg(fiberflow())
+            .arg("launch")
+            .arg(file)
+            .args(["--host", host, "--out"])
+            .arg(out);
+        for s in sets {
+            c.arg("--set").arg(s);
+        }
+        c.stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("starting a launcher in a namespace")
+    }
+}
+
+impl Drop for Hosts {
+    fn drop(&mut self) {
+        self.down();
+    }
+}
+
+/// The analytic-shear launch split over `head` (flow, recorder, case1, at 10.77.0.1)
+/// and `worker` (stiff, at 10.77.0.2), with certificates naming those addresses.
+fn namespaced_launch(dir: &Path) -> PathBuf {
+    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
+        .arg(dir.join("certs"))
+        .args(["head=10.77.0.1", "worker=10.77.0.2"])
+        .stdout(Stdio::null())
+        .status()
+        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
+    assert!(st.success(), "make-certs.sh failed");
+    let base =
+        std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml")).unwrap();
+    let text = base
+        + r#"
+[network]
+rendezvous = "tls/10.77.0.1:7447"
+listen = "tls/10.77.0.1:7447"
+root_ca_certificate = "certs/ca.pem"
+allowed_common_names = ["fiberflow-head", "fiberflow-worker"]
+
+[[network.hosts]]
+name = "head"
+nodes = ["flow", "recorder", "case1"]
+certificate = "certs/head.pem"
+private_key = "certs/head-key.pem"
+
+[[network.hosts]]
+name = "worker"
+nodes = ["stiff"]
+certificate = "certs/worker.pem"
+private_key = "certs/worker-key.pem"
+"#;
+    let file = dir.join("two-hosts.toml");
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+/// Two hosts in two network namespaces, 1% of the worker's TCP packets dropped both ways
+/// for the whole run and, 3 s into it, its link cut silently for 10 s: the run (4000
+/// steps of analytic shear) completes on both hosts and records the same fibre states,
+/// bit for bit, as the run in one process.
+#[test]
+fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
+    // SAFETY: geteuid has no preconditions
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!(
+            "SKIPPED: network namespaces need root (run the end-to-end tests as root to check \
+             runs across hosts with packet loss and a partition)"
+        );
+        return;
+    }
+    let _one = one_run_at_a_time();
+    let dir = scratch("netns");
+    let file = namespaced_launch(&dir);
+    let hosts = Hosts::up(&format!("ff{}", std::process::id() % 100_000));
+    hosts.call(&["loss", "w1", "1"]);
+    let sets = ["run.steps=4000", "run.checkpoint_every_plus=500"];
+    let head = hosts.launch("head", &file, "head", &dir.join("head"), &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let worker = hosts.launch("w1", &file, "worker", &dir.join("worker"), &sets);
+    std::thread::sleep(Duration::from_secs(3));
+    hosts.call(&["partition", "w1", "10"]);
+    for (name, c) in [("head", head), ("worker", worker)] {
+        let o = c.wait_with_output().unwrap();
+        assert!(
+            o.status.success(),
+            "{name} failed:\n{}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    let one = scratch("netns-ref");
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        &sets,
+    );
+    let a = states(&one.join("run.mcap"));
+    let b = states(&dir.join("head/run.mcap"));
+    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
+    assert_same_states(&a, &b, "two hosts apart, with loss and a partition");
+}
