@@ -48,7 +48,14 @@ impl Hosts {
     }
 
     /// `fiberflow launch FILE --host HOST` on the namespace `ns` (head, w1).
-    fn launch(&self, ns: &str, file: &Path, host: &str, out: &Path, sets: &[&str]) -> std::process::Child {
+    fn launch(
+        &self,
+        ns: &str,
+        file: &Path,
+        host: &str,
+        out: &Path,
+        sets: &[&str],
+    ) -> std::process::Child {
         let mut c = self.command(&["run", ns]);
         c.arg(fiberflow())
             .arg("launch")

@@ -1857,7 +1857,7 @@ mod tests {
         // two sweeps per island and round: a floc of 7 is locked in the first round
         let p = ContactParams {
             sweeps: 2,
-            ..r.params.clone()
+            ..r.params
         };
         let mut fs = r.free.clone();
         let out = resolve(&mut fs, &r.before, &[], &p, r.dt);
