@@ -672,26 +672,10 @@ fn two_host_launch(
         "[flow.source]",
         &format!("[flow]\n{extra_flow}\n\n[flow.source]"),
         1,
-    ) + &format!(
-        r#"
-[network]
-rendezvous = "tls/localhost:{port}"
-listen = "tls/127.0.0.1:{port}"
-root_ca_certificate = "certs/ca.pem"
-allowed_common_names = ["fiberflow-head", "fiberflow-worker"]
-
-[[network.hosts]]
-name = "head"
-nodes = ["flow", "recorder", "case1"]
-certificate = "certs/head.pem"
-private_key = "certs/head-key.pem"
-
-[[network.hosts]]
-name = "worker"
-nodes = ["stiff"]
-certificate = "certs/{worker_cert}.pem"
-private_key = "certs/{worker_cert}-key.pem"
-"#
+    ) + &two_host_network(
+        &format!("tls/localhost:{port}"),
+        &format!("tls/127.0.0.1:{port}"),
+        worker_cert,
     );
     let file = dir.join("two-hosts.toml");
     std::fs::write(&file, text).unwrap();

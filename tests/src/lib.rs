@@ -340,3 +340,30 @@ pub fn wait_for_checkpoint(out: &Path, secs: u64) {
         root.display()
     );
 }
+
+/// The `[network]` part of a two-host launch: a router at `rendezvous` (listening on
+/// `listen`) on `head` (flow, recorder, case1), the group `stiff` on `worker` with the
+/// identity `worker_cert` (certificates from launch/multi-host/make-certs.sh in `certs/`).
+pub fn two_host_network(rendezvous: &str, listen: &str, worker_cert: &str) -> String {
+    format!(
+        r#"
+[network]
+rendezvous = "{rendezvous}"
+listen = "{listen}"
+root_ca_certificate = "certs/ca.pem"
+allowed_common_names = ["fiberflow-head", "fiberflow-worker"]
+
+[[network.hosts]]
+name = "head"
+nodes = ["flow", "recorder", "case1"]
+certificate = "certs/head.pem"
+private_key = "certs/head-key.pem"
+
+[[network.hosts]]
+name = "worker"
+nodes = ["stiff"]
+certificate = "certs/{worker_cert}.pem"
+private_key = "certs/{worker_cert}-key.pem"
+"#
+    )
+}
