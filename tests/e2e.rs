@@ -706,15 +706,7 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
     let head = launch_host(&file, "head", &dir.join("head"));
     std::thread::sleep(Duration::from_millis(500));
     let worker = launch_host(&file, "worker", &dir.join("worker"));
-    for (name, c) in [("head", head), ("worker", worker)] {
-        let o = c.wait_with_output().unwrap();
-        assert!(
-            o.status.success(),
-            "{name} failed:\n{}\n{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        );
-    }
+    assert_all_succeed(vec![("head", head), ("worker", worker)]);
     let inproc = scratch("two-hosts-ref");
     launch(
         &root().join("launch/validation/analytic-shear.toml"),

@@ -127,15 +127,7 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
     let worker = hosts.launch("w1", &file, "worker", &dir.join("worker"), &sets);
     std::thread::sleep(Duration::from_secs(3));
     hosts.call(&["partition", "w1", "10"]);
-    for (name, c) in [("head", head), ("worker", worker)] {
-        let o = c.wait_with_output().unwrap();
-        assert!(
-            o.status.success(),
-            "{name} failed:\n{}\n{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        );
-    }
+    assert_all_succeed(vec![("head", head), ("worker", worker)]);
     let one = scratch("netns-ref");
     launch_with(
         &root().join("launch/validation/analytic-shear.toml"),

@@ -367,3 +367,16 @@ private_key = "certs/{worker_cert}-key.pem"
 "#
     )
 }
+
+/// Waits for each named launcher and asserts it succeeded, showing its output if not.
+pub fn assert_all_succeed(children: Vec<(&str, std::process::Child)>) {
+    for (name, c) in children {
+        let o = c.wait_with_output().expect("waiting for a launcher");
+        assert!(
+            o.status.success(),
+            "{name} failed:\n{}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
