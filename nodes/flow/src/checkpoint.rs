@@ -14,7 +14,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 const ANALYTIC_MAGIC: &[u8; 8] = b"FFANALYT";
-const HISTORY_MAGIC: &[u8; 8] = b"FFSELF01";
+/// Version 2: per mode also the mean square offsets (`self_induced::PER_FIBRE`).
+const HISTORY_MAGIC: &[u8; 8] = b"FFSELF02";
+const HISTORY_MAGIC_V1: &[u8; 8] = b"FFSELF01";
 const HISTORY_FILE: &str = "self-induced.bin";
 
 /// The self-induced correction's memories of every piece, by (group, first fibre).
@@ -97,8 +99,16 @@ pub fn read_histories(dir: &Path) -> Result<Histories, FlowError> {
         at += n;
         Ok(s)
     };
-    if take(8)? != HISTORY_MAGIC {
-        return Err(bad());
+    match take(8)? {
+        m if m == HISTORY_MAGIC => {}
+        m if m == HISTORY_MAGIC_V1 => {
+            return Err(FlowError::Protocol(format!(
+                "{}: self-induced memories of an earlier layout (FFSELF01); resume with the \
+                 build that wrote them, or start the run again",
+                p.display()
+            )))
+        }
+        _ => return Err(bad()),
     }
     let word = |s: &[u8]| u64::from_le_bytes(s.try_into().unwrap_or([0; 8]));
     let entries = word(take(8)?);
@@ -109,6 +119,9 @@ pub fn read_histories(dir: &Path) -> Result<Histories, FlowError> {
         let first = u32::from_le_bytes(take(4)?.try_into().map_err(|_| bad())?);
         let n = usize::try_from(word(take(8)?)).map_err(|_| bad())?;
         let raw = take(n.checked_mul(8).ok_or_else(bad)?)?;
+        if n % crate::self_induced::PER_FIBRE != 0 {
+            return Err(bad());
+        }
         let memory = raw.chunks_exact(8).map(word).map(f64::from_bits).collect();
         out.insert((group, first), History { memory });
     }
@@ -140,5 +153,44 @@ pub fn read_analytic(dir: &Path, step: u64) -> Result<(), FlowError> {
 fn sync_dir(dir: &Path) {
     if let Ok(d) = std::fs::File::open(dir) {
         let _ = d.sync_all();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The memories come back bit for bit; a file of the earlier layout is refused with a
+    /// message that names it, and a count that is not whole fibres is damage.
+    #[test]
+    fn memories_round_trip_and_an_earlier_layout_is_refused() {
+        let dir = std::env::temp_dir().join(format!("ff-self-ckpt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut h = Histories::new();
+        let memory: Vec<f64> = (0..2 * crate::self_induced::PER_FIBRE)
+            .map(|i| (i as f64).sqrt() - 3.0)
+            .collect();
+        h.insert(("case1".into(), 7), History { memory });
+        let p = dir.join(HISTORY_FILE);
+        std::fs::write(&p, histories_to_bytes(&h)).unwrap();
+        assert_eq!(read_histories(&dir).unwrap(), h);
+        let mut old = histories_to_bytes(&h);
+        old[..8].copy_from_slice(HISTORY_MAGIC_V1);
+        std::fs::write(&p, &old).unwrap();
+        let e = read_histories(&dir).unwrap_err().to_string();
+        assert!(e.contains("earlier layout"), "{e}");
+        let mut short = Histories::new();
+        short.insert(
+            ("case1".into(), 0),
+            History {
+                memory: vec![1.0; 5],
+            },
+        );
+        std::fs::write(&p, histories_to_bytes(&short)).unwrap();
+        assert!(read_histories(&dir)
+            .unwrap_err()
+            .to_string()
+            .contains("damaged"));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

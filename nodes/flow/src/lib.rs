@@ -9,6 +9,7 @@ pub mod error;
 pub mod feedback;
 mod lockstep;
 mod outgoing;
+pub mod pair_shares;
 pub mod run;
 pub mod sampling;
 pub mod self_induced;

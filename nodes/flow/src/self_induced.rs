@@ -36,12 +36,15 @@
 //! staggered components and of the point within its cell (spectra averaged over both).
 //! The settling fibre measures what is left (docs/two-way.md).
 
+use crate::pair_shares::add_pair;
 use fiberflow_dns::Grid;
 use rayon::prelude::*;
 
 /// Memories per fibre: λ = |k̃|²/2 from 1e-8 to 1e2 per squared wall unit (decay rate 2νλ),
 /// h = 0.5 in ln λ.
 pub const MODES: usize = 47;
+/// (mode, component) lanes of the pair shares.
+const LANES: usize = 3 * MODES;
 const LN_LAMBDA_MIN: f64 = -18.420_680_743_952_367; // ln 1e-8
 const H: f64 = 0.5;
 
@@ -102,7 +105,7 @@ pub fn mode_weights(d: [f64; 3]) -> Modes {
     let norm = 1.0 / (2.0 * std::f64::consts::PI).powi(3);
     let mut w = [[0.0; 3]; MODES];
     // per mode: Σ c and Σ c n nᵀ (xx, yy, zz, xy, xz, yz) over its wavenumbers
-    let mut dir_sum = [[0.0; 7]; MODES];
+    let mut dir_sum = [[[0.0; 4]; 3]; MODES];
     for ir in 0..nr {
         let k = (k_min.ln() + (ir as f64 + 0.5) * hr).exp();
         let dv = k * k * (k * hr) * d_omega * norm;
@@ -127,115 +130,63 @@ pub fn mode_weights(d: [f64; 3]) -> Modes {
                 let (lo, hi) = (lambda(m), lambda(m + 1));
                 (m, (1.0 / lo - 1.0 / lam) / (1.0 / lo - 1.0 / hi))
             };
-            let mut all = 0.0;
+            let mut c = [0.0; 3];
             for a in 0..3 {
-                let c = s * (1.0 - kt[a] * kt[a] / q2) * dv;
-                w[m][a] += c * (1.0 - f);
-                w[m + 1][a] += c * f;
-                all += c;
+                c[a] = s * (1.0 - kt[a] * kt[a] / q2) * dv;
+                w[m][a] += c[a] * (1.0 - f);
+                w[m + 1][a] += c[a] * f;
             }
-            let nn = [
-                dir[0] * dir[0],
-                dir[1] * dir[1],
-                dir[2] * dir[2],
-                dir[0] * dir[1],
-                dir[0] * dir[2],
-                dir[1] * dir[2],
-            ];
+            // the wavenumber itself (not the modified one that sets the rate): e^{ik·r}
+            // (⟨k kᵀ⟩ is diagonal: the spectrum is even in each component of k)
+            let kk = dir.map(|x| k * k * x * x);
             for (mm, share) in [(m, 1.0 - f), (m + 1, f)] {
-                dir_sum[mm][6] += all * share;
-                for x in 0..6 {
-                    dir_sum[mm][x] += all * share * nn[x];
+                for a in 0..3 {
+                    dir_sum[mm][a][3] += c[a] * share;
+                    for b in 0..3 {
+                        dir_sum[mm][a][b] += c[a] * share * kk[b];
+                    }
                 }
             }
         }
     }
-    let directions = dir_sum.map(|d| {
-        if d[6] > 0.0 {
-            std::array::from_fn(|x| d[x] / d[6])
-        } else {
-            [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0, 0.0, 0.0, 0.0]
-        }
+    let moments = std::array::from_fn(|m| {
+        std::array::from_fn(|a| {
+            let d = dir_sum[m][a];
+            if d[3] > 0.0 {
+                std::array::from_fn(|b| d[b] / d[3])
+            } else {
+                // a mode the grid does not hold: the isotropic shell of its rate
+                [2.0 * lambda(m) / 3.0; 3]
+            }
+        })
     });
+    let pair_coeff =
+        std::array::from_fn(|b| (0..LANES).map(|q| 3.0 * moments[q / 3][q % 3][b]).collect());
+    let held = |m: &usize| w[*m].iter().any(|x| *x != 0.0);
+    let first = (0..MODES).find(held).unwrap_or(0);
+    let end = (0..MODES).rev().find(held).map_or(first, |m| m + 1);
     Modes {
         weights: w,
-        directions,
+        moments,
+        pair_coeff,
+        active: first..end,
     }
 }
 
-/// The memories' weights w_ka of a grid row, and per mode the mean ⟨n nᵀ⟩ of its
-/// wavenumbers' directions (xx, yy, zz, xy, xz, yz; I/3 where the grid holds every
-/// direction alike).
+/// The memories' weights w_ka of a grid row, and per mode and component a the mean ⟨k_b²⟩
+/// of its wavenumbers weighted as w_ka weighs them (b = x, y, z; per squared wall unit; the
+/// other entries of ⟨k kᵀ⟩ vanish: the spectrum is even in each component of k).
 #[derive(Debug, Clone)]
 pub struct Modes {
     pub weights: [[f64; 3]; MODES],
-    pub directions: [[f64; 6]; MODES],
-}
-
-impl Modes {
-    /// The distance that makes sinc(|k| r) the mode's average of e^{ik·r}: √(3 rᵀ⟨nnᵀ⟩r).
-    fn effective_distance(&self, k: usize, r: [f64; 3]) -> f64 {
-        let m = &self.directions[k];
-        let q = m[0] * r[0] * r[0]
-            + m[1] * r[1] * r[1]
-            + m[2] * r[2] * r[2]
-            + 2.0 * (m[3] * r[0] * r[1] + m[4] * r[0] * r[2] + m[5] * r[1] * r[2]);
-        (3.0 * q.max(0.0)).sqrt()
-    }
-}
-
-/// sin(x)/x is the shell average of e^{ik·r} for |k| r = x ≥ 0. Nodes per unit of x in
-/// [`SincTable`].
-const SINC_PER_UNIT: f64 = 64.0;
-/// [`SincTable`] covers x in [0, this); beyond it sin(x)/x is evaluated.
-const SINC_TABLE_MAX: f64 = 64.0;
-
-/// sinc and its derivative at the nodes x = i/64 of [0, 64], for [`sinc_fast`].
-struct SincTable {
-    value: Vec<f64>,
-    slope: Vec<f64>,
-}
-
-fn sinc_table() -> &'static SincTable {
-    static TABLE: std::sync::OnceLock<SincTable> = std::sync::OnceLock::new();
-    TABLE.get_or_init(|| {
-        let n = (SINC_TABLE_MAX * SINC_PER_UNIT) as usize + 1;
-        let xs = (0..n).map(|i| i as f64 / SINC_PER_UNIT);
-        SincTable {
-            value: xs
-                .clone()
-                .map(|x| if x == 0.0 { 1.0 } else { x.sin() / x })
-                .collect(),
-            slope: xs
-                .map(|x| {
-                    if x == 0.0 {
-                        0.0
-                    } else {
-                        (x * x.cos() - x.sin()) / (x * x)
-                    }
-                })
-                .collect(),
-        }
-    })
-}
-
-/// sin(x)/x from a table (cubic Hermite between nodes 1/64 apart: within 1e-10 of it,
-/// test `tabulated_sinc_is_sinc`), the pair shares' inner loop without a sine per pair
-/// and mode.
-#[inline]
-fn sinc_fast(table: &SincTable, x: f64) -> f64 {
-    if x >= SINC_TABLE_MAX - 1.0 / SINC_PER_UNIT {
-        return x.sin() / x;
-    }
-    let u = x * SINC_PER_UNIT;
-    let i = u as usize;
-    let t = u - i as f64;
-    let h = 1.0 / SINC_PER_UNIT;
-    let (t2, t3) = (t * t, t * t * t);
-    (2.0 * t3 - 3.0 * t2 + 1.0) * table.value[i]
-        + (t3 - 2.0 * t2 + t) * h * table.slope[i]
-        + (3.0 * t2 - 2.0 * t3) * table.value[i + 1]
-        + (t3 - t2) * h * table.slope[i + 1]
+    pub moments: [[[f64; 3]; 3]; MODES],
+    /// The pair shares' coefficients (`pair_shares::add_pair`): plane b, lane 3k + a holds
+    /// 3⟨k_b²⟩ of mode k, component a, so that sinc(√(Σ_b c_b r_b²)) is the mode's average
+    /// of e^{ik·r} to second order in r (a shell's sinc(|k|r) is 1 − |k|²r²/6 + …).
+    pub pair_coeff: [Vec<f64>; 3],
+    /// The modes the grid holds (from the first to the last with a weight): the others
+    /// carry nothing.
+    pub active: std::ops::Range<usize>,
 }
 
 /// The memories' weights per grid row (nearest row of a point).
@@ -274,7 +225,7 @@ impl Widths {
 /// Values per fibre in [`History::memory`]: per mode its force memory (3), its weight and
 /// its offset behind the fibre (3); then the fibre's last mean centre, the last mean fluid
 /// velocity it sampled (3 each) and whether they are set.
-pub const PER_FIBRE: usize = 7 * MODES + 7;
+pub const PER_FIBRE: usize = 10 * MODES + 7;
 
 /// The memories of every fibre of one piece ([`PER_FIBRE`] each, fibre-major): the state
 /// the correction carries from step to step (and in coupled checkpoints).
@@ -366,7 +317,8 @@ fn fibre(
     let w = widths.at(mean[1] / re_tau);
     let (forces, rest) = m.split_at_mut(3 * MODES);
     let (weight, rest) = rest.split_at_mut(MODES);
-    let (offset, last) = rest.split_at_mut(3 * MODES);
+    let (offset, rest) = rest.split_at_mut(3 * MODES);
+    let (square, last) = rest.split_at_mut(3 * MODES);
     // the fibre's slip since the last step: its own displacement less the fluid's
     // (the disturbance drifts with the fluid); the past impulses now lie that much
     // further behind
@@ -376,47 +328,53 @@ fn fibre(
             slip[a] = mean[a] - last[a] - dt_plus * last[3 + a];
         }
     }
-    // per mode: the shell of wavenumbers |k| = q (q² ≈ 2λ) seen from the offset o of
-    // the mode's impulses averages e^{ik·o} to ≈ e^{−q²o²/6}
+    // per mode: its wavenumbers seen from the impulses' offsets o behind the fibre
+    // average e^{ik·o} to e^{−½ Σ_b ⟨k_b²⟩⟨o_b²⟩} (second order in o)
     let mut mode = [[0.0; 3]; MODES];
     for (k, wk) in w.weights.iter().enumerate() {
-        for a in 0..3 {
-            offset[3 * k + a] += slip[a];
+        for b in 0..3 {
+            let (o, s) = (&mut offset[3 * k + b], slip[b]);
+            square[3 * k + b] += (2.0 * *o + s) * s;
+            *o += s;
         }
-        let o2: f64 = (0..3).map(|a| offset[3 * k + a].powi(2)).sum();
-        let drift = (-2.0 * lambda(k) * o2 / 6.0).exp();
-        for a in 0..3 {
-            mode[k][a] = drift * wk[a] * forces[3 * k + a];
-        }
-    }
-    // segment i gets segment j's share of the force (1/n of it) through the shell
-    // average of e^{ik·r_ij}, sinc(q r_ij)
-    // (each pair once; modes the grid does not hold are skipped)
-    share.clear();
-    share.resize(n * MODES, 0.0);
-    let table = sinc_table();
-    for (k, mk) in mode.iter().enumerate() {
-        if mk.iter().all(|x| *x == 0.0) {
+        if !w.active.contains(&k) {
             continue;
         }
-        let q = (2.0 * lambda(k)).sqrt();
-        for i in 0..n {
-            share[i * MODES + k] += 1.0;
-            for j in i + 1..n {
-                let x = q * w.effective_distance(k, gap(i, j));
-                let s = sinc_fast(table, x);
-                share[i * MODES + k] += s;
-                share[j * MODES + k] += s;
-            }
+        for a in 0..3 {
+            let m = &w.moments[k][a];
+            let spread: f64 = (0..3).map(|b| m[b] * square[3 * k + b]).sum();
+            mode[k][a] = (-0.5 * spread).exp() * wk[a] * forces[3 * k + a];
+        }
+    }
+    // segment i gets segment j's share of the force (1/n of it) through the mode's
+    // average of e^{ik·r_ij} (each pair once; only the modes the grid holds)
+    let lanes = 3 * w.active.start..3 * w.active.end;
+    share.clear();
+    share.resize(n * LANES, 1.0);
+    for i in 0..n {
+        for j in i + 1..n {
+            let r2 = gap(i, j).map(|x| x * x);
+            let (lo, hi) = share.split_at_mut(j * LANES);
+            add_pair(
+                &w.pair_coeff,
+                lanes.clone(),
+                r2,
+                &mut lo[i * LANES..(i + 1) * LANES],
+                &mut hi[..LANES],
+            );
         }
     }
     let mut fluid = [0.0; 3];
     for (i, seg) in segs.clone().enumerate() {
         let mut du = [0.0; 3];
-        for (k, mk) in mode.iter().enumerate() {
-            let sh = share[i * MODES + k] / n as f64;
+        for (k, mk) in mode
+            .iter()
+            .enumerate()
+            .take(w.active.end)
+            .skip(w.active.start)
+        {
             for a in 0..3 {
-                du[a] += sh * mk[a];
+                du[a] += share[i * LANES + 3 * k + a] / n as f64 * mk[a];
             }
         }
         for a in 0..3 {
@@ -434,8 +392,9 @@ fn fibre(
         let old = e * weight[k];
         let new = old + g * size;
         if new > 0.0 {
-            for a in 0..3 {
-                offset[3 * k + a] *= old / new;
+            for b in 0..3 {
+                offset[3 * k + b] *= old / new;
+                square[3 * k + b] *= old / new;
             }
         }
         weight[k] = new;
@@ -448,21 +407,6 @@ fn fibre(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The tabulated sinc is sin(x)/x within 1e-10 over (0, 80] (through the table's end),
-    /// 1 at 0, and exactly sin(x)/x at the nodes.
-    #[test]
-    fn tabulated_sinc_is_sinc() {
-        let t = sinc_table();
-        let mut worst: f64 = 0.0;
-        for i in 1..800_000 {
-            let x = i as f64 * 1e-4;
-            worst = worst.max((sinc_fast(t, x) - x.sin() / x).abs());
-        }
-        assert!(worst < 1e-10, "worst {worst:e}");
-        assert_eq!(sinc_fast(t, 0.0), 1.0);
-        assert_eq!(sinc_fast(t, 2.0).to_bits(), (2f64.sin() / 2.0).to_bits());
-    }
 
     /// The kernel Σ_k w_ka e^{−2λ_k s} of a grid tends, at long times, to the continuum's
     /// (2/3)(4πs)^{−3/2} (wall units, ν = 1; at s = 10^4 t+ on the coarse grid's spacings,
@@ -506,6 +450,54 @@ mod tests {
             ratio > 0.9 && ratio < 1.15,
             "K(0) / the Gaussian's = {ratio}"
         );
+    }
+
+    /// A fibre slipping steadily by s a step: each mode's memories hold the force-weighted
+    /// mean and mean square of its impulses' offsets behind the fibre, Σ w_j j s / Σ w_j and
+    /// Σ w_j (j s)² / Σ w_j with w_j = e^{−2λ_k Δt j} (1e-12 relative). The drift factor is
+    /// then exact to second order in the offsets: a mean offset alone under-counts a trail's
+    /// spread (for an exponential trail by half).
+    #[test]
+    fn memories_keep_the_mean_square_offset_of_a_slipping_fibre() {
+        let g = Grid::with_stretch(8, 8, 8, 1.0, 1.0, 0.0).unwrap();
+        let widths = Widths::new(&g, 150.0);
+        let (dt, s, steps) = (0.2, 0.3, 60);
+        let spf = [1u32];
+        let force = [1.0, 0.5, 0.0];
+        let mut centre = [10.0, 0.0, 5.0];
+        let mut h = History::default();
+        for _ in 0..steps {
+            let mut v = [0.01, 0.0, 0.02];
+            h.correct_and_advance(&widths, 150.0, dt, &spf, &centre, &force, &mut v);
+            // next: carried by the (corrected) fluid, and slipped by s along x
+            centre = [0, 1, 2].map(|a| centre[a] + dt * v[a] + if a == 0 { s } else { 0.0 });
+        }
+        for k in [0, 20, 30, 40, MODES - 1] {
+            let e = (-2.0 * lambda(k) * dt).exp();
+            let w: Vec<f64> = (0..steps).map(|j| e.powi(j)).collect();
+            let sum: f64 = w.iter().sum();
+            let mean: f64 = w
+                .iter()
+                .enumerate()
+                .map(|(j, w)| w * j as f64 * s)
+                .sum::<f64>()
+                / sum;
+            let square: f64 = w
+                .iter()
+                .enumerate()
+                .map(|(j, w)| w * (j as f64 * s).powi(2))
+                .sum::<f64>()
+                / sum;
+            let offset = h.memory[4 * MODES + 3 * k];
+            let sq = h.memory[7 * MODES + 3 * k];
+            assert!(
+                (offset / mean - 1.0).abs() < 1e-12,
+                "{k}: {offset} vs {mean}"
+            );
+            assert!((sq / square - 1.0).abs() < 1e-12, "{k}: {sq} vs {square}");
+            // nothing moved along y and z
+            assert!(h.memory[7 * MODES + 3 * k + 1].abs() < 1e-20);
+        }
     }
 
     /// A constant force's correction after a time T is the kernel's integral

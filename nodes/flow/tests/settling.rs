@@ -2,10 +2,9 @@
 //! velocity"): its velocity over t+ 100–150 (after ≈ 7 relaxation times τ_s+ = 13.5, the
 //! one-way fibre is at its terminal velocity to 1e-4) against the one-way fibre's, on both
 //! grids. Uncorrected, the fibre's own disturbance makes it fall faster by more than 5% and
-//! growing; with the self-induced correction the two agree to 5% on both grids. That is the
-//! measured state, not the goal of 2%: a one-segment fibre meets it (0.2% coarse, 0.6%
-//! fine), the seven-segment fibre's correction is 2–3% (coarse) and 4–5% (fine) too strong
-//! (docs/two-way.md, "Self-induced velocity").
+//! growing; with the self-induced correction the two agree within 2% on both grids
+//! (measured 0.982–0.994 coarse, 0.982–0.995 fine: the ratio swings with the fibre's place
+//! in its cell).
 
 mod common;
 
@@ -26,7 +25,7 @@ fn settling_fibre_matches_one_way_with_the_correction() {
     for fine in [false, true] {
         let (lo, hi) = window(fine, true);
         eprintln!("fine {fine}: two-way / one-way over t+ 100-150 in [{lo:.4}, {hi:.4}]");
-        assert!(lo > 0.95 && hi < 1.05, "fine {fine}: [{lo}, {hi}]");
+        assert!(lo > 0.98 && hi < 1.02, "fine {fine}: [{lo}, {hi}]");
     }
     // without it, the coarse grid's fibre is carried by its own disturbance
     let (lo, _) = window(false, false);
