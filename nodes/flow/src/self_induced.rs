@@ -22,13 +22,15 @@
 //! this is the continuum's (2/3)(4πνs)^{−3/2} (test `long_time_tail_is_the_continuum`).
 //!
 //! Per fibre, not per segment: the memories hold the fibre's total force, shared equally
-//! by its segments; segment i sees segment j's share through the shell average of
-//! e^{ik·r_ij}, sinc(|k| r_ij) (r_ij stretched along the directions the mode's wavenumbers
-//! favour: the grid holds shorter waves along its finer directions), so a long fibre's
-//! force is spread over its length and its ends see less of it than its middle. A fibre that slips through
-//! the fluid leaves its disturbance behind (it drifts with the fluid): each mode keeps the
-//! force-weighted mean offset o of its impulses behind the fibre, advanced by the fibre's
-//! displacement less the fluid's, and counts e^{−|k|²o²/6} (the shell average of e^{ik·o}).
+//! by its segments; segment i sees segment j's share through the mode's average of
+//! e^{ik·r_ij}, sinc(√(3 Σ_b ⟨k_b²⟩ r_b²)) ([`crate::pair_shares`]), so a long fibre's force
+//! is spread over its length and its ends see less of it than its middle. A fibre that
+//! slips through the fluid leaves its disturbance behind (it drifts with the fluid): each
+//! mode keeps the force-weighted mean and mean square of its impulses' offsets o behind the
+//! fibre, advanced by the fibre's displacement less the fluid's, and counts
+//! e^{−½ Σ_b ⟨k_b²⟩⟨o_b²⟩}. ⟨k_b²⟩ is the mean over the mode's actual wavenumbers (not the
+//! modified ones that set its rate) as component a's weight weighs them: both factors are
+//! exact to second order in r and o.
 //!
 //! Left out, said plainly: the correction's variation along the fibre (its effect on the
 //! fibre's rotation and shape), the disturbance's gradient (∇v is left as sampled), the
@@ -222,9 +224,10 @@ impl Widths {
     }
 }
 
-/// Values per fibre in [`History::memory`]: per mode its force memory (3), its weight and
-/// its offset behind the fibre (3); then the fibre's last mean centre, the last mean fluid
-/// velocity it sampled (3 each) and whether they are set.
+/// Values per fibre in [`History::memory`]: per mode its force memory (3), its weight, the
+/// mean offset of its impulses behind the fibre (3) and their mean square offset (3); then
+/// the fibre's last mean centre, the last mean fluid velocity it sampled (3 each) and
+/// whether they are set.
 pub const PER_FIBRE: usize = 10 * MODES + 7;
 
 /// The memories of every fibre of one piece ([`PER_FIBRE`] each, fibre-major): the state
