@@ -647,53 +647,6 @@ fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
     }
 }
 
-/// Writes certificates (launch/multi-host/make-certs.sh) and a two-host version of the analytic-shear
-/// launch whose worker uses the identity `worker_cert`; returns the launch file.
-fn two_host_launch(
-    dir: &std::path::Path,
-    worker_cert: &str,
-    extra_flow: &str,
-) -> std::path::PathBuf {
-    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
-        .arg(dir.join("certs"))
-        .args(["head", "worker", "intruder"])
-        .stdout(Stdio::null())
-        .status()
-        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
-    assert!(st.success(), "make-certs.sh failed");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let base =
-        std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml")).unwrap();
-    let text = base.replacen(
-        "[flow.source]",
-        &format!("[flow]\n{extra_flow}\n\n[flow.source]"),
-        1,
-    ) + &two_host_network(
-        &format!("tls/localhost:{port}"),
-        &format!("tls/127.0.0.1:{port}"),
-        worker_cert,
-    );
-    let file = dir.join("two-hosts.toml");
-    std::fs::write(&file, text).unwrap();
-    file
-}
-
-fn launch_host(file: &std::path::Path, host: &str, out: &std::path::Path) -> std::process::Child {
-    Command::new(fiberflow())
-        .arg("launch")
-        .arg(file)
-        .args(["--host", host, "--out"])
-        .arg(out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting fiberflow launch --host")
-}
-
 /// A run split over two "hosts" (two launchers, zenoh router + clients over mutual TLS on
 /// loopback) records the same bits as the in-process run; a peer whose certificate is
 /// signed by the run's CA but whose common name is not allowed is shut out by access
@@ -703,26 +656,17 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
     let _one = one_run_at_a_time();
     let dir = scratch("two-hosts");
     let file = two_host_launch(&dir, "worker", "");
-    let head = launch_host(&file, "head", &dir.join("head"));
+    let head = launch_host(&file, "head", &dir.join("head"), &[]);
     std::thread::sleep(Duration::from_millis(500));
-    let worker = launch_host(&file, "worker", &dir.join("worker"));
+    let worker = launch_host(&file, "worker", &dir.join("worker"), &[]);
     assert_all_succeed(vec![("head", head), ("worker", worker)]);
-    let inproc = scratch("two-hosts-ref");
-    launch(
-        &root().join("launch/validation/analytic-shear.toml"),
-        &inproc,
-        "inproc",
-    );
-    let a = states(&inproc.join("run.mcap"));
-    let b = states(&dir.join("head/run.mcap"));
-    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
-    assert_same_states(&a, &b, "two hosts");
+    assert_two_hosts_match_one_process(&dir.join("head/run.mcap"), &[], "two hosts");
 
     let bad_dir = scratch("two-hosts-acl");
     let file = two_host_launch(&bad_dir, "intruder", "join_timeout_s = 6");
-    let head = launch_host(&file, "head", &bad_dir.join("head"));
+    let head = launch_host(&file, "head", &bad_dir.join("head"), &[]);
     std::thread::sleep(Duration::from_millis(500));
-    let mut worker = launch_host(&file, "worker", &bad_dir.join("worker"));
+    let mut worker = launch_host(&file, "worker", &bad_dir.join("worker"), &[]);
     let o = head.wait_with_output().unwrap();
     assert!(
         !o.status.success(),

@@ -125,17 +125,11 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
     std::thread::sleep(Duration::from_secs(3));
     hosts.call(&["partition", "w1", "10"]);
     assert_all_succeed(vec![("head", head), ("worker", worker)]);
-    let one = scratch("netns-ref");
-    launch_with(
-        &root().join("launch/validation/analytic-shear.toml"),
-        &one,
-        "inproc",
+    assert_two_hosts_match_one_process(
+        &dir.join("head/run.mcap"),
         &sets,
+        "two hosts apart, with loss and a partition",
     );
-    let a = states(&one.join("run.mcap"));
-    let b = states(&dir.join("head/run.mcap"));
-    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
-    assert_same_states(&a, &b, "two hosts apart, with loss and a partition");
 }
 
 /// Two launchers on one machine (zenoh router and clients over mutual TLS on loopback), a
@@ -149,46 +143,11 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
 fn two_launchers_over_tls_lose_no_lockstep_message() {
     let _one = one_run_at_a_time();
     let dir = scratch("tls-clean");
-    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
-        .arg(dir.join("certs"))
-        .args(["head", "worker"])
-        .stdout(Stdio::null())
-        .status()
-        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
-    assert!(st.success(), "make-certs.sh failed");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let base =
-        std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml")).unwrap();
-    let text = base
-        + &two_host_network(
-            &format!("tls/localhost:{port}"),
-            &format!("tls/127.0.0.1:{port}"),
-            "worker",
-        );
-    let file = dir.join("two-hosts.toml");
-    std::fs::write(&file, text).unwrap();
+    let file = two_host_launch(&dir, "worker", "");
     let sets = ["run.steps=4000"];
-    let launch_host = |host: &str| {
-        let mut c = Command::new(fiberflow());
-        c.arg("launch")
-            .arg(&file)
-            .args(["--host", host, "--out"])
-            .arg(dir.join(host));
-        for s in sets {
-            c.arg("--set").arg(s);
-        }
-        c.stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("starting fiberflow launch --host")
-    };
-    let head = launch_host("head");
+    let head = launch_host(&file, "head", &dir.join("head"), &sets);
     std::thread::sleep(Duration::from_millis(500));
-    let worker = launch_host("worker");
+    let worker = launch_host(&file, "worker", &dir.join("worker"), &sets);
     assert_all_succeed(vec![("head", head), ("worker", worker)]);
     for log in [
         "head/logs/flow.log",
@@ -206,16 +165,7 @@ fn two_launchers_over_tls_lose_no_lockstep_message() {
             resent.join("\n")
         );
     }
-    let one = scratch("tls-clean-ref");
-    launch_with(
-        &root().join("launch/validation/analytic-shear.toml"),
-        &one,
-        "inproc",
-        &sets,
-    );
-    let a = states(&one.join("run.mcap"));
     let b = states(&dir.join("head/run.mcap"));
-    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
     assert_eq!(b["case1"].len(), 4001, "every state of case1 recorded");
-    assert_same_states(&a, &b, "two launchers over TLS");
+    assert_two_hosts_match_one_process(&dir.join("head/run.mcap"), &sets, "two launchers over TLS");
 }

@@ -380,3 +380,67 @@ pub fn assert_all_succeed(children: Vec<(&str, std::process::Child)>) {
         );
     }
 }
+
+/// Writes certificates (launch/multi-host/make-certs.sh) and a two-host version of the
+/// analytic-shear launch on loopback (router on a free port) whose worker uses the identity
+/// `worker_cert`, with `extra_flow` in its `[flow]` section; returns the launch file.
+pub fn two_host_launch(dir: &Path, worker_cert: &str, extra_flow: &str) -> PathBuf {
+    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
+        .arg(dir.join("certs"))
+        .args(["head", "worker", "intruder"])
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
+    assert!(st.success(), "make-certs.sh failed");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("a free port")
+        .local_addr()
+        .expect("its address")
+        .port();
+    let base = std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml"))
+        .expect("reading analytic-shear.toml");
+    let text = base.replacen(
+        "[flow.source]",
+        &format!("[flow]\n{extra_flow}\n\n[flow.source]"),
+        1,
+    ) + &two_host_network(
+        &format!("tls/localhost:{port}"),
+        &format!("tls/127.0.0.1:{port}"),
+        worker_cert,
+    );
+    let file = dir.join("two-hosts.toml");
+    std::fs::write(&file, text).expect("writing the launch file");
+    file
+}
+
+/// `fiberflow launch FILE --host HOST --out OUT` with `--set` for each of `sets`.
+pub fn launch_host(file: &Path, host: &str, out: &Path, sets: &[&str]) -> std::process::Child {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(file)
+        .args(["--host", host, "--out"])
+        .arg(out);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    c.stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("starting fiberflow launch --host")
+}
+
+/// Runs the analytic-shear launch in one process with `sets` and asserts the two-host
+/// recording in `recording` (groups case1 and stiff) holds the same states, bit for bit.
+pub fn assert_two_hosts_match_one_process(recording: &Path, sets: &[&str], what: &str) {
+    let one = scratch(&format!("{}-ref", what.replace(' ', "-")));
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        sets,
+    );
+    let a = states(&one.join("run.mcap"));
+    let b = states(recording);
+    assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
+    assert_same_states(&a, &b, what);
+}
