@@ -231,13 +231,17 @@ pub fn pids_with(needle: &str) -> Vec<i32> {
     out
 }
 
-/// A zenoh endpoint on a loopback port that was free a moment ago.
-pub fn loopback_endpoint() -> String {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
+/// A loopback TCP port that was free a moment ago.
+pub fn free_loopback_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .expect("a free loopback port")
-        .port();
-    format!("tcp/127.0.0.1:{port}")
+        .port()
+}
+
+/// A zenoh endpoint on a loopback port that was free a moment ago.
+pub fn loopback_endpoint() -> String {
+    format!("tcp/127.0.0.1:{}", free_loopback_port())
 }
 
 /// Replays a recording (`replay PATH --speed 0`) to an `echo` listener on a free loopback
@@ -392,11 +396,7 @@ pub fn two_host_launch(dir: &Path, worker_cert: &str, extra_flow: &str) -> PathB
         .status()
         .expect("running launch/multi-host/make-certs.sh (needs openssl)");
     assert!(st.success(), "make-certs.sh failed");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .expect("a free port")
-        .local_addr()
-        .expect("its address")
-        .port();
+    let port = free_loopback_port();
     let base = std::fs::read_to_string(root().join("launch/validation/analytic-shear.toml"))
         .expect("reading analytic-shear.toml");
     let text = base.replacen(
