@@ -681,27 +681,6 @@ fn two_host_tls_run_matches_and_acl_shuts_out_strangers() {
     let _ = worker.wait();
 }
 
-/// Every group's whole state per step, with a sharded group's slices put back together
-/// (re-encoded, so an unsharded group's state compares byte for byte).
-fn whole_states(path: &std::path::Path) -> std::collections::BTreeMap<(String, u64), Vec<u8>> {
-    use fiberflow_messages::pieces::Tiles;
-    let bytes = std::fs::read(path.join("run.mcap")).unwrap();
-    let mut tiles = Tiles::default();
-    let mut out = std::collections::BTreeMap::new();
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        if !m.channel.topic.ends_with("/state") {
-            continue;
-        }
-        let s: fiberflow_messages::FiberGroupState = fiberflow_messages::decode(&m.data).unwrap();
-        if let Some(w) = tiles.add_slice(s) {
-            out.insert((w.group.clone(), w.step), fiberflow_messages::encode(&w));
-        }
-    }
-    assert_eq!(tiles.incomplete(), 0, "a step's slices never completed");
-    out
-}
-
 /// A group split over three fibre nodes (`shards = 3`, 50 fibres as 16 + 17 + 17) gives the
 /// same fibre states, bit for bit, as the unsharded group: 40 steps of the quick launch in
 /// turbulence over iceoryx2, two groups sharded. The sharded run's analysis and checkpoints

@@ -189,4 +189,10 @@ pub mod lifecycle {
     /// flow node sends its DONE again until it sees this, so a DONE the transport lost as
     /// the flow process exits cannot keep the recorder open.
     pub const FINISHING: u8 = 6;
+    /// How far the run may get ahead of its recorder: the flow node serves step k only
+    /// once the recorder's RUNNING heartbeats say it holds every piece's state through
+    /// step k − `RECORDER_LAG_STEPS`. A slow recorder (a slow disk, a busy host) slows the
+    /// run instead of letting messages pile up in its receive queue; at most this many
+    /// steps of messages wait there.
+    pub const RECORDER_LAG_STEPS: u64 = 4;
 }

@@ -165,6 +165,27 @@ pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
     out
 }
 
+/// Every group's whole state per step, with a sharded group's slices put back together
+/// (re-encoded, so an unsharded group's state compares byte for byte).
+pub fn whole_states(path: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
+    use fiberflow_messages::pieces::Tiles;
+    let bytes = std::fs::read(path.join("run.mcap")).unwrap();
+    let mut tiles = Tiles::default();
+    let mut out = BTreeMap::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        if !m.channel.topic.ends_with("/state") {
+            continue;
+        }
+        let s: fiberflow_messages::FiberGroupState = fiberflow_messages::decode(&m.data).unwrap();
+        if let Some(w) = tiles.add_slice(s) {
+            out.insert((w.group.clone(), w.step), fiberflow_messages::encode(&w));
+        }
+    }
+    assert_eq!(tiles.incomplete(), 0, "a step's slices never completed");
+    out
+}
+
 /// Metadata records of a recording by name.
 pub fn metadata(mcap_path: &Path) -> BTreeMap<String, BTreeMap<String, String>> {
     let bytes = std::fs::read(mcap_path).expect("reading mcap");

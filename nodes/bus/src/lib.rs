@@ -7,6 +7,8 @@ pub mod inbox;
 pub mod inproc;
 pub mod lossy;
 pub mod outbox;
+pub mod pulse;
+pub mod slow;
 #[cfg(test)]
 mod testing;
 pub mod usage;

@@ -2,7 +2,6 @@
 //! Lindström–Uesaka model in lockstep with the flow node and publishes states and metrics.
 
 pub mod config;
-pub mod pulse;
 pub mod serve;
 
 pub use config::FiberNodeConfig;

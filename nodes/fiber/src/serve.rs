@@ -131,7 +131,7 @@ pub fn serve_many(
         }
     }
     // every node of this process says it is alive once a second until it returns
-    let _pulse = crate::pulse::Pulse::start(
+    let _pulse = fiberflow_bus::pulse::Pulse::start(
         bus.clone(),
         served
             .iter()
@@ -278,8 +278,8 @@ struct Served {
     /// several resends fit in it) means a message was probably lost.
     longest_wait: Duration,
     cpu_from: f64,
-    /// What this node's pulse shows (`crate::pulse`).
-    beat: std::sync::Arc<crate::pulse::Beat>,
+    /// What this node's pulse shows (`fiberflow_bus::pulse`).
+    beat: std::sync::Arc<fiberflow_bus::pulse::Beat>,
 }
 
 impl Served {

@@ -182,12 +182,21 @@ impl<'a> Coupling<'a> {
     }
 
     /// Waits for every piece's state at step `k` (answering nodes that wait for samples
-    /// already served).
+    /// already served), and for the recorder to be at most
+    /// [`fiberflow_messages::lifecycle::RECORDER_LAG_STEPS`] behind.
     pub(crate) fn gather(&mut self, k: u64) -> Result<(), FlowError> {
         self.step_times.begin(k, self.timing.stages());
         self.step_times.flush_if_full();
         let wait_from = Instant::now();
         self.states.gather(
+            k,
+            self.run,
+            &self.bus,
+            &self.t,
+            &mut self.hb_in,
+            &self.served,
+        )?;
+        self.states.await_recorder(
             k,
             self.run,
             &self.bus,

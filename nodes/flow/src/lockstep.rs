@@ -20,32 +20,69 @@ const HEARTBEAT_POLL: Duration = Duration::from_millis(200);
 /// sampled into again next step.
 pub(crate) type Served = BTreeMap<(String, u32), (u64, String, Arc<Encode<FlowSamples>>)>;
 
-/// Answers fibre nodes that wait (lifecycle WAITING) for samples this node already
-/// published: the message was lost in transit, so it goes out again. A node waiting for a
-/// step not served yet has re-sent its state instead; nothing to do here.
-fn answer_waiting(
-    bus: &BusHandle,
-    hb_in: &mut Inbox,
-    served: &Served,
-    run: &RunInfo,
-    heard: &mut BTreeMap<String, Instant>,
-) -> Result<(), FlowError> {
-    while let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::ZERO) {
-        heard.insert(hb.node.clone(), Instant::now());
-        if hb.state != lifecycle::WAITING {
-            continue;
-        }
-        let Some(p) = run.pieces.iter().find(|p| p.node() == hb.node) else {
-            continue;
-        };
-        if let Some((step, topic, msg)) = served.get(&(p.group.clone(), p.first_fiber)) {
-            if *step == hb.step {
-                tracing::info!(node = %hb.node, step, "node waits for samples already sent: sending them again");
-                bus.publish_message(topic, msg.as_ref())?;
+/// How often the run's announcement may go out again to nodes that still say READY.
+const REANNOUNCE_EVERY: Duration = Duration::from_secs(1);
+
+/// What the flow node hears from the other nodes besides their states: when each was last
+/// heard from, how far the recorder has recorded, and who still waits for the run's
+/// announcement.
+#[derive(Default)]
+struct Peers {
+    /// When each node was last heard from (any heartbeat: its pulse, WAITING, …).
+    heard: BTreeMap<String, Instant>,
+    /// The step the recorder holds every piece's state through (its RUNNING heartbeats).
+    recorded: u64,
+    /// The run's announcement (topic, bytes) and when it last went out.
+    announcement: Option<(String, Vec<u8>, Instant)>,
+}
+
+impl Peers {
+    /// Reads the heartbeats that came in (waiting up to `first_wait` for the first): marks
+    /// each node as heard from, takes the recorder's progress from its RUNNING heartbeats,
+    /// announces the run again (at most once per [`REANNOUNCE_EVERY`]) while a node still
+    /// says READY — it missed the announcement, e.g. behind a partition as it went out,
+    /// and would otherwise wait for it until its timeout — and answers fibre nodes that wait
+    /// (WAITING) for samples already published: the message was lost in transit, so it goes
+    /// out again. A node waiting for a step not served yet has re-sent its state instead.
+    fn listen(
+        &mut self,
+        bus: &BusHandle,
+        hb_in: &mut Inbox,
+        served: &Served,
+        run: &RunInfo,
+        first_wait: Duration,
+    ) -> Result<(), FlowError> {
+        let mut wait = first_wait;
+        while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
+            wait = Duration::ZERO;
+            self.heard.insert(hb.node.clone(), Instant::now());
+            if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
+                self.recorded = self.recorded.max(hb.step);
+            }
+            if hb.state == lifecycle::READY {
+                if let Some((topic, bytes, at)) = self.announcement.as_mut() {
+                    if at.elapsed() >= REANNOUNCE_EVERY {
+                        tracing::info!(node = %hb.node, "node still waits for the run's announcement: announcing again");
+                        bus.publish(topic, bytes)?;
+                        *at = Instant::now();
+                    }
+                }
+            }
+            if hb.state != lifecycle::WAITING {
+                continue;
+            }
+            let Some(p) = run.pieces.iter().find(|p| p.node() == hb.node) else {
+                continue;
+            };
+            if let Some((step, topic, msg)) = served.get(&(p.group.clone(), p.first_fiber)) {
+                if *step == hb.step {
+                    tracing::info!(node = %hb.node, step, "node waits for samples already sent: sending them again");
+                    bus.publish_message(topic, msg.as_ref())?;
+                }
             }
         }
+        Ok(())
     }
-    Ok(())
 }
 
 /// The states of the step being served, by (group, first fibre), and the states already
@@ -54,8 +91,7 @@ pub(crate) struct States {
     inbox: Inbox,
     pending: BTreeMap<(String, u32), FiberGroupState>,
     spare: Vec<FiberGroupState>,
-    /// When each node was last heard from (any heartbeat: its pulse, WAITING, …).
-    heard: BTreeMap<String, Instant>,
+    peers: Peers,
 }
 
 impl States {
@@ -64,8 +100,14 @@ impl States {
             inbox,
             pending: BTreeMap::new(),
             spare: Vec::new(),
-            heard: BTreeMap::new(),
+            peers: Peers::default(),
         }
+    }
+
+    /// The run's announcement as published (`topic`, `bytes`): it goes out again to
+    /// nodes that still say READY.
+    pub(crate) fn announced(&mut self, topic: String, bytes: Vec<u8>) {
+        self.peers.announcement = Some((topic, bytes, Instant::now()));
     }
 
     /// Drops (and counts) what arrived before the run started: none of it is part of it.
@@ -93,7 +135,7 @@ impl States {
         let wait_from = Instant::now();
         // a node not heard from yet counts as heard now: its silence is timed from here
         for p in &run.pieces {
-            self.heard.entry(p.node()).or_insert(wait_from);
+            self.peers.heard.entry(p.node()).or_insert(wait_from);
         }
         while self.pending.len() < run.pieces.len() {
             let left = step_timeout.saturating_sub(wait_from.elapsed());
@@ -111,7 +153,7 @@ impl States {
                     run.step_timeout_s
                 )));
             }
-            answer_waiting(bus, hb_in, served, run, &mut self.heard)?;
+            self.peers.listen(bus, hb_in, served, run, Duration::ZERO)?;
             if let Some(silent) = self.silent(run) {
                 heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
                 return Err(FlowError::Protocol(format!(
@@ -153,6 +195,58 @@ impl States {
         Ok(())
     }
 
+    /// Waits until the recorder (when the run has one) holds every piece's state through
+    /// step k − [`lifecycle::RECORDER_LAG_STEPS`], so a slow recorder slows the run rather
+    /// than letting messages pile up in its queue; fails, naming the recorder, when it is
+    /// silent for `run.liveness_s` (or, with liveness off, after the step timeout).
+    pub(crate) fn await_recorder(
+        &mut self,
+        k: u64,
+        run: &RunInfo,
+        bus: &BusHandle,
+        t: &Topics,
+        hb_in: &mut Inbox,
+        served: &Served,
+    ) -> Result<(), FlowError> {
+        if !run.expected_nodes.iter().any(|n| n == "recorder") {
+            return Ok(());
+        }
+        let wait_from = Instant::now();
+        // not heard from yet: its silence is timed from here
+        self.peers
+            .heard
+            .entry("recorder".into())
+            .or_insert(wait_from);
+        let mut first_wait = Duration::ZERO;
+        loop {
+            self.peers.listen(bus, hb_in, served, run, first_wait)?;
+            let through = self.peers.recorded.max(run.start_step);
+            if through + lifecycle::RECORDER_LAG_STEPS >= k {
+                return Ok(());
+            }
+            let silent_s = self
+                .peers
+                .heard
+                .get("recorder")
+                .map_or(0.0, |t| t.elapsed().as_secs_f64());
+            let limit_s = if run.liveness_s > 0.0 {
+                run.liveness_s
+            } else {
+                run.step_timeout_s
+            };
+            if silent_s > limit_s || wait_from.elapsed().as_secs_f64() > run.step_timeout_s {
+                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
+                return Err(FlowError::Protocol(format!(
+                    "step {k}: the recorder has recorded only through step {through} and was \
+                     silent for {silent_s:.0} s (run.liveness_s = {:.0} s, run.step_timeout_s = \
+                     {:.0} s): the process hung, or its host or the link to it is gone",
+                    run.liveness_s, run.step_timeout_s
+                )));
+            }
+            first_wait = HEARTBEAT_POLL;
+        }
+    }
+
     /// The fibre nodes whose state is awaited and that have not been heard from for longer
     /// than `run.liveness_s` (None: all alive, or liveness off).
     fn silent(&self, run: &RunInfo) -> Option<String> {
@@ -165,9 +259,10 @@ impl States {
             .iter()
             .filter(|p| !self.pending.contains_key(&(p.group.clone(), p.first_fiber)))
             .map(|p| p.node())
-            .filter(|n| self.heard.get(n).is_some_and(|t| t.elapsed() > limit))
+            .filter(|n| self.peers.heard.get(n).is_some_and(|t| t.elapsed() > limit))
             .map(|n| {
                 let s = self
+                    .peers
                     .heard
                     .get(&n)
                     .map_or(0.0, |t| t.elapsed().as_secs_f64());
@@ -253,12 +348,98 @@ pub(crate) fn admit(s: &FiberGroupState, k: u64, run: &RunInfo) -> Admit {
     Admit::Take
 }
 
+/// A run of one group, `case1`, in one piece of one 7-segment fibre.
+#[cfg(test)]
+fn one_piece_run() -> RunInfo {
+    let groups = vec!["case1".to_string()];
+    RunInfo {
+        run_id: "fz".into(),
+        config_digest: String::new(),
+        groups: groups.clone(),
+        expected_nodes: groups,
+        steps: 400,
+        box_plus: [942.0, 300.0, 471.0],
+        step_timeout_s: 1.0,
+        liveness_s: 0.0,
+        start_step: 0,
+        resume_dir: None,
+        checkpoint_every: 0,
+        checkpoint_root: None,
+        pieces: vec![fiberflow_messages::pieces::Piece {
+            group: "case1".into(),
+            index: 0,
+            shards: 1,
+            first_fiber: 0,
+            fibers: 1,
+            group_fibers: 1,
+            segments: 7,
+        }],
+        step_times: None,
+        two_way: false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fiberflow_bus::inproc::InprocBus;
+    use fiberflow_messages::{encode, SCHEMA_VERSION};
+
+    fn ready(node: &str) -> Vec<u8> {
+        encode(&Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: node.into(),
+            state: lifecycle::READY,
+            step: 0,
+            dropped: 0,
+        })
+    }
+
+    /// A node that still says READY a second after the run was announced missed the
+    /// announcement (a partition as it went out): it goes out again, the same bytes, at
+    /// most once a second; READYs from before that second (sent as the first went out) do
+    /// not repeat it.
+    #[test]
+    fn a_node_still_ready_after_the_announcement_is_announced_to_again() {
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let ann_sub = bus.subscribe("r/announce").unwrap();
+        let mut hb_in = Inbox::new(bus.subscribe("r/hb/**").unwrap());
+        let run = one_piece_run();
+        let mut peers = Peers {
+            announcement: Some(("r/announce".into(), vec![1, 2, 3], Instant::now())),
+            ..Peers::default()
+        };
+        let served = Served::new();
+        bus.publish("r/hb/case1", &ready("case1")).unwrap();
+        peers
+            .listen(&bus, &mut hb_in, &served, &run, Duration::from_millis(500))
+            .unwrap();
+        assert!(
+            ann_sub.rx.try_recv().is_err(),
+            "announced again within the second"
+        );
+        std::thread::sleep(REANNOUNCE_EVERY);
+        for _ in 0..3 {
+            bus.publish("r/hb/case1", &ready("case1")).unwrap();
+        }
+        peers
+            .listen(&bus, &mut hb_in, &served, &run, Duration::from_millis(500))
+            .unwrap();
+        let (topic, bytes) = ann_sub.rx.recv_timeout(Duration::from_secs(1)).unwrap();
+        assert_eq!(topic, "r/announce");
+        assert_eq!(&bytes[..], &[1u8, 2, 3][..]);
+        assert!(
+            ann_sub.rx.try_recv().is_err(),
+            "three READYs, one announcement"
+        );
+        assert!(peers.heard.contains_key("case1"));
+    }
+}
+
 #[cfg(test)]
 mod fuzz {
     use super::*;
-    use crate::run::RunInfo;
     use fiberflow_messages::fuzz::{random_payload, Rng};
-    use fiberflow_messages::pieces::Piece;
 
     /// 10^5 random states (valid CDR, random lengths, values and steps) through the flow
     /// node's admission: no panic, and every admitted state has the group's segment count,
@@ -266,31 +447,7 @@ mod fuzz {
     #[test]
     fn admission_survives_random_states() {
         let groups = vec!["case1".to_string()];
-        let run = RunInfo {
-            run_id: "fz".into(),
-            config_digest: String::new(),
-            groups: groups.clone(),
-            expected_nodes: groups.clone(),
-            steps: 400,
-            box_plus: [942.0, 300.0, 471.0],
-            step_timeout_s: 1.0,
-            liveness_s: 0.0,
-            start_step: 0,
-            resume_dir: None,
-            checkpoint_every: 0,
-            checkpoint_root: None,
-            pieces: vec![Piece {
-                group: "case1".into(),
-                index: 0,
-                shards: 1,
-                first_fiber: 0,
-                fibers: 1,
-                group_fibers: 1,
-                segments: 7,
-            }],
-            step_times: None,
-            two_way: false,
-        };
+        let run = one_piece_run();
         let mut r = Rng::new(5);
         let mut taken = 0;
         for i in 0..100_000u64 {

@@ -167,7 +167,11 @@ fn announce(
     };
     // nothing sent before the run started is part of it
     states.drop_early();
-    bus.publish(&t.announce(), &encode(&ann))?;
+    let bytes = encode(&ann);
+    bus.publish(&t.announce(), &bytes)?;
+    // a node that missed it (a partition or loss as it went out) keeps saying READY and
+    // is announced to again
+    states.announced(t.announce(), bytes);
     tracing::info!(groups = ?run.groups, steps = run.steps, "run announced");
     if run.start_step > 0 {
         tracing::info!(step = run.start_step, "resuming from a coupled checkpoint");

@@ -1011,6 +1011,78 @@ mod tests {
         std::fs::read(out.join("run.mcap")).unwrap()
     }
 
+    /// A recorder that takes 4 ms over every message (a slow disk) holds the run back
+    /// instead of letting messages pile up in its queue: the flow node keeps at most
+    /// `RECORDER_LAG_STEPS` steps ahead of it, so the recorder's queue never holds more than
+    /// a few steps' messages (without the hold the analytic run, thousands of steps a
+    /// second, would leave all of them waiting), and every state is recorded.
+    #[test]
+    fn a_slow_recorder_slows_the_run_and_its_queue_stays_short() {
+        use fiberflow_messages::lifecycle::RECORDER_LAG_STEPS;
+        let dir = std::env::temp_dir().join(format!("ff-slow-rec-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../launch/validation/analytic-shear.toml");
+        let steps = 60;
+        let (lf, text) = LaunchFile::load_with(&file, &[format!("run.steps={steps}")]).unwrap();
+        let base = NodeSpec {
+            node: String::new(),
+            launch: lf.clone(),
+            launch_file_name: "analytic-shear.toml".into(),
+            launch_text: text,
+            transport: "inproc".into(),
+            zenoh_listen: vec![],
+            zenoh_connect: vec![],
+            zenoh_endpoint_file: None,
+            co_nodes: vec![],
+            host: None,
+            out_dir: dir.clone(),
+            start_step: 0,
+            resume_dir: None,
+            segment: 0,
+        };
+        let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
+        let slow = Arc::new(fiberflow_bus::slow::SlowBus::new(
+            bus.clone(),
+            std::time::Duration::from_millis(4),
+        ));
+        let recorder = {
+            let (slow, base): (BusHandle, _) = (slow.clone(), base.clone());
+            std::thread::spawn(move || {
+                run_inproc_on(
+                    slow,
+                    &base,
+                    &["recorder".to_string()],
+                    Arc::new(AtomicBool::new(false)),
+                )
+            })
+        };
+        let mut nodes = vec!["flow".to_string()];
+        nodes.extend(lf.fibre_nodes().unwrap());
+        run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
+        recorder.join().unwrap().unwrap();
+        let bytes = std::fs::read(dir.join("run.mcap")).unwrap();
+        let states = recorded_states(&bytes);
+        assert_eq!(
+            states.len(),
+            2 * (steps as usize + 1),
+            "two groups, steps 0..={steps}"
+        );
+        let all = recorded(&bytes, "");
+        let per_step = all.len() as f64 / steps as f64;
+        let deepest = slow.deepest_backlog();
+        eprintln!(
+            "{} messages recorded ({per_step:.1} per step); deepest queue {deepest}",
+            all.len()
+        );
+        assert!(
+            deepest as f64 <= (RECORDER_LAG_STEPS + 3) as f64 * per_step,
+            "the recorder's queue held {deepest} messages, {per_step:.1} per step"
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
     /// A fresh run in a used folder starts with empty logs, checkpoints and segments;
     /// other files stay.
     #[test]

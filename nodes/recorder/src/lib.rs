@@ -14,6 +14,7 @@ pub mod pointcloud;
 pub mod recover;
 pub mod ros;
 
+use fiberflow_bus::pulse::{Beat, Pulse};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::topics::{type_of, Topics};
@@ -425,6 +426,16 @@ impl Session<'_> {
         self.maybe_commit()
     }
 
+    /// The step through which every piece's state has come in (None before each piece's
+    /// first state).
+    fn recorded_through(&self) -> Option<u64> {
+        let pieces = self.plan.pieces.len().max(self.plan.groups.len());
+        if pieces == 0 || self.state_step.len() < pieces {
+            return None;
+        }
+        self.state_step.values().min().copied()
+    }
+
     /// Does a message that decoded and checked belong to this run? Its step must lie in
     /// the run, its group be one of the run's and named by its topic, a heartbeat come from
     /// one of the run's nodes.
@@ -630,6 +641,18 @@ pub fn record(
     // recorder open, so it also finishes after QUIET_AFTER_FLOW_DONE without any message
     let mut flow_done = false;
     let mut last_message = Instant::now();
+    // the recorder's pulse says it is alive and how far it has recorded; the flow node
+    // keeps the run at most RECORDER_LAG_STEPS ahead of it
+    let beat = Arc::new(Beat::default());
+    beat.step.store(plan.start_step, Ordering::Relaxed);
+    let _pulse = Pulse::start(
+        bus.clone(),
+        vec![(t.heartbeat("recorder"), "recorder".into(), beat.clone())],
+    )
+    .map_err(|source| RecorderError::Io {
+        path: "the recorder's pulse thread".into(),
+        source,
+    })?;
     loop {
         if stop.load(Ordering::SeqCst) {
             tracing::info!("recorder stopping on signal");
@@ -697,6 +720,13 @@ pub fn record(
             _ => {}
         }
         sess.handle(&topic, &bytes)?;
+        if let Some(k) = sess.recorded_through() {
+            // said at once (not only by the pulse): the flow node may be waiting for it
+            if k > beat.step.swap(k, Ordering::Relaxed) {
+                let hb = own_heartbeat(lifecycle::RUNNING, k, sess.drops.total());
+                bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
+            }
+        }
         sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
     }
     finish(sess, &inbox, &bus, &t)

@@ -1,11 +1,12 @@
-//! The fibre nodes' pulse: a thread that says every [`PULSE_PERIOD`] that each node of this
-//! process is alive (a RUNNING heartbeat with the step it works on), whatever the node is
-//! doing — a long fibre step, a wait for samples. The flow node takes a node silent for
-//! `run.liveness_s` as gone (a hung process, a host or link that vanished) and fails the
-//! step at once, naming it, instead of waiting out the step timeout (docs/architecture.md,
-//! "Runs that survive").
+//! A node's pulse: a thread that says every [`PULSE_PERIOD`] that each node of this
+//! process is alive (a RUNNING heartbeat with its step), whatever the node is doing — a
+//! long fibre step, a wait for samples, a long write. The fibre nodes show the step they
+//! work on, the recorder the step it has recorded through. The flow node takes a node
+//! silent for `run.liveness_s` as gone (a hung process, a host or link that vanished) and
+//! fails the step at once, naming it, instead of waiting out the step timeout
+//! (docs/architecture.md, "Runs that survive").
 
-use fiberflow_bus::BusHandle;
+use crate::BusHandle;
 use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -75,7 +76,7 @@ impl Drop for Pulse {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use fiberflow_bus::inproc::InprocBus;
+    use crate::inproc::InprocBus;
 
     /// The pulse says RUNNING with the node's current step about once a second, and stops
     /// when dropped.
