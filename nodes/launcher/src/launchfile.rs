@@ -766,7 +766,7 @@ pub(crate) mod tests {
             );
         }
         idle.sort();
-        assert_eq!(n, 14, "launch files with a [run] table");
+        assert_eq!(n, 15, "launch files with a [run] table");
         assert_eq!(
             idle,
             [
