@@ -72,6 +72,33 @@ impl Hosts {
     }
 }
 
+impl Hosts {
+    /// `fiberflow launch FILE --host HOST --resume DIR` (with the run's `--set` options) on
+    /// the namespace `ns`.
+    fn resume(
+        &self,
+        ns: &str,
+        file: &Path,
+        host: &str,
+        dir: &Path,
+        sets: &[&str],
+    ) -> std::process::Child {
+        let mut c = self.command(&["run", ns]);
+        c.arg(fiberflow())
+            .arg("launch")
+            .arg(file)
+            .args(["--host", host, "--resume"])
+            .arg(dir);
+        for s in sets {
+            c.arg("--set").arg(s);
+        }
+        c.stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("resuming a launcher in a namespace")
+    }
+}
+
 impl Drop for Hosts {
     fn drop(&mut self) {
         self.down();
@@ -132,8 +159,162 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
     );
 }
 
-/// Waits until the flow node has written the checkpoint of `step` in `out` (multi-host
-/// runs write no manifest).
+/// Two hosts in two namespaces (analytic shear: head with the flow node, the recorder and
+/// case1; worker with stiff), a checkpoint every 200 steps of 4000: once the head has a
+/// complete checkpoint, the worker's whole launcher is killed (`kill -9`; its nodes die
+/// with it) and started again with `--resume`. The head's flow node finds the worker's
+/// node silent (`run.liveness_s = 4`), the head rolls back to its newest complete
+/// checkpoint, the worker resumes from the same step, and both complete: the head's
+/// segments hold every state of steps 0..=4000 once, bit for bit those of the run in one
+/// process.
+#[test]
+fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
+    // SAFETY: geteuid has no preconditions
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+        return;
+    }
+    let _one = one_run_at_a_time();
+    let dir = scratch("netns-kill");
+    let file = namespaced_launch(&dir);
+    let hosts = Hosts::up(&format!("fk{}", std::process::id() % 100_000));
+    let sets = [
+        "run.steps=4000",
+        "run.checkpoint_every_plus=100",
+        "run.liveness_s=4",
+    ];
+    let head = hosts.launch("head", &file, "head", &dir.join("head"), &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut worker = hosts.launch("w1", &file, "worker", &dir.join("worker"), &sets);
+    wait_for_checkpoint(&dir.join("head"), 300);
+    // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
+    unsafe {
+        libc::kill(worker.id() as i32, libc::SIGKILL);
+    }
+    let _ = worker.wait();
+    let again = hosts.resume("w1", &file, "worker", &dir.join("worker"), &sets);
+    let out = head.wait_with_output().expect("waiting for the head");
+    let head_says =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "head failed:\n{head_says}");
+    assert!(
+        head_says.contains("restarting every node from step"),
+        "the head did not restart:\n{head_says}"
+    );
+    assert_all_succeed(vec![("worker, resumed", again)]);
+    let (b, _) = states_by_step(&dir.join("head"));
+    let one = scratch("netns-kill-one");
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        &sets,
+    );
+    let (a, _) = states_by_step(&one);
+    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(
+            v == &b[k],
+            "{k:?}: the resumed two-host run's state differs"
+        );
+    }
+}
+
+/// Three hosts (`launch/multi-host/three-hosts.toml`, 6 × 10⁴ fibres in three shards per
+/// group over both workers): once the head has a complete checkpoint, w1's whole launcher
+/// is killed (`kill -9`) and started again with `--resume`. The head's flow node finds
+/// w1's nodes silent (`run.liveness_s = 10`) and the head rolls back; w2's nodes, alive
+/// in the middle of the run, see the flow node start again and fail, and w2's launcher
+/// restarts them from the step the flow node says, as w1's resumed launcher does. All
+/// three complete, and the head's segments hold every group's states once, bit for bit
+/// those of the same fibres unsharded in one process.
+#[test]
+fn three_hosts_a_killed_worker_resumes_and_the_other_follows_bitwise() {
+    // SAFETY: geteuid has no preconditions
+    if unsafe { libc::geteuid() } != 0 {
+        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+        return;
+    }
+    let _one = one_run_at_a_time();
+    let dir = scratch("netns3-kill");
+    let file = three_hosts_launch(&dir);
+    let hosts = Hosts::up(&format!("fm{}", std::process::id() % 100_000));
+    // 10 s: with 6 × 10⁴ fibres starting in 18 processes on two cores, a node's first
+    // state can take longer than 4 s after the join
+    let sets = ["run.liveness_s=10", "flow.join_timeout_s=120"];
+    let head = hosts.launch("head", &file, "head", &dir.join("head"), &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut w1 = hosts.launch("w1", &file, "w1", &dir.join("w1"), &sets);
+    let w2 = hosts.launch("w2", &file, "w2", &dir.join("w2"), &sets);
+    wait_for_checkpoint(&dir.join("head"), 300);
+    // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
+    unsafe {
+        libc::kill(w1.id() as i32, libc::SIGKILL);
+    }
+    let _ = w1.wait();
+    let again = hosts.resume("w1", &file, "w1", &dir.join("w1"), &sets);
+    let outputs: Vec<(&str, std::process::Output)> = vec![
+        ("head", head.wait_with_output().unwrap()),
+        ("w2", w2.wait_with_output().unwrap()),
+        ("w1, resumed", again.wait_with_output().unwrap()),
+    ];
+    for (name, o) in &outputs {
+        let said =
+            String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{name} failed:\n{said}");
+        let want = match *name {
+            "w1, resumed" => "resuming",
+            _ => "restarting every node from step",
+        };
+        assert!(said.contains(want), "{name} did not say {want:?}:\n{said}");
+    }
+    let b = whole_states(&dir.join("head"));
+    let a = one_process_states(&dir, &file);
+    assert_eq!(a.len(), 6 * 7, "six groups, a state every 10 of 60 steps");
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(
+            v == &b[k],
+            "{k:?}: the restarted three hosts' state differs"
+        );
+    }
+}
+
+/// Certificates for the three namespaced hosts and a copy of
+/// `launch/multi-host/three-hosts.toml` beside them; returns the launch file.
+fn three_hosts_launch(dir: &Path) -> PathBuf {
+    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
+        .arg(dir.join("certs"))
+        .args(["head=10.77.0.1", "w1=10.77.0.2", "w2=10.77.0.3"])
+        .stdout(Stdio::null())
+        .status()
+        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
+    assert!(st.success(), "make-certs.sh failed");
+    let file = dir.join("three-hosts.toml");
+    std::fs::copy(root().join("launch/multi-host/three-hosts.toml"), &file).unwrap();
+    file
+}
+
+/// Every group's whole states of the three-host launch `file` run with each group whole
+/// (`shards = 1`) in one process.
+fn one_process_states(
+    dir: &Path,
+    file: &Path,
+) -> std::collections::BTreeMap<(String, u64), Vec<u8>> {
+    let one = scratch(&format!(
+        "{}-one",
+        dir.file_name().unwrap().to_string_lossy()
+    ));
+    let text = std::fs::read_to_string(file).unwrap();
+    let text = &text[..text.find("[network]").unwrap()];
+    let path = dir.join("one.toml");
+    std::fs::write(&path, text.replace("shards = 3", "shards = 1")).unwrap();
+    launch_with(&path, &one, "inproc", &[]);
+    whole_states(&one)
+}
+
+/// Waits until the flow node has written the checkpoint of `step` in `out`.
 fn wait_for_flow_checkpoint(out: &Path, step: u64, secs: u64) {
     let file = out.join(format!("checkpoints/step-{step:09}/flow.ckpt"));
     let t0 = std::time::Instant::now();
@@ -166,15 +347,7 @@ fn three_hosts_with_loss_on_every_link_and_a_partition_match_one_process() {
     }
     let _one = one_run_at_a_time();
     let dir = scratch("netns3");
-    let st = Command::new(root().join("launch/multi-host/make-certs.sh"))
-        .arg(dir.join("certs"))
-        .args(["head=10.77.0.1", "w1=10.77.0.2", "w2=10.77.0.3"])
-        .stdout(Stdio::null())
-        .status()
-        .expect("running launch/multi-host/make-certs.sh (needs openssl)");
-    assert!(st.success(), "make-certs.sh failed");
-    let file = dir.join("three-hosts.toml");
-    std::fs::copy(root().join("launch/multi-host/three-hosts.toml"), &file).unwrap();
+    let file = three_hosts_launch(&dir);
     let hosts = Hosts::up(&format!("ff{}", std::process::id() % 100_000));
     for h in ["head", "w1", "w2"] {
         hosts.call(&["loss", h, "1"]);
@@ -190,18 +363,8 @@ fn three_hosts_with_loss_on_every_link_and_a_partition_match_one_process() {
     wait_for_flow_checkpoint(&dir.join("head"), 20, 300);
     hosts.call(&["partition", "w1", "10"]);
     assert_all_succeed(children);
-    // the same fibres in one process, each group whole
-    let one = scratch("netns3-one");
-    let base = std::fs::read_to_string(&file).unwrap();
-    let base = &base[..base.find("[network]").unwrap()];
-    std::fs::write(
-        dir.join("one.toml"),
-        base.replace("shards = 3", "shards = 1"),
-    )
-    .unwrap();
-    launch_with(&dir.join("one.toml"), &one, "inproc", &[]);
-    let a = whole_states(&one);
     let b = whole_states(&dir.join("head"));
+    let a = one_process_states(&dir, &file);
     assert_eq!(a.len(), 6 * 7, "six groups, a state every 10 of 60 steps");
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
     for (k, v) in &a {

@@ -40,6 +40,10 @@ pub enum FiberNodeError {
     Protocol(String),
 }
 
+/// How often a fibre node whose flow node lives on another host looks for its restart
+/// while it waits for samples.
+const FLOW_HEARTBEAT_POLL: Duration = Duration::from_millis(500);
+
 /// Where a group starts, where it saves coupled checkpoints, which run it belongs to, and
 /// what its states carry (complete at which steps; the forces of two-way coupling).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -60,6 +64,11 @@ pub struct Checkpointing {
     /// Two-way coupling (`run.coupling = "two-way"`): every state, lean or complete,
     /// carries each segment's hydrodynamic force of the last step for the flow node.
     pub two_way: bool,
+    /// The flow node runs on another host and may be restarted there (multi-host runs):
+    /// a flow node that says READY again after this node's first step has started the
+    /// run over from a checkpoint, and this node fails so that its launcher restarts it
+    /// from the same step.
+    pub flow_elsewhere: bool,
 }
 
 /// Runs shard `shard` of a group (0 for an unsharded group) to the end of the run;
@@ -253,6 +262,8 @@ struct Served {
     metrics_every_steps: u64,
     samples_in: Inbox,
     ann_in: Inbox,
+    /// The flow node's heartbeats, when it lives on another host ([`Checkpointing::flow_elsewhere`]).
+    flow_hb: Option<Inbox>,
     /// Refilled every step: its per-fibre arrays are set once and the segment arrays (MBs
     /// per step at scale) keep their allocations.
     state_msg: Encode<FiberGroupState>,
@@ -340,6 +351,11 @@ impl Served {
         let name = cfg.group.clone();
         let samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
         let ann_in = Inbox::new(bus.subscribe(&t.announce())?);
+        let flow_hb = if ck.flow_elsewhere {
+            Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?))
+        } else {
+            None
+        };
         let state_msg = Encode(FiberGroupState {
             schema_version: SCHEMA_VERSION,
             group: name.clone(),
@@ -395,6 +411,7 @@ impl Served {
             metrics_every_steps: cfg.metrics_every_steps,
             samples_in,
             ann_in,
+            flow_hb,
             state_msg,
             full_states_every: ck.full_states_every,
             two_way: ck.two_way,
@@ -422,6 +439,27 @@ impl Served {
                 dropped: self.samples_in.drops.total(),
             }),
         )
+    }
+
+    /// Fails when the flow node (on another host) has started the run again: it says READY
+    /// only while it waits for the nodes to join, so a READY read once this node is past
+    /// its first step comes from a restarted flow node (those of the first step are the
+    /// join's, sent before the announcement, and are read and let go at that step).
+    fn flow_restarted(&mut self, k: u64) -> Result<(), FiberNodeError> {
+        let Some(inbox) = self.flow_hb.as_mut() else {
+            return Ok(());
+        };
+        while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
+            if hb.state == lifecycle::READY && k > self.start {
+                return Err(FiberNodeError::Protocol(format!(
+                    "node {}: the flow node started the run again from step {} while this \
+                     node was at step {k} (it was restarted): this node is restarted from \
+                     that step too",
+                    self.node, hb.step
+                )));
+            }
+        }
+        Ok(())
     }
 
     /// The run's announcement for this node's group, if one arrives within `wait`
@@ -526,6 +564,7 @@ impl Served {
         // the wait ends with the samples checked (checking counts as the fibre step); the
         // step reads them where they arrived (a transport's shared memory), not copied
         let (checking, samples) = loop {
+            self.flow_restarted(k)?;
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
                 self.hb(lifecycle::FAILED, k)?;
@@ -552,7 +591,11 @@ impl Served {
                 resend_after = (2 * resend_after).min(resend_cap);
                 resend_at = now + resend_after;
             }
-            let wait = left.min(resend_at.saturating_duration_since(now));
+            let mut wait = left.min(resend_at.saturating_duration_since(now));
+            if self.flow_hb.is_some() {
+                // the flow node's heartbeats are looked at between waits
+                wait = wait.min(FLOW_HEARTBEAT_POLL);
+            }
             let Some((topic, bytes)) = self.samples_in.recv_raw(wait) else {
                 continue;
             };

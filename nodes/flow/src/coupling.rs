@@ -204,6 +204,7 @@ impl<'a> Coupling<'a> {
             &mut self.hb_in,
             &self.served,
         )?;
+        self.confirm_remote_checkpoint(k)?;
         let waited_s = wait_from.elapsed().as_secs_f64();
         if k == self.run.start_step {
             self.start_wait_s = waited_s;
@@ -211,6 +212,42 @@ impl<'a> Coupling<'a> {
             self.timing.waiting_s += waited_s;
         }
         Ok(())
+    }
+
+    /// Multi-host runs: with every state of step `k` in, the fibre nodes on other hosts
+    /// have each written their checkpoint of step k − 1 (a node saves it before it steps
+    /// on); when k − 1 was a checkpoint step, this node's folder of it gets the file that
+    /// says so, which completes the checkpoint on this host for the whole run.
+    fn confirm_remote_checkpoint(&self, k: u64) -> Result<(), FlowError> {
+        let run = self.run;
+        let Some(root) = &run.checkpoint_root else {
+            return Ok(());
+        };
+        let Some(c) = k.checked_sub(1) else {
+            return Ok(());
+        };
+        if run.remote_pieces.is_empty()
+            || c < run.start_step
+            || !fiberflow_messages::checkpoints::is_checkpoint_step(
+                c,
+                run.checkpoint_every,
+                run.steps,
+            )
+        {
+            return Ok(());
+        }
+        let dir = fiberflow_messages::checkpoints::step_dir(root, c);
+        let text = format!(
+            "# every fibre node on another host sent its state of step {k}, after writing its checkpoint of step {c}\n{}\n",
+            run.remote_pieces.join("\n")
+        );
+        let file = fiberflow_messages::checkpoints::piece(
+            &dir,
+            fiberflow_messages::checkpoints::REMOTE_PIECE,
+        );
+        std::fs::create_dir_all(&dir)
+            .and_then(|()| fiberflow_messages::checkpoints::write_atomic(&file, text.as_bytes()))
+            .map_err(crate::error::io_err(&file))
     }
 
     /// The coupled checkpoint of the field at t_k, before this step's samples: the

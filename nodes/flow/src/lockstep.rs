@@ -376,6 +376,7 @@ fn one_piece_run() -> RunInfo {
         }],
         step_times: None,
         two_way: false,
+        remote_pieces: vec![],
     }
 }
 

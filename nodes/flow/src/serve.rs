@@ -134,7 +134,9 @@ fn join(
             )));
         }
         if last_hb.elapsed() > Duration::from_millis(200) {
-            heartbeat(bus, t, lifecycle::READY, 0, 0)?;
+            // the step it starts from: a worker host restarting its nodes after a
+            // restart here resumes them from the same checkpoint
+            heartbeat(bus, t, lifecycle::READY, run.start_step, 0)?;
             last_hb = Instant::now();
         }
         if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {

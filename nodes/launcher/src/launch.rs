@@ -151,14 +151,22 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         resume_dir: None,
         segment: 0,
     };
-    let pieces = crate::coupled::pieces(&nodes);
+    let role = crate::hosts::Role::of(&base)?;
+    let pieces = role.pieces(&nodes);
     if resume.is_some() {
-        roll_back(&mut base, &pieces, &digest)?;
+        role.roll_back(&mut base, &pieces, &digest)?;
+        let segment = if records_here {
+            format!(
+                " (segment {})",
+                fiberflow_messages::segments::segment_name(base.segment)
+            )
+        } else {
+            String::new()
+        };
         println!(
-            "resuming {} from step {} (segment {})",
+            "resuming {} from step {}{segment}",
             out_dir.display(),
-            base.start_step,
-            fiberflow_messages::segments::segment_name(base.segment)
+            base.start_step
         );
     }
     let _run_lock = iceoryx2_run_lock(&transport, &lf.run.id, &stop)?;
@@ -172,10 +180,10 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     for line in crate::loading::describe(&lf, &crate::loading::loading(&lf)?) {
         println!("{line}");
     }
-    let watcher = checkpoint_watcher(&base, pieces.clone(), digest.clone());
+    let watcher = checkpoint_watcher(&base, role, pieces.clone(), digest.clone());
     let result = match transport.as_str() {
         "inproc" => run_inproc(&base, &nodes, stop),
-        "zenoh" | "iceoryx2" => supervise_restarts(&mut base, &nodes, &pieces, &digest, stop),
+        "zenoh" | "iceoryx2" => supervise_restarts(&mut base, role, &nodes, &pieces, &digest, stop),
         other => Err(anyhow::anyhow!(
             "--transport must be inproc, zenoh or iceoryx2 (got {other:?})"
         )),
@@ -486,7 +494,7 @@ fn clear_previous_run(out_dir: &Path) -> Result<()> {
 
 /// Points `base` at the newest complete checkpoint of its run folder (or the start) and a
 /// new recording segment, after finishing any segment whose writer was killed.
-fn roll_back(base: &mut NodeSpec, pieces: &[String], digest: &str) -> Result<()> {
+pub(crate) fn roll_back(base: &mut NodeSpec, pieces: &[String], digest: &str) -> Result<()> {
     for s in crate::coupled::finish_segments(&base.out_dir)? {
         println!("finished the interrupted segment {}", s.display());
     }
@@ -520,15 +528,25 @@ impl Watcher {
     }
 }
 
-fn checkpoint_watcher(base: &NodeSpec, pieces: Vec<String>, digest: String) -> Watcher {
+/// Completes checkpoints every 0.2 s (a worker host of a multi-host run only prunes its
+/// own: the head completes them for the whole run).
+fn checkpoint_watcher(
+    base: &NodeSpec,
+    role: crate::hosts::Role,
+    pieces: Vec<String>,
+    digest: String,
+) -> Watcher {
     let finished = Arc::new(AtomicBool::new(false));
     let root = base.checkpoint_root();
-    let multi_host = base.launch.network.is_some();
-    let handle = root.filter(|_| !multi_host).map(|root| {
+    let handle = root.map(|root| {
         let finished = finished.clone();
         std::thread::spawn(move || loop {
             let last = finished.load(Ordering::SeqCst);
-            if let Err(e) = crate::coupled::complete(&root, &pieces, &digest) {
+            let done = match role {
+                crate::hosts::Role::Worker => crate::hosts::prune_worker(&root).map(|_| None),
+                _ => crate::coupled::complete(&root, &pieces, &digest),
+            };
+            if let Err(e) = done {
                 tracing::warn!(error = %format!("{e:#}"), "completing checkpoints");
             }
             if last {
@@ -544,14 +562,14 @@ fn checkpoint_watcher(base: &NodeSpec, pieces: Vec<String>, digest: String) -> W
 /// every node back to the newest complete checkpoint and goes on.
 fn supervise_restarts(
     base: &mut NodeSpec,
+    role: crate::hosts::Role,
     nodes: &[String],
     pieces: &[String],
     digest: &str,
     stop: Arc<AtomicBool>,
 ) -> Result<()> {
     let policy = &base.launch.run.restart;
-    let can_restart = policy.policy == crate::launchfile::RestartPolicy::OnFailure
-        && base.launch.network.is_none();
+    let can_restart = policy.policy == crate::launchfile::RestartPolicy::OnFailure;
     let max = policy.max_restarts;
     let mut restarts = 0u32;
     loop {
@@ -567,18 +585,27 @@ fn supervise_restarts(
                 }
                 let t0 = Instant::now();
                 let started_at = base.start_step;
-                roll_back(base, pieces, digest)?;
+                role.roll_back(base, pieces, digest)?;
                 // a node that exits with an error (not killed by a signal) before the run
                 // has a newer checkpoint would fail the same way again: the steps are
-                // deterministic, and so is a configuration error
-                if !signalled && base.start_step <= started_at {
+                // deterministic, and so is a configuration error (a worker host's nodes
+                // fail when the head restarts the run, and follow it)
+                if !signalled && base.start_step <= started_at && role != crate::hosts::Role::Worker
+                {
                     bail!("{why}; not restarting: it failed with an error before any new checkpoint (see its log)");
                 }
                 restarts += 1;
+                let recording = if nodes.iter().any(|n| n == "recorder") {
+                    format!(
+                        ", recording into {}",
+                        fiberflow_messages::segments::segment_name(base.segment)
+                    )
+                } else {
+                    String::new()
+                };
                 let msg = format!(
-                    "{why}; restarting every node from step {} (restart {restarts} of {max}), recording into {}",
+                    "{why}; restarting every node from step {} (restart {restarts} of {max}){recording}",
                     base.start_step,
-                    fiberflow_messages::segments::segment_name(base.segment)
                 );
                 eprintln!("{msg}");
                 let log = base.out_dir.join("logs").join("launcher.log");

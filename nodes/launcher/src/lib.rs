@@ -7,6 +7,7 @@ pub mod analyze;
 pub mod coupled;
 #[cfg(test)]
 mod docs_tests;
+pub mod hosts;
 pub mod keys;
 pub mod launch;
 pub mod launchfile;

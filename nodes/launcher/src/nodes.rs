@@ -117,6 +117,30 @@ pub fn zenoh_settings(spec: &NodeSpec) -> Result<ZenohSettings> {
     Ok(s)
 }
 
+/// Does the flow node of a multi-host run live on another host than the spec's?
+pub fn flow_elsewhere(spec: &NodeSpec) -> Result<bool> {
+    let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
+        return Ok(false);
+    };
+    Ok(!spec.launch.host(host)?.nodes.iter().any(|n| n == "flow"))
+}
+
+/// The fibre nodes of a multi-host run that live on other hosts than the spec's (none on
+/// one host).
+pub fn remote_pieces(spec: &NodeSpec) -> Result<Vec<String>> {
+    let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
+        return Ok(vec![]);
+    };
+    let here = &spec.launch.host(host)?.nodes;
+    Ok(spec
+        .launch
+        .pieces()?
+        .iter()
+        .map(|p| p.node())
+        .filter(|n| !here.contains(n))
+        .collect())
+}
+
 pub fn digest(text: &str) -> String {
     let h = sha2::Sha256::digest(text.as_bytes());
     h.iter().map(|b| format!("{b:02x}")).collect()
@@ -190,6 +214,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 pieces,
                 step_times: Some(spec.out_dir.join("logs").join("flow-steps.csv")),
                 two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
+                remote_pieces: remote_pieces(spec)?,
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it
@@ -306,6 +331,7 @@ fn run_fibre_nodes(
         config_digest: digest(&spec.launch_text),
         full_states_every: lf.recorder.states_every_steps,
         two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
+        flow_elsewhere: flow_elsewhere(spec)?,
     };
     let served = fiberflow_fiber::serve::serve_many(
         &nodes,

@@ -1,0 +1,153 @@
+//! Restarts across hosts (docs/architecture.md, "Runs across hosts"): which part a
+//! launcher plays in a run, what completes its checkpoints, and where it resumes from.
+//!
+//! The head (the host with the flow node) decides: its checkpoint of step k is complete
+//! when its own nodes' files are in and the flow node has confirmed the other hosts'
+//! ([`fiberflow_messages::checkpoints::REMOTE_PIECE`]); it rolls back to the newest such
+//! one, as a launcher on one host does. A worker host follows: when one of its nodes dies
+//! (or the head restarts the run, which makes them fail) or it is started with `--resume`,
+//! it waits for the flow node to say READY, which carries the step the run starts from,
+//! and starts its nodes from its own checkpoint of that step.
+
+use crate::nodes::NodeSpec;
+use anyhow::{bail, Context, Result};
+use fiberflow_bus::Inbox;
+use fiberflow_messages::checkpoints::{piece, step_dir, step_of, REMOTE_PIECE};
+use fiberflow_messages::{lifecycle, Heartbeat};
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// The part a launcher plays in its run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Every node on this host.
+    Single,
+    /// A multi-host run's host with the flow node; `remote`: some fibre nodes live on
+    /// other hosts.
+    Head { remote: bool },
+    /// A multi-host run's host without the flow node.
+    Worker,
+}
+
+/// How many of its newest checkpoints a worker host keeps: the head completes a step only
+/// once the workers have stepped past it, so the one it resumes from is among these.
+pub const WORKER_KEEPS: usize = 3;
+
+impl Role {
+    pub fn of(spec: &NodeSpec) -> Result<Self> {
+        let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
+            return Ok(Self::Single);
+        };
+        if spec.launch.host(host)?.nodes.iter().any(|n| n == "flow") {
+            let remote = !crate::nodes::remote_pieces(spec)?.is_empty();
+            Ok(Self::Head { remote })
+        } else {
+            Ok(Self::Worker)
+        }
+    }
+
+    /// The files that make this host's checkpoint complete: its nodes' and, on a head
+    /// with fibre nodes elsewhere, the flow node's confirmation of theirs.
+    pub fn pieces(&self, nodes: &[String]) -> Vec<String> {
+        let mut p = crate::coupled::pieces(nodes);
+        if *self == (Self::Head { remote: true }) {
+            p.push(REMOTE_PIECE.to_string());
+        }
+        p
+    }
+
+    /// Points `base` at the step to start again from: the newest complete checkpoint
+    /// (head, one host) or the step the flow node announces (worker).
+    pub fn roll_back(&self, base: &mut NodeSpec, pieces: &[String], digest: &str) -> Result<()> {
+        match self {
+            Self::Worker => follow(base, pieces),
+            _ => crate::launch::roll_back(base, pieces, digest),
+        }
+    }
+}
+
+/// Removes all but a worker host's [`WORKER_KEEPS`] newest checkpoint folders.
+pub fn prune_worker(root: &Path) -> Result<()> {
+    let mut dirs: Vec<(u64, std::path::PathBuf)> = std::fs::read_dir(root)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| step_of(&e.file_name().to_string_lossy()).map(|k| (k, e.path())))
+        .collect();
+    dirs.sort();
+    let old = dirs.len().saturating_sub(WORKER_KEEPS);
+    for (_, d) in &dirs[..old] {
+        std::fs::remove_dir_all(d).with_context(|| format!("removing {}", d.display()))?;
+    }
+    Ok(())
+}
+
+/// A worker host's restart: waits (up to the run's step timeout) for the flow node to
+/// say READY and points `base` at this host's checkpoint of the step it says, which must
+/// hold every one of `pieces`.
+fn follow(base: &mut NodeSpec, pieces: &[String]) -> Result<()> {
+    let mut spec = base.clone();
+    spec.node = "launcher".into();
+    let bus = crate::nodes::open_bus(&spec).context("joining the run to learn where it resumes")?;
+    let t = fiberflow_messages::topics::Topics::new(&base.launch.run.id);
+    let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("flow"))?);
+    let wait_s = base.launch.run.step_timeout_s;
+    println!("waiting for the flow node to say which step the run starts again from");
+    let t0 = Instant::now();
+    let k = loop {
+        if t0.elapsed().as_secs_f64() > wait_s {
+            bail!(
+                "the flow node did not start the run again within {wait_s:.0} s \
+                 (run.step_timeout_s): is the head's launcher running?"
+            );
+        }
+        if let Some((_, h)) = hb.recv::<Heartbeat>(Duration::from_millis(200)) {
+            if h.state == lifecycle::READY {
+                break h.step;
+            }
+        }
+    };
+    base.start_step = k;
+    base.resume_dir = None;
+    if k > 0 {
+        let root = fiberflow_messages::checkpoints::root(&base.out_dir);
+        let dir = step_dir(&root, k);
+        let missing: Vec<&String> = pieces
+            .iter()
+            .filter(|n| !piece(&dir, n).is_file())
+            .collect();
+        if !missing.is_empty() {
+            bail!(
+                "the run starts again from step {k}, but this host has no checkpoint of it for {} (in {})",
+                missing.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", "),
+                dir.display()
+            );
+        }
+        base.resume_dir = Some(dir);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A worker keeps its three newest checkpoint folders.
+    #[test]
+    fn a_worker_keeps_its_three_newest_checkpoints() {
+        let root = std::env::temp_dir().join(format!("ff-worker-ck-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        for k in [20u64, 40, 60, 80, 100] {
+            std::fs::create_dir_all(step_dir(&root, k)).unwrap();
+        }
+        prune_worker(&root).unwrap();
+        let mut left: Vec<u64> = std::fs::read_dir(&root)
+            .unwrap()
+            .flatten()
+            .filter_map(|e| step_of(&e.file_name().to_string_lossy()))
+            .collect();
+        left.sort();
+        assert_eq!(left, [60, 80, 100]);
+        std::fs::remove_dir_all(&root).ok();
+    }
+}
