@@ -304,14 +304,15 @@ impl ZenohBus {
             "60000000",
         )
         .map_err(terr)?;
-        // a link silent for the lease is closed (zenoh's default 10 s). A partition of
-        // about that length then left the two ends out of step: the client had closed and
-        // reconnected while the router, its queue to the old link blocked, still held the
-        // old face, refused the client's declarations again ("Resource remapped") and the
-        // reconnected node was never heard (three hosts, 6 x 10^4 fibres, a 10 s
-        // partition; docs/architecture.md). With 30 s, TCP carries a shorter partition
-        // through on the same link; a link gone for longer is found by the flow node's
-        // liveness check (run.liveness_s, 30 s by default) as its silent nodes
+        // a link silent for the lease is closed (zenoh's default 10 s). Once, a 10 s
+        // partition left the two ends out of step: the client had closed and reconnected
+        // while the router, its queue to the old link blocked, still held the old face,
+        // refused the client's declarations again ("Resource remapped") and the
+        // reconnected node was never heard (three hosts, 6 x 10^4 fibres;
+        // docs/architecture.md; not seen again in later runs, with either lease). With
+        // 30 s, TCP carries a partition shorter than that through on the same link, and
+        // the ends cannot close it one at a time; a link gone for longer is found by the
+        // flow node's liveness check (run.liveness_s, 30 s by default) as its silent nodes
         c.insert_json5("transport/link/tx/lease", "30000")
             .map_err(terr)?;
         if s.mode == ZenohMode::Client {
