@@ -169,13 +169,37 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
 /// process.
 #[test]
 fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
+    two_hosts_survive_a_kill_on_the_worker(Kill::Launcher);
+}
+
+/// The same with only the worker's fibre node killed (`kill -9`): the worker's launcher
+/// restarts it from the step the head's restarted flow node says.
+#[test]
+fn a_killed_node_on_the_worker_restarts_both_hosts_bitwise() {
+    two_hosts_survive_a_kill_on_the_worker(Kill::Node);
+}
+
+/// What dies on the worker.
+#[derive(PartialEq)]
+enum Kill {
+    /// The whole launcher, started again with `--resume`.
+    Launcher,
+    /// Its fibre node `stiff`.
+    Node,
+}
+
+fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
     // SAFETY: geteuid has no preconditions
     if unsafe { libc::geteuid() } != 0 {
         eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
         return;
     }
     let _one = one_run_at_a_time();
-    let dir = scratch("netns-kill");
+    let name = match kill {
+        Kill::Launcher => "netns-kill",
+        Kill::Node => "netns-kill-node",
+    };
+    let dir = scratch(name);
     let file = namespaced_launch(&dir);
     let hosts = Hosts::up(&format!("fk{}", std::process::id() % 100_000));
     let sets = [
@@ -187,12 +211,26 @@ fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
     std::thread::sleep(Duration::from_millis(500));
     let mut worker = hosts.launch("w1", &file, "worker", &dir.join("worker"), &sets);
     wait_for_checkpoint(&dir.join("head"), 300);
-    // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
-    unsafe {
-        libc::kill(worker.id() as i32, libc::SIGKILL);
-    }
-    let _ = worker.wait();
-    let again = hosts.resume("w1", &file, "worker", &dir.join("worker"), &sets);
+    let worker = match kill {
+        Kill::Launcher => {
+            // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
+            unsafe {
+                libc::kill(worker.id() as i32, libc::SIGKILL);
+            }
+            let _ = worker.wait();
+            hosts.resume("w1", &file, "worker", &dir.join("worker"), &sets)
+        }
+        Kill::Node => {
+            let spec = dir.join("worker/config/stiff.toml");
+            let pids = pids_with(&format!("--spec {}", spec.display()));
+            assert_eq!(pids.len(), 1, "the worker's fibre node: {pids:?}");
+            // SAFETY: plain syscall on a process this test's launcher started
+            unsafe {
+                libc::kill(pids[0], libc::SIGKILL);
+            }
+            worker
+        }
+    };
     let out = head.wait_with_output().expect("waiting for the head");
     let head_says =
         String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
@@ -201,9 +239,9 @@ fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
         head_says.contains("restarting every node from step"),
         "the head did not restart:\n{head_says}"
     );
-    assert_all_succeed(vec![("worker, resumed", again)]);
+    assert_all_succeed(vec![("worker", worker)]);
     let (b, _) = states_by_step(&dir.join("head"));
-    let one = scratch("netns-kill-one");
+    let one = scratch(&format!("{name}-one"));
     launch_with(
         &root().join("launch/validation/analytic-shear.toml"),
         &one,
@@ -216,7 +254,7 @@ fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
     for (k, v) in &a {
         assert!(
             v == &b[k],
-            "{k:?}: the resumed two-host run's state differs"
+            "{k:?}: the restarted two-host run's state differs"
         );
     }
 }

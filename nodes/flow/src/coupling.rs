@@ -237,10 +237,14 @@ impl<'a> Coupling<'a> {
             return Ok(());
         }
         let dir = fiberflow_messages::checkpoints::step_dir(root, c);
-        let text = format!(
-            "# every fibre node on another host sent its state of step {k}, after writing its checkpoint of step {c}\n{}\n",
-            run.remote_pieces.join("\n")
+        // where each piece is: its node and the host whose run folder holds its file
+        let mut text = format!(
+            "# every fibre node on another host sent its state of step {k}, after writing its \
+             checkpoint of step {c} into that host's run folder\nstep = {c}\n[hosts]\n"
         );
+        for (node, host) in &run.remote_pieces {
+            text.push_str(&format!("{node:?} = {host:?}\n"));
+        }
         let file = fiberflow_messages::checkpoints::piece(
             &dir,
             fiberflow_messages::checkpoints::REMOTE_PIECE,

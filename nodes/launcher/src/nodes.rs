@@ -125,20 +125,24 @@ pub fn flow_elsewhere(spec: &NodeSpec) -> Result<bool> {
     Ok(!spec.launch.host(host)?.nodes.iter().any(|n| n == "flow"))
 }
 
-/// The fibre nodes of a multi-host run that live on other hosts than the spec's (none on
-/// one host).
-pub fn remote_pieces(spec: &NodeSpec) -> Result<Vec<String>> {
-    let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
+/// The fibre nodes of a multi-host run that live on other hosts than the spec's, each
+/// with its host (none on one host).
+pub fn remote_pieces(spec: &NodeSpec) -> Result<Vec<(String, String)>> {
+    let (Some(net), Some(host)) = (&spec.launch.network, &spec.host) else {
         return Ok(vec![]);
     };
-    let here = &spec.launch.host(host)?.nodes;
-    Ok(spec
-        .launch
-        .pieces()?
-        .iter()
-        .map(|p| p.node())
-        .filter(|n| !here.contains(n))
-        .collect())
+    let mut out = Vec::new();
+    for p in spec.launch.pieces()? {
+        let node = p.node();
+        if let Some(h) = net
+            .hosts
+            .iter()
+            .find(|h| &h.name != host && h.nodes.contains(&node))
+        {
+            out.push((node, h.name.clone()));
+        }
+    }
+    Ok(out)
 }
 
 pub fn digest(text: &str) -> String {
