@@ -9,6 +9,33 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+/// True when run as root; otherwise says the test is skipped, and why.
+fn as_root() -> bool {
+    // SAFETY: geteuid has no preconditions
+    let root = unsafe { libc::geteuid() } == 0;
+    if !root {
+        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+    }
+    root
+}
+
+/// A finished launcher's stdout and stderr together.
+fn said(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr)
+}
+
+/// The same (group, step) keys, and the same bytes under each.
+fn assert_same_by_step(
+    a: &std::collections::BTreeMap<(String, u64), Vec<u8>>,
+    b: &std::collections::BTreeMap<(String, u64), Vec<u8>>,
+    what: &str,
+) {
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in a {
+        assert!(v == &b[k], "{k:?}: {what}");
+    }
+}
+
 /// The namespaces of one test, removed when dropped.
 struct Hosts {
     prefix: String,
@@ -47,7 +74,7 @@ impl Hosts {
         let _ = self.command(&["down"]).output();
     }
 
-    /// `fiberflow launch FILE --host HOST` on the namespace `ns` (head, w1).
+    /// `fiberflow launch FILE --host HOST --out DIR` on the namespace `ns` (head, w1).
     fn launch(
         &self,
         ns: &str,
@@ -56,23 +83,9 @@ impl Hosts {
         out: &Path,
         sets: &[&str],
     ) -> std::process::Child {
-        let mut c = self.command(&["run", ns]);
-        c.arg(fiberflow())
-            .arg("launch")
-            .arg(file)
-            .args(["--host", host, "--out"])
-            .arg(out);
-        for s in sets {
-            c.arg("--set").arg(s);
-        }
-        c.stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("starting a launcher in a namespace")
+        self.launcher(ns, file, host, ("--out", out), sets)
     }
-}
 
-impl Hosts {
     /// `fiberflow launch FILE --host HOST --resume DIR` (with the run's `--set` options) on
     /// the namespace `ns`.
     fn resume(
@@ -83,11 +96,22 @@ impl Hosts {
         dir: &Path,
         sets: &[&str],
     ) -> std::process::Child {
+        self.launcher(ns, file, host, ("--resume", dir), sets)
+    }
+
+    fn launcher(
+        &self,
+        ns: &str,
+        file: &Path,
+        host: &str,
+        (flag, dir): (&str, &Path),
+        sets: &[&str],
+    ) -> std::process::Child {
         let mut c = self.command(&["run", ns]);
         c.arg(fiberflow())
             .arg("launch")
             .arg(file)
-            .args(["--host", host, "--resume"])
+            .args(["--host", host, flag])
             .arg(dir);
         for s in sets {
             c.arg("--set").arg(s);
@@ -95,7 +119,7 @@ impl Hosts {
         c.stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
-            .expect("resuming a launcher in a namespace")
+            .expect("starting a launcher in a namespace")
     }
 }
 
@@ -132,12 +156,7 @@ fn namespaced_launch(dir: &Path) -> PathBuf {
 /// `two_launchers_over_tls_lose_no_lockstep_message`.)
 #[test]
 fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
-    // SAFETY: geteuid has no preconditions
-    if unsafe { libc::geteuid() } != 0 {
-        eprintln!(
-            "SKIPPED: network namespaces need root (run the end-to-end tests as root to check \
-             runs across hosts with packet loss and a partition)"
-        );
+    if !as_root() {
         return;
     }
     let _one = one_run_at_a_time();
@@ -189,9 +208,7 @@ enum Kill {
 }
 
 fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
-    // SAFETY: geteuid has no preconditions
-    if unsafe { libc::geteuid() } != 0 {
-        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+    if !as_root() {
         return;
     }
     let _one = one_run_at_a_time();
@@ -232,8 +249,7 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
         }
     };
     let out = head.wait_with_output().expect("waiting for the head");
-    let head_says =
-        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let head_says = said(&out);
     assert!(out.status.success(), "head failed:\n{head_says}");
     assert!(
         head_says.contains("restarting every node from step"),
@@ -250,13 +266,7 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
     );
     let (a, _) = states_by_step(&one);
     assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
-    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
-    for (k, v) in &a {
-        assert!(
-            v == &b[k],
-            "{k:?}: the restarted two-host run's state differs"
-        );
-    }
+    assert_same_by_step(&a, &b, "the restarted two-host run's state differs");
 }
 
 /// Three hosts (`launch/multi-host/three-hosts.toml`, 6 × 10⁴ fibres in three shards per
@@ -269,9 +279,7 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
 /// those of the same fibres unsharded in one process.
 #[test]
 fn three_hosts_a_killed_worker_resumes_and_the_other_follows_bitwise() {
-    // SAFETY: geteuid has no preconditions
-    if unsafe { libc::geteuid() } != 0 {
-        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+    if !as_root() {
         return;
     }
     let _one = one_run_at_a_time();
@@ -298,25 +306,18 @@ fn three_hosts_a_killed_worker_resumes_and_the_other_follows_bitwise() {
         ("w1, resumed", again.wait_with_output().unwrap()),
     ];
     for (name, o) in &outputs {
-        let said =
-            String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{name} failed:\n{said}");
+        let text = said(o);
+        assert!(o.status.success(), "{name} failed:\n{text}");
         let want = match *name {
             "w1, resumed" => "resuming",
             _ => "restarting every node from step",
         };
-        assert!(said.contains(want), "{name} did not say {want:?}:\n{said}");
+        assert!(text.contains(want), "{name} did not say {want:?}:\n{text}");
     }
     let b = whole_states(&dir.join("head"));
     let a = one_process_states(&dir, &file);
     assert_eq!(a.len(), 6 * 7, "six groups, a state every 10 of 60 steps");
-    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
-    for (k, v) in &a {
-        assert!(
-            v == &b[k],
-            "{k:?}: the restarted three hosts' state differs"
-        );
-    }
+    assert_same_by_step(&a, &b, "the restarted three hosts' state differs");
 }
 
 /// Certificates for the three namespaced hosts and a copy of
@@ -380,9 +381,7 @@ fn wait_for_flow_checkpoint(out: &Path, step: u64, secs: u64) {
 /// run.liveness_s. Not seen again since (this test passed with the 10 s lease too).
 #[test]
 fn three_hosts_with_loss_on_every_link_and_a_partition_match_one_process() {
-    // SAFETY: geteuid has no preconditions
-    if unsafe { libc::geteuid() } != 0 {
-        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+    if !as_root() {
         return;
     }
     let _one = one_run_at_a_time();
@@ -404,21 +403,14 @@ fn three_hosts_with_loss_on_every_link_and_a_partition_match_one_process() {
     hosts.call(&["partition", "w1", "12"]);
     // ridden through on the same links: no node is taken as gone, nothing restarts
     let head = children.remove(0).1.wait_with_output().unwrap();
-    let said =
-        String::from_utf8_lossy(&head.stdout).to_string() + &String::from_utf8_lossy(&head.stderr);
-    assert!(head.status.success(), "head failed:\n{said}");
-    assert!(!said.contains("restarting"), "the head restarted:\n{said}");
+    let text = said(&head);
+    assert!(head.status.success(), "head failed:\n{text}");
+    assert!(!text.contains("restarting"), "the head restarted:\n{text}");
     assert_all_succeed(children);
     let b = whole_states(&dir.join("head"));
     let a = one_process_states(&dir, &file);
     assert_eq!(a.len(), 6 * 7, "six groups, a state every 10 of 60 steps");
-    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
-    for (k, v) in &a {
-        assert!(
-            v == &b[k],
-            "{k:?}: the three hosts' state differs from one process'"
-        );
-    }
+    assert_same_by_step(&a, &b, "the three hosts' state differs from one process'");
 }
 
 /// Two launchers on one machine (zenoh router and clients over mutual TLS on loopback), a

@@ -57,19 +57,9 @@ fn states_by_step_merged(
 ) {
     let mut slices: BTreeMap<(String, u64), Vec<fiberflow_messages::FiberGroupState>> =
         BTreeMap::new();
-    let segs = fiberflow_messages::segments::segment_paths(out).unwrap();
-    for seg in &segs {
-        let bytes = std::fs::read(seg).unwrap();
-        for m in mcap::MessageStream::new(&bytes).unwrap() {
-            let m = m.unwrap();
-            if !m.channel.topic.ends_with("/state") {
-                continue;
-            }
-            let s: fiberflow_messages::FiberGroupState =
-                fiberflow_messages::decode(&m.data).unwrap();
-            slices.entry((s.group.clone(), s.step)).or_default().push(s);
-        }
-    }
+    for_each_state(out, |s| {
+        slices.entry((s.group.clone(), s.step)).or_default().push(s)
+    });
     let merged = slices
         .into_iter()
         .map(|(k, mut v)| {
@@ -78,7 +68,10 @@ fn states_by_step_merged(
             (k, fiberflow_messages::pieces::merge_states(v).unwrap())
         })
         .collect();
-    (merged, segs.len())
+    let segments = fiberflow_messages::segments::segment_paths(out)
+        .unwrap()
+        .len();
+    (merged, segments)
 }
 
 fn assert_same(

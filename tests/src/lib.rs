@@ -165,6 +165,19 @@ pub fn states(mcap_path: &Path) -> BTreeMap<String, Vec<Vec<u8>>> {
     out
 }
 
+/// Calls `f` with every fibre-group state of a run folder's segments, in order.
+pub fn for_each_state(path: &Path, mut f: impl FnMut(fiberflow_messages::FiberGroupState)) {
+    for seg in fiberflow_messages::segments::segment_paths(path).expect("segments") {
+        let bytes = std::fs::read(&seg).unwrap();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            if m.channel.topic.ends_with("/state") {
+                f(fiberflow_messages::decode(&m.data).unwrap());
+            }
+        }
+    }
+}
+
 /// Every group's whole state per step, with a sharded group's slices put back together
 /// (re-encoded, so an unsharded group's state compares byte for byte).
 pub fn whole_states(path: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
@@ -172,25 +185,16 @@ pub fn whole_states(path: &Path) -> BTreeMap<(String, u64), Vec<u8>> {
     let mut tiles = Tiles::default();
     let mut out = BTreeMap::new();
     // every segment of the run folder, in order (a step's slices may span two)
-    for seg in fiberflow_messages::segments::segment_paths(path).expect("segments") {
-        let bytes = std::fs::read(&seg).unwrap();
-        for m in mcap::MessageStream::new(&bytes).unwrap() {
-            let m = m.unwrap();
-            if !m.channel.topic.ends_with("/state") {
-                continue;
-            }
-            let s: fiberflow_messages::FiberGroupState =
-                fiberflow_messages::decode(&m.data).unwrap();
-            if let Some(w) = tiles.add_slice(s) {
-                let key = (w.group.clone(), w.step);
-                let whole = fiberflow_messages::encode(&w);
-                assert!(
-                    out.insert(key.clone(), whole).is_none(),
-                    "{key:?} recorded twice"
-                );
-            }
+    for_each_state(path, |s| {
+        if let Some(w) = tiles.add_slice(s) {
+            let key = (w.group.clone(), w.step);
+            let whole = fiberflow_messages::encode(&w);
+            assert!(
+                out.insert(key.clone(), whole).is_none(),
+                "{key:?} recorded twice"
+            );
         }
-    }
+    });
     assert_eq!(tiles.incomplete(), 0, "a step's slices never completed");
     out
 }

@@ -196,14 +196,6 @@ impl<'a> Coupling<'a> {
             &mut self.hb_in,
             &self.served,
         )?;
-        self.states.await_recorder(
-            k,
-            self.run,
-            &self.bus,
-            &self.t,
-            &mut self.hb_in,
-            &self.served,
-        )?;
         self.confirm_remote_checkpoint(k)?;
         let waited_s = wait_from.elapsed().as_secs_f64();
         if k == self.run.start_step {

@@ -120,7 +120,8 @@ impl States {
     }
 
     /// Waits until every piece's state of step `k` is in (answering nodes that wait for
-    /// samples already served meanwhile); fails, saying FAILED and naming the silent
+    /// samples already served meanwhile), then for the recorder to be at most
+    /// [`lifecycle::RECORDER_LAG_STEPS`] behind; fails, saying FAILED and naming the silent
     /// nodes, after the run's step timeout.
     pub(crate) fn gather(
         &mut self,
@@ -192,14 +193,14 @@ impl States {
                 Err(e) => self.inbox.drops.drop_one(&topic, &e.to_string()),
             }
         }
-        Ok(())
+        self.await_recorder(k, run, bus, t, hb_in, served)
     }
 
     /// Waits until the recorder (when the run has one) holds every piece's state through
     /// step k − [`lifecycle::RECORDER_LAG_STEPS`], so a slow recorder slows the run rather
     /// than letting messages pile up in its queue; fails, naming the recorder, when it is
     /// silent for `run.liveness_s` (or, with liveness off, after the step timeout).
-    pub(crate) fn await_recorder(
+    fn await_recorder(
         &mut self,
         k: u64,
         run: &RunInfo,

@@ -1015,22 +1015,7 @@ mod tests {
         all.extend(sets.iter().map(|s| s.to_string()));
         let (lf, text) = LaunchFile::load_with(&file, &all).unwrap();
         std::fs::create_dir_all(out.join("config")).unwrap();
-        let base = NodeSpec {
-            node: String::new(),
-            launch: lf.clone(),
-            launch_file_name: "analytic-shear.toml".into(),
-            launch_text: text,
-            transport: "inproc".into(),
-            zenoh_listen: vec![],
-            zenoh_connect: vec![],
-            zenoh_endpoint_file: None,
-            co_nodes: vec![],
-            host: None,
-            out_dir: out.to_path_buf(),
-            start_step: 0,
-            resume_dir: None,
-            segment: 0,
-        };
+        let base = NodeSpec::inproc(lf.clone(), text, out.to_path_buf());
         let mut nodes = vec!["flow".to_string()];
         nodes.extend(lf.fibre_nodes().unwrap());
         nodes.push("recorder".into());
@@ -1053,22 +1038,7 @@ mod tests {
             .join("../../launch/validation/analytic-shear.toml");
         let steps = 60;
         let (lf, text) = LaunchFile::load_with(&file, &[format!("run.steps={steps}")]).unwrap();
-        let base = NodeSpec {
-            node: String::new(),
-            launch: lf.clone(),
-            launch_file_name: "analytic-shear.toml".into(),
-            launch_text: text,
-            transport: "inproc".into(),
-            zenoh_listen: vec![],
-            zenoh_connect: vec![],
-            zenoh_endpoint_file: None,
-            co_nodes: vec![],
-            host: None,
-            out_dir: dir.clone(),
-            start_step: 0,
-            resume_dir: None,
-            segment: 0,
-        };
+        let base = NodeSpec::inproc(lf.clone(), text, dir.clone());
         let bus: BusHandle = Arc::new(fiberflow_bus::inproc::InprocBus::new());
         let slow = Arc::new(fiberflow_bus::slow::SlowBus::new(
             bus.clone(),

@@ -52,6 +52,27 @@ pub struct NodeSpec {
 }
 
 impl NodeSpec {
+    /// A spec for the in-process bus, no node named yet, starting at step 0 (tests).
+    #[cfg(test)]
+    pub(crate) fn inproc(launch: LaunchFile, launch_text: String, out_dir: PathBuf) -> Self {
+        Self {
+            node: String::new(),
+            co_nodes: vec![],
+            launch,
+            launch_file_name: "analytic-shear.toml".into(),
+            launch_text,
+            transport: "inproc".into(),
+            zenoh_listen: vec![],
+            zenoh_connect: vec![],
+            zenoh_endpoint_file: None,
+            host: None,
+            out_dir,
+            start_step: 0,
+            resume_dir: None,
+            segment: 0,
+        }
+    }
+
     /// Where this run's coupled checkpoints go (None: checkpoints are off).
     pub fn checkpoint_root(&self) -> Option<PathBuf> {
         (self.launch.run.checkpoint_every_steps() > 0)
@@ -474,18 +495,7 @@ mod tests {
         let spec = NodeSpec {
             node: waiting,
             co_nodes: vec!["nope".into()],
-            launch: lf,
-            launch_file_name: "analytic-shear.toml".into(),
-            launch_text: text,
-            transport: "inproc".into(),
-            zenoh_listen: vec![],
-            zenoh_connect: vec![],
-            zenoh_endpoint_file: None,
-            host: None,
-            out_dir: out.clone(),
-            start_step: 0,
-            resume_dir: None,
-            segment: 0,
+            ..NodeSpec::inproc(lf, text, out.clone())
         };
         let bus: BusHandle = Arc::new(InprocBus::new());
         let e = run_nodes(&spec, bus, Arc::new(AtomicBool::new(false))).unwrap_err();
