@@ -645,6 +645,7 @@ pub fn record(
     // keeps the run at most RECORDER_LAG_STEPS ahead of it
     let beat = Arc::new(Beat::default());
     beat.step.store(plan.start_step, Ordering::Relaxed);
+    let mut reported = plan.start_step;
     let _pulse = Pulse::start(
         bus.clone(),
         vec![(t.heartbeat("recorder"), "recorder".into(), beat.clone())],
@@ -721,10 +722,15 @@ pub fn record(
         }
         sess.handle(&topic, &bytes)?;
         if let Some(k) = sess.recorded_through() {
-            // said at once (not only by the pulse): the flow node may be waiting for it
-            if k > beat.step.swap(k, Ordering::Relaxed) {
+            beat.step.fetch_max(k, Ordering::Relaxed);
+            // said at once (not only by the pulse), every REPORT_EVERY_STEPS: the flow node
+            // may be waiting for it. It stays up to RECORDER_LAG_STEPS ahead, so a report
+            // that is a step old never holds a run the recorder keeps up with, and the
+            // recording (which keeps the recorder's heartbeats too) gets half as many
+            if k >= reported + REPORT_EVERY_STEPS {
                 let hb = own_heartbeat(lifecycle::RUNNING, k, sess.drops.total());
                 bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
+                reported = k;
             }
         }
         sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
@@ -841,6 +847,11 @@ fn finish(
     }
     Ok(summary)
 }
+
+/// How often (in recorded steps) the recorder says at once how far it has recorded; the
+/// flow node holds the run when it would get more than
+/// [`lifecycle::RECORDER_LAG_STEPS`] ahead.
+const REPORT_EVERY_STEPS: u64 = 2;
 
 /// A heartbeat of the recorder itself.
 fn own_heartbeat(state: u8, step: u64, dropped: u64) -> Heartbeat {
