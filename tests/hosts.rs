@@ -188,26 +188,37 @@ fn two_hosts_apart_survive_packet_loss_and_a_partition_bitwise() {
 /// process.
 #[test]
 fn a_killed_worker_launcher_resumes_and_the_run_completes_bitwise() {
-    two_hosts_survive_a_kill_on_the_worker(Kill::Launcher);
+    two_hosts_survive_a_kill(Kill::Launcher);
 }
 
 /// The same with only the worker's fibre node killed (`kill -9`): the worker's launcher
 /// restarts it from the step the head's restarted flow node says.
 #[test]
 fn a_killed_node_on_the_worker_restarts_both_hosts_bitwise() {
-    two_hosts_survive_a_kill_on_the_worker(Kill::Node);
+    two_hosts_survive_a_kill(Kill::Node);
 }
 
-/// What dies on the worker.
+/// The same with the head's whole launcher killed (`kill -9`: the flow node, the recorder
+/// and case1 die with it) and started again with `--resume`: it rolls back to its newest
+/// complete checkpoint; the worker's node, waiting for samples, sees the flow node start
+/// again and fails, and the worker's launcher restarts it from the same step.
+#[test]
+fn a_killed_head_launcher_resumes_and_the_worker_follows_bitwise() {
+    two_hosts_survive_a_kill(Kill::HeadLauncher);
+}
+
+/// What dies.
 #[derive(PartialEq)]
 enum Kill {
-    /// The whole launcher, started again with `--resume`.
+    /// The worker's whole launcher, started again with `--resume`.
     Launcher,
-    /// Its fibre node `stiff`.
+    /// The worker's fibre node `stiff`.
     Node,
+    /// The head's whole launcher, started again with `--resume`.
+    HeadLauncher,
 }
 
-fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
+fn two_hosts_survive_a_kill(kill: Kill) {
     if !as_root() {
         return;
     }
@@ -215,6 +226,7 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
     let name = match kill {
         Kill::Launcher => "netns-kill",
         Kill::Node => "netns-kill-node",
+        Kill::HeadLauncher => "netns-kill-head",
     };
     let dir = scratch(name);
     let file = namespaced_launch(&dir);
@@ -224,11 +236,20 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
         "run.checkpoint_every_plus=100",
         "run.liveness_s=4",
     ];
-    let head = hosts.launch("head", &file, "head", &dir.join("head"), &sets);
+    let mut head = hosts.launch("head", &file, "head", &dir.join("head"), &sets);
     std::thread::sleep(Duration::from_millis(500));
     let mut worker = hosts.launch("w1", &file, "worker", &dir.join("worker"), &sets);
     wait_for_checkpoint(&dir.join("head"), 300);
+    if kill == Kill::HeadLauncher {
+        // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
+        unsafe {
+            libc::kill(head.id() as i32, libc::SIGKILL);
+        }
+        let _ = head.wait();
+        head = hosts.resume("head", &file, "head", &dir.join("head"), &sets);
+    }
     let worker = match kill {
+        Kill::HeadLauncher => worker,
         Kill::Launcher => {
             // SAFETY: plain syscall on a child we started (netns.sh execs into the launcher)
             unsafe {
@@ -248,14 +269,21 @@ fn two_hosts_survive_a_kill_on_the_worker(kill: Kill) {
             worker
         }
     };
-    let out = head.wait_with_output().expect("waiting for the head");
-    let head_says = said(&out);
-    assert!(out.status.success(), "head failed:\n{head_says}");
+    let (restarted, follows) = match kill {
+        Kill::HeadLauncher => (worker, head),
+        _ => (head, worker),
+    };
+    // the side that rolled back by itself says so; the other completes
+    let out = restarted
+        .wait_with_output()
+        .expect("waiting for a launcher");
+    let text = said(&out);
+    assert!(out.status.success(), "failed:\n{text}");
     assert!(
-        head_says.contains("restarting every node from step"),
-        "the head did not restart:\n{head_says}"
+        text.contains("restarting every node from step"),
+        "no restart:\n{text}"
     );
-    assert_all_succeed(vec![("worker", worker)]);
+    assert_all_succeed(vec![("the other host", follows)]);
     let (b, _) = states_by_step(&dir.join("head"));
     let one = scratch(&format!("{name}-one"));
     launch_with(
