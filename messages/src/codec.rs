@@ -104,6 +104,7 @@ message!(FlowSamples, bulk, crate::bulk::read_samples);
 message!(FiberGroupState, bulk, crate::bulk::read_state);
 message!(FiberGroupMetrics, bulk, crate::bulk::read_metrics);
 message!(Heartbeat);
+message!(FiberFreeStep);
 
 /// Encodes as CDR little-endian with encapsulation header.
 pub fn encode<M: Message>(m: &M) -> Vec<u8> {

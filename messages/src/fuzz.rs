@@ -95,7 +95,7 @@ impl Rng {
 }
 
 /// The message type names a payload can be made for.
-pub const TYPES: [&str; 8] = [
+pub const TYPES: [&str; 9] = [
     "fiberflow_msgs/msg/RunAnnouncement",
     "fiberflow_msgs/msg/FlowSlice",
     "fiberflow_msgs/msg/FlowStatus",
@@ -104,6 +104,7 @@ pub const TYPES: [&str; 8] = [
     "fiberflow_msgs/msg/FiberGroupState",
     "fiberflow_msgs/msg/FiberGroupMetrics",
     "fiberflow_msgs/msg/Heartbeat",
+    "fiberflow_msgs/msg/FiberFreeStep",
 ];
 
 fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
@@ -280,6 +281,29 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 end_to_end: r.floats(c),
                 mean_abs_z1: r.float(),
                 mean_sigma2: r.float(),
+            })
+        }
+        "fiberflow_msgs/msg/FiberFreeStep" => {
+            let st = state(r, groups);
+            let mut arr = || {
+                let n = r.len_near(st.centre.len());
+                r.floats(n)
+            };
+            encode(&FiberFreeStep {
+                schema_version: SCHEMA_VERSION,
+                start_centre: arr(),
+                start_axis: arr(),
+                centre: arr(),
+                axis: arr(),
+                normal: arr(),
+                velocity: arr(),
+                angular_velocity: arr(),
+                group: st.group,
+                step: st.step,
+                t_plus: st.t_plus,
+                first_fiber: st.first_fiber,
+                group_fibers: st.group_fibers,
+                segments_per_fiber: st.segments_per_fiber,
             })
         }
         _ => encode(&Heartbeat {

@@ -245,6 +245,35 @@ impl Sane for FiberGroupState {
     }
 }
 
+impl Sane for FiberFreeStep {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        if self.group.is_empty() {
+            return Err("empty group name".into());
+        }
+        let nf = self.segments_per_fiber.len();
+        piece(self.first_fiber, nf, self.group_fibers)?;
+        if self.segments_per_fiber.contains(&0) {
+            return Err("a fibre with 0 segments".into());
+        }
+        let nseg: u64 = self.segments_per_fiber.iter().map(|&n| n as u64).sum();
+        let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
+        for (name, v) in [
+            ("start_centre", &self.start_centre),
+            ("start_axis", &self.start_axis),
+            ("centre", &self.centre),
+            ("axis", &self.axis),
+            ("normal", &self.normal),
+            ("velocity", &self.velocity),
+            ("angular_velocity", &self.angular_velocity),
+        ] {
+            len(name, v.len(), want)?;
+            finite(name, v)?;
+        }
+        Ok(())
+    }
+}
+
 impl Sane for FiberGroupMetrics {
     fn check(&self) -> Result<(), String> {
         time(self.t_plus)?;
@@ -328,6 +357,9 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         }
         "fiberflow_msgs/msg/FiberGroupMetrics" => {
             go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
+        }
+        "fiberflow_msgs/msg/FiberFreeStep" => {
+            go::<FiberFreeStep>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
         other => Err(format!("unknown message type {other}")),
     }

@@ -51,6 +51,12 @@ impl Topics {
     pub fn fiber_metrics(&self, group: &str) -> String {
         format!("fiberflow/{}/fibers/{group}/metrics", self.run)
     }
+    /// One piece's free step, for the contact solve of its group's other pieces
+    /// ([`crate::FiberFreeStep`]; outside `fibers/` so that the recorder, which records
+    /// `fibers/**`, does not subscribe to it).
+    pub fn contact_free_step(&self, group: &str, first_fiber: u32) -> String {
+        format!("fiberflow/{}/contact/{group}/{first_fiber}", self.run)
+    }
     /// PointCloud2 channel the recorder derives for viewers (not published on the bus).
     pub fn fiber_points(&self, group: &str) -> String {
         format!("fiberflow/{}/fibers/{group}/points", self.run)
@@ -73,6 +79,7 @@ pub fn type_of(topic: &str) -> Option<&'static str> {
         ("flow", 5 | 6) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
         ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
         ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),
+        ("contact", 5) => Some("fiberflow_msgs/msg/FiberFreeStep"),
         _ => None,
     }
 }

@@ -142,6 +142,30 @@ impl FiberGroupState {
     }
 }
 
+/// One piece of a fibre group after its free step of `step` → `step` + 1, before contact:
+/// what the group's other pieces (shards in other processes) read of its fibres for the
+/// contact solve each of them runs over the whole group (docs/contact.md). Per segment, 3
+/// values each: the centre and axis at the start of the step, and after the free step the
+/// centre, axis, material normal, velocity and angular velocity. Not recorded.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FiberFreeStep {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    pub first_fiber: u32,
+    pub group_fibers: u32,
+    /// Per fibre: number of segments N.
+    pub segments_per_fiber: Vec<u32>,
+    pub start_centre: Vec<f64>,
+    pub start_axis: Vec<f64>,
+    pub centre: Vec<f64>,
+    pub axis: Vec<f64>,
+    pub normal: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub angular_velocity: Vec<f64>,
+}
+
 /// Per-fibre metrics of a group at `step` (paper §4.3).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FiberGroupMetrics {

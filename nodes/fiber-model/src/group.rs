@@ -10,6 +10,7 @@
 //! the fibre-major order of [`Segment`]s, never this layout.
 
 use crate::batch::{self, LaneConsts, LaneSeg};
+use crate::contact::exchange::OtherPiece;
 use crate::contact::{self, ContactParams, Outcome as ContactOutcome};
 use crate::error::FibreError;
 use crate::fibre::{Fibre, Segment, SegmentProps};
@@ -430,17 +431,96 @@ impl FibreGroup {
     /// Groups below [`PARALLEL_MIN_SEGMENTS`] are stepped on the calling thread.
     /// With contact on, the fibres that touch are then corrected ([`crate::contact`]).
     pub fn step<'f>(&mut self, fluid: impl Into<Fluid<'f>>, dt: f64) -> Result<(), FibreError> {
+        self.step_free(fluid, dt)?;
+        self.apply_contact(dt);
+        Ok(())
+    }
+
+    /// [`Self::step`] without the contact solve (the start kept for it when contact is
+    /// on): a shard of a group whose shards touch sends this free step to the others,
+    /// then solves with theirs ([`Self::resolve_contact_with`]).
+    pub fn step_free<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+        dt: f64,
+    ) -> Result<(), FibreError> {
         let fluid = fluid.into();
         if self.contact.is_some() {
             self.keep_start();
         }
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
-            self.step_here(fluid, dt, true)?;
+            self.step_here(fluid, dt, true)
         } else {
-            self.step_parallel(fluid, dt)?;
+            self.step_parallel(fluid, dt)
         }
-        self.apply_contact(dt);
-        Ok(())
+    }
+
+    /// After [`Self::step_free`]: the message that carries it to the group's other shards
+    /// (`msg`'s header is the caller's; its arrays are refilled, allocations kept).
+    pub fn fill_free_step(&self, msg: &mut fiberflow_messages::FiberFreeStep) {
+        msg.segments_per_fiber.clear();
+        msg.segments_per_fiber
+            .extend((0..self.len()).map(|k| self.fibre_len(k) as u32));
+        for a in [
+            &mut msg.start_centre,
+            &mut msg.start_axis,
+            &mut msg.centre,
+            &mut msg.axis,
+            &mut msg.normal,
+            &mut msg.velocity,
+            &mut msg.angular_velocity,
+        ] {
+            a.clear();
+        }
+        for s in &self.start {
+            msg.start_centre.extend_from_slice(s[0].as_slice());
+            msg.start_axis.extend_from_slice(s[1].as_slice());
+        }
+        for k in 0..self.len() {
+            let (segs, l) = self.lanes_of(k);
+            for s in segs {
+                msg.centre.extend_from_slice(&s.r.lane(l));
+                msg.axis.extend_from_slice(&s.z.lane(l));
+                msg.normal.extend_from_slice(&s.n.lane(l));
+                msg.velocity.extend_from_slice(&s.v.lane(l));
+                msg.angular_velocity.extend_from_slice(&s.w.lane(l));
+            }
+        }
+    }
+
+    /// After [`Self::step_free`]: contact over the whole group, this shard's fibres
+    /// (`first_fiber ..` of the group) with the other shards' free steps (`others`, each
+    /// read for this step), keeping the corrections of this shard's fibres. The pairs are
+    /// solved in the whole group's (fibre, segment) order, so this shard's fibres get the
+    /// bits [`Self::step`] of the unsharded group gives them.
+    pub fn resolve_contact_with(
+        &mut self,
+        first_fiber: usize,
+        others: &[contact::exchange::OtherPiece],
+        dt: f64,
+    ) {
+        let Some(mut c) = self.contact else {
+            return;
+        };
+        c.wall_half_height = self.params.wall_half_height;
+        let mut search = std::mem::take(&mut self.search);
+        let view = Joined::new(self, first_fiber, others);
+        let own = view.own_start;
+        let (mut outcome, mut solved) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
+        self.search = search;
+        let mine = own..own + self.len();
+        for &k in outcome.moved.iter().filter(|k| mine.contains(k)) {
+            if let Some(hh) = self.params.wall_half_height {
+                crate::step::wall_contact(&mut solved[k], hh);
+            }
+            for (i, s) in solved[k].segments.iter().enumerate() {
+                self.set_segment(k - own, i, *s);
+            }
+        }
+        // what the log reports is this shard's: its fibres moved and locked
+        outcome.moved.retain(|k| mine.contains(k));
+        outcome.locked.retain(|k| mine.contains(k));
+        self.last_contact = outcome;
     }
 
     /// [`Self::step`] split over the thread pool whatever the group's size.
@@ -575,6 +655,99 @@ impl contact::Segments for Kept<'_> {
     }
     fn end_fibre(&self, k: usize) -> Fibre {
         self.group.fibre(k)
+    }
+}
+
+/// A shard's own fibres (kept as [`Kept`]) between the other shards' ([`OtherPiece`]s), in
+/// the whole group's order of first fibres: the group the contact solve of
+/// [`FibreGroup::resolve_contact_with`] reads.
+struct Joined<'a> {
+    own: Kept<'a>,
+    others: &'a [OtherPiece],
+    /// Index of this shard's first fibre among the joined fibres.
+    own_start: usize,
+    offsets: Vec<usize>,
+    /// Per joined fibre: its piece (`OWN`, or an index into `others`) and its index there.
+    at: Vec<(usize, usize)>,
+}
+
+const OWN: usize = usize::MAX;
+
+impl<'a> Joined<'a> {
+    fn new(group: &'a FibreGroup, first_fiber: usize, others: &'a [OtherPiece]) -> Self {
+        let mut pieces: Vec<(usize, usize, usize)> = others
+            .iter()
+            .enumerate()
+            .map(|(p, o)| (o.first_fiber, p, o.after.len()))
+            .collect();
+        pieces.push((first_fiber, OWN, group.len()));
+        pieces.sort_unstable();
+        let mut at = Vec::new();
+        let mut offsets = vec![0];
+        let mut own_start = 0;
+        for (_, p, n) in pieces {
+            if p == OWN {
+                own_start = at.len();
+            }
+            for l in 0..n {
+                at.push((p, l));
+                let len = if p == OWN {
+                    group.fibre_len(l)
+                } else {
+                    others[p].after[l].len()
+                };
+                offsets.push(offsets.last().copied().unwrap_or(0) + len);
+            }
+        }
+        Self {
+            own: Kept { group },
+            others,
+            own_start,
+            offsets,
+            at,
+        }
+    }
+}
+
+impl contact::Segments for Joined<'_> {
+    fn offsets(&self) -> &[usize] {
+        &self.offsets
+    }
+    fn props(&self, k: usize, i: usize) -> &SegmentProps {
+        match self.at[k] {
+            (OWN, l) => self.own.props(l, i),
+            (p, l) => &self.others[p].after[l].props[i],
+        }
+    }
+    fn start(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        match self.at[k] {
+            (OWN, l) => self.own.start(l, i),
+            (p, l) => {
+                let s = &self.others[p].before[l].segments[i];
+                (s.r, s.z)
+            }
+        }
+    }
+    fn end(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+        match self.at[k] {
+            (OWN, l) => self.own.end(l, i),
+            (p, l) => {
+                let s = &self.others[p].after[l].segments[i];
+                (s.r, s.z)
+            }
+        }
+    }
+    fn start_fibre(&self, k: usize) -> Fibre {
+        match self.at[k] {
+            (OWN, l) => self.own.start_fibre(l),
+            (p, l) => self.others[p].before[l].clone(),
+        }
+    }
+    fn end_fibre(&self, k: usize) -> Fibre {
+        match self.at[k] {
+            (OWN, l) => self.own.end_fibre(l),
+            (p, l) => self.others[p].after[l].clone(),
+        }
     }
 }
 

@@ -32,6 +32,7 @@
 //! Not yet: contact between non-adjacent segments of one fibre (a rigid response cannot
 //! separate two points of one body; it needs the chain's own mobility).
 
+pub mod exchange;
 mod search;
 
 use crate::fibre::{Fibre, Segment, SegmentProps};
@@ -1033,23 +1034,23 @@ pub(crate) fn resolve_segments<S: Segments>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::hydro::DragModel;
     use crate::step::{step, FluidSample, ModelParams};
     use crate::suspension::{random_suspension, segment_distance, Suspension};
 
     /// Case-1-like segments: 7 of length 3, d+ 0.232, ρ_s/ρ_f 1150 (paper Table 1).
-    const D: f64 = 0.232;
+    pub(crate) const D: f64 = 0.232;
     const L: f64 = 3.0;
     const N: usize = 7;
-    const DT: f64 = 0.2;
+    pub(crate) const DT: f64 = 0.2;
 
-    fn fibre(centre: Vector3<f64>, axis: Vector3<f64>) -> Fibre {
+    pub(crate) fn fibre(centre: Vector3<f64>, axis: Vector3<f64>) -> Fibre {
         Fibre::straight(centre, axis.normalize(), &[L; N], &[D; N], 1150.0).unwrap()
     }
 
-    fn params(gravity: Vector3<f64>) -> ModelParams {
+    pub(crate) fn params(gravity: Vector3<f64>) -> ModelParams {
         ModelParams {
             drag: DragModel {
                 viscosity: 1.0,
@@ -1086,7 +1087,7 @@ mod tests {
 
     /// Smallest centre-line distance between segments of different fibres, by brute force
     /// over nearest periodic images.
-    fn min_distance(fibres: &[Fibre], period: &[Option<f64>; 3]) -> f64 {
+    pub(crate) fn min_distance(fibres: &[Fibre], period: &[Option<f64>; 3]) -> f64 {
         let mut m = f64::INFINITY;
         for a in 0..fibres.len() {
             for b in a + 1..fibres.len() {
@@ -1105,7 +1106,7 @@ mod tests {
     }
 
     /// 60 case-1-like fibres at random in a cube of `side`, none closer than d.
-    fn crowded_box(side: f64, seed: u64) -> Vec<crate::cases::Placement> {
+    pub(crate) fn crowded_box(side: f64, seed: u64) -> Vec<crate::cases::Placement> {
         random_suspension(&Suspension {
             count: 60,
             seed,
@@ -1119,11 +1120,11 @@ mod tests {
         .unwrap()
     }
 
-    fn com(f: &Fibre) -> Vector3<f64> {
+    pub(crate) fn com(f: &Fibre) -> Vector3<f64> {
         Rigid::of(f, false).com
     }
 
-    fn uniform(v: Vector3<f64>) -> FluidSample {
+    pub(crate) fn uniform(v: Vector3<f64>) -> FluidSample {
         FluidSample {
             vel: v,
             grad: Matrix3::zeros(),

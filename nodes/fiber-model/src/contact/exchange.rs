@@ -1,0 +1,365 @@
+//! Contact across the shards of a group: each shard (a slice of the group's fibres, in a
+//! process of its own) makes its free step, sends it to the others
+//! ([`fiberflow_messages::FiberFreeStep`]), and solves contact over the whole group from
+//! its own fibres and theirs, keeping the corrections of its own
+//! ([`crate::group::FibreGroup::resolve_contact_with`]). Every shard solves the same pairs
+//! in the same (fibre, segment) order from the same numbers, so its fibres end the step
+//! with the bits one unsharded group gives them, whatever the shard count
+//! (docs/contact.md, "Across shards").
+
+use crate::fibre::{Fibre, Segment};
+use fiberflow_messages::FiberFreeStep;
+use nalgebra::Vector3;
+
+/// Another shard's slice of the group after its free step, as this shard's contact solve
+/// reads it. Its fibres' properties are fixed (every shard builds the whole group at
+/// start); their segments are overwritten from each step's message.
+#[derive(Debug, Clone)]
+pub struct OtherPiece {
+    /// Index of its first fibre in the whole group.
+    pub first_fiber: usize,
+    /// Its fibres at the start of the step: centres and axes of the start, everything else
+    /// as after the free step (what the solve reads of a start; as for a shard's own).
+    pub before: Vec<Fibre>,
+    /// Its fibres after the free step.
+    pub after: Vec<Fibre>,
+    /// The step its segments are of (None: not yet received).
+    pub step: Option<u64>,
+}
+
+/// Why a free step does not fit the piece it names.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ExchangeError {
+    #[error("free step of fibres {got}.., this piece holds {want}..")]
+    Piece { got: u32, want: usize },
+    #[error("fibre {fibre} has {got} segments in the free step, {want} here")]
+    Segments { fibre: usize, got: u32, want: usize },
+    #[error("{0}")]
+    Insane(String),
+}
+
+impl OtherPiece {
+    /// The piece of fibres `first_fiber ..` with these fibres' properties (their segments
+    /// are replaced by [`Self::read`]).
+    pub fn new(first_fiber: usize, fibres: Vec<Fibre>) -> Self {
+        Self {
+            first_fiber,
+            before: fibres.clone(),
+            after: fibres,
+            step: None,
+        }
+    }
+
+    /// Takes the segments of a free step of this piece (checked: its fibres, their
+    /// segment counts, every array's length and finiteness). The hydrodynamic force is
+    /// left zero: the solve does not read it, and only the owning shard keeps the fibre.
+    pub fn read(&mut self, m: &FiberFreeStep) -> Result<(), ExchangeError> {
+        use fiberflow_messages::sanity::Sane;
+        m.check().map_err(ExchangeError::Insane)?;
+        if m.first_fiber as usize != self.first_fiber
+            || m.segments_per_fiber.len() != self.after.len()
+        {
+            return Err(ExchangeError::Piece {
+                got: m.first_fiber,
+                want: self.first_fiber,
+            });
+        }
+        for (k, (&n, f)) in m.segments_per_fiber.iter().zip(&self.after).enumerate() {
+            if n as usize != f.len() {
+                return Err(ExchangeError::Segments {
+                    fibre: self.first_fiber + k,
+                    got: n,
+                    want: f.len(),
+                });
+            }
+        }
+        let v = |a: &[f64], j: usize| Vector3::new(a[3 * j], a[3 * j + 1], a[3 * j + 2]);
+        let mut j = 0;
+        for (before, after) in self.before.iter_mut().zip(self.after.iter_mut()) {
+            for (b, a) in before.segments.iter_mut().zip(after.segments.iter_mut()) {
+                *a = Segment {
+                    r: v(&m.centre, j),
+                    z: v(&m.axis, j),
+                    v: v(&m.velocity, j),
+                    w: v(&m.angular_velocity, j),
+                    n: v(&m.normal, j),
+                    f: Vector3::zeros(),
+                };
+                *b = Segment {
+                    r: v(&m.start_centre, j),
+                    z: v(&m.start_axis, j),
+                    ..*a
+                };
+                j += 1;
+            }
+        }
+        self.step = Some(m.step);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::contact::tests::{com, crowded_box, fibre, min_distance, params, uniform, D, DT};
+    use crate::contact::ContactParams;
+    use crate::group::FibreGroup;
+    use crate::step::{FluidSample, ModelParams};
+    use nalgebra::Matrix3;
+
+    /// A group cut into shards at `cuts` (first fibres, then the total), each with the
+    /// other shards' pieces, stepping as shard processes do: every shard steps free and
+    /// sends its free step, every shard reads the others' and solves.
+    struct Shards {
+        groups: Vec<(usize, FibreGroup)>,
+        others: Vec<Vec<OtherPiece>>,
+    }
+
+    impl Shards {
+        fn cut(whole: &FibreGroup, cuts: &[usize]) -> Self {
+            let groups: Vec<(usize, FibreGroup)> = cuts
+                .windows(2)
+                .map(|w| (w[0], whole.slice(w[0], w[1] - w[0])))
+                .collect();
+            let others = (0..groups.len())
+                .map(|s| {
+                    groups
+                        .iter()
+                        .enumerate()
+                        .filter(|&(t, _)| t != s)
+                        .map(|(_, (first, g))| OtherPiece::new(*first, g.fibres()))
+                        .collect()
+                })
+                .collect();
+            Self { groups, others }
+        }
+
+        fn step(&mut self, fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample, step: u64) {
+            let total: usize = self.groups.iter().map(|(_, g)| g.len()).sum();
+            let mut sent = Vec::new();
+            for (first, g) in self.groups.iter_mut() {
+                let samples: Vec<FluidSample> = (0..g.len())
+                    .flat_map(|k| {
+                        g.segments(k)
+                            .map(|s| fluid(*first + k, &s.r))
+                            .collect::<Vec<_>>()
+                    })
+                    .collect();
+                g.step_free(&samples, DT).unwrap();
+                let mut m = FiberFreeStep {
+                    schema_version: fiberflow_messages::SCHEMA_VERSION,
+                    group: "g".into(),
+                    step,
+                    t_plus: step as f64 * DT,
+                    first_fiber: *first as u32,
+                    group_fibers: total as u32,
+                    ..Default::default()
+                };
+                g.fill_free_step(&mut m);
+                sent.push(m);
+            }
+            for others in self.others.iter_mut() {
+                for o in others.iter_mut() {
+                    let m = sent
+                        .iter()
+                        .find(|m| m.first_fiber as usize == o.first_fiber);
+                    o.read(m.unwrap()).unwrap();
+                }
+            }
+            for ((first, g), others) in self.groups.iter_mut().zip(&self.others) {
+                g.resolve_contact_with(*first, others, DT);
+            }
+        }
+
+        fn fibres(&self) -> Vec<Fibre> {
+            self.groups.iter().flat_map(|(_, g)| g.fibres()).collect()
+        }
+    }
+
+    /// Steps the whole group and the same fibres in shards side by side; every step the
+    /// shards' fibres must be the whole group's, bit for bit. Returns the contacts of
+    /// the whole group's steps whose fibres lie in different shards, and the closest two
+    /// fibres came.
+    fn whole_against_shards(
+        fibres: Vec<Fibre>,
+        p: ModelParams,
+        c: ContactParams,
+        cuts: &[usize],
+        fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample,
+        steps: u64,
+    ) -> (usize, f64) {
+        let mut whole = FibreGroup::new(p, fibres);
+        whole.set_contact(Some(c));
+        let mut shards = Shards::cut(&whole, cuts);
+        let shard_of = |k: usize| cuts.iter().rposition(|&f| f <= k);
+        let (mut across, mut closest) = (0, f64::INFINITY);
+        for step in 0..steps {
+            let samples: Vec<FluidSample> = (0..whole.len())
+                .flat_map(|k| {
+                    whole
+                        .segments(k)
+                        .map(|s| fluid(k, &s.r))
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            whole.step(&samples, DT).unwrap();
+            shards.step(fluid, step);
+            assert!(shards.fibres() == whole.fibres(), "step {step}: other bits");
+            across += whole
+                .last_contact()
+                .contacts
+                .iter()
+                .filter(|x| shard_of(x.a.0) != shard_of(x.b.0))
+                .count();
+            closest = closest.min(min_distance(&whole.fibres(), &c.period));
+        }
+        (across, closest)
+    }
+
+    /// 60 crowded fibres in a periodic box in shear, μ = 0.3, cut into three shards of
+    /// unequal size: over 10 steps every shard's fibres have the unsharded group's bits,
+    /// and fibres of different shards touch.
+    #[test]
+    fn shards_exchanging_free_steps_step_as_the_whole_group() {
+        let side = 30.0;
+        let fibres: Vec<Fibre> = crowded_box(side, 3)
+            .iter()
+            .map(|pl| fibre(pl.centre, pl.axis))
+            .collect();
+        let n = fibres.len();
+        let c = ContactParams {
+            friction: 0.3,
+            period: [Some(side), None, Some(side)],
+            ..Default::default()
+        };
+        let gamma = 2.0;
+        let shear = |_: usize, r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * (r.y - 0.5 * side), 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        let p = params(Vector3::zeros());
+        let (across, _) = whole_against_shards(fibres, p, c, &[0, 17, 40, n], &shear, 10);
+        assert!(
+            across > 0,
+            "no contact across shards: the test checks nothing"
+        );
+    }
+
+    /// The two encounters of the unsharded tests with each fibre in a shard of its own:
+    /// driven head-on at 3.4 d per step, and carried across each other in shear (μ = 0
+    /// and 0.5). Centre-lines never closer than 0.99 d, and the same bits as one group.
+    #[test]
+    fn fibres_on_two_shards_never_pass_through() {
+        let p = params(Vector3::zeros());
+        let u = 2.0;
+        let mut a = fibre(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
+        let mut b = fibre(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
+        a.segments
+            .iter_mut()
+            .for_each(|s| s.v = Vector3::new(0.0, -u, 0.0));
+        b.segments
+            .iter_mut()
+            .for_each(|s| s.v = Vector3::new(0.0, u, 0.0));
+        let head_on = |k: usize, _: &Vector3<f64>| {
+            uniform(Vector3::new(0.0, if k == 0 { -u } else { u }, 0.0))
+        };
+        let mut whole = FibreGroup::new(p, vec![a.clone(), b.clone()]);
+        let (across, closest) = whole_against_shards(
+            vec![a, b],
+            p,
+            ContactParams::default(),
+            &[0, 1, 2],
+            &head_on,
+            40,
+        );
+        assert!(across > 10, "head-on: touched in only {across} steps");
+        assert!(closest >= 0.99 * D, "head-on: centre-lines {closest} apart");
+        // the same fibres stepped without contact pass each other
+        for _ in 0..40 {
+            let samples: Vec<FluidSample> = (0..2)
+                .flat_map(|k| {
+                    whole
+                        .segments(k)
+                        .map(|s| head_on(k, &s.r))
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            whole.step(&samples, DT).unwrap();
+        }
+        assert!(
+            com(&whole.fibre(0)).y < com(&whole.fibre(1)).y,
+            "without contact they pass"
+        );
+
+        let gamma = 10.0;
+        let shear = |_: usize, r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * r.y, 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        for mu in [0.0, 0.5] {
+            let mut fs = vec![
+                fibre(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
+                fibre(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
+            ];
+            for f in fs.iter_mut() {
+                for s in f.segments.iter_mut() {
+                    s.v = shear(0, &s.r).vel;
+                }
+            }
+            let c = ContactParams {
+                friction: mu,
+                ..Default::default()
+            };
+            let (across, closest) = whole_against_shards(fs, p, c, &[0, 1, 2], &shear, 160);
+            assert!(across >= 1, "μ = {mu}: they never touched");
+            assert!(
+                closest >= 0.99 * D,
+                "μ = {mu}: centre-lines {closest} apart"
+            );
+        }
+    }
+
+    /// A free step that does not fit the piece (other fibres, other segment counts, a
+    /// non-finite value) is refused, and the piece keeps what it held.
+    #[test]
+    fn a_free_step_that_does_not_fit_is_refused() {
+        let g = FibreGroup::new(
+            params(Vector3::zeros()),
+            vec![
+                fibre(Vector3::zeros(), Vector3::x()),
+                fibre(Vector3::y(), Vector3::z()),
+            ],
+        );
+        let mut piece = OtherPiece::new(2, g.fibres());
+        let mut m = FiberFreeStep {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            group: "g".into(),
+            step: 0,
+            t_plus: 0.0,
+            first_fiber: 2,
+            group_fibers: 4,
+            ..Default::default()
+        };
+        let mut g2 = g.clone();
+        g2.set_contact(Some(ContactParams::default()));
+        let still: Vec<FluidSample> = (0..14).map(|_| uniform(Vector3::zeros())).collect();
+        g2.step_free(&still, DT).unwrap();
+        g2.fill_free_step(&mut m);
+        assert_eq!(piece.read(&m), Ok(()));
+        assert_eq!(piece.step, Some(0));
+        let held = piece.after.clone();
+        let mut other = m.clone();
+        other.first_fiber = 0;
+        assert!(matches!(
+            piece.read(&other),
+            Err(ExchangeError::Piece { .. })
+        ));
+        let mut short = m.clone();
+        short.segments_per_fiber[1] = 6;
+        assert!(piece.read(&short).is_err());
+        let mut nan = m.clone();
+        nan.velocity[5] = f64::NAN;
+        assert!(matches!(piece.read(&nan), Err(ExchangeError::Insane(_))));
+        assert_eq!(piece.after, held);
+    }
+}
