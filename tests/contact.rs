@@ -1,8 +1,8 @@
 //! Fibre–fibre contact end to end (docs/contact.md): a suspension with contact and friction
-//! on the coarse grid, run with real processes over the three transports and with its
-//! fibre node killed (SIGKILL) mid-run; every recorded state must be bitwise that of the
-//! in-process run, fibres must touch, and in no recorded state may two fibres' centre-lines
-//! be closer than 0.99 d.
+//! on the coarse grid, run with real processes over the three transports, in three shards,
+//! and with a fibre node killed (SIGKILL) mid-run; every recorded state must be bitwise
+//! that of the in-process run, fibres must touch, and in no recorded state may two
+//! fibres' centre-lines be closer than 0.99 d.
 
 use fiberflow_e2e::*;
 use std::collections::BTreeMap;
@@ -162,16 +162,72 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
     let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
     assert!(err.contains("restarting every node from step"), "{err}");
     assert_same(&a, &states(&out), "kill -9 fibres, restarted");
-    // contact needs the group whole in one process: shards are refused, naming the key
-    let o = cmd(
-        &file,
-        &dir.join("sharded"),
-        "inproc",
-        &["fibers.suspension.shards=3"],
-    )
-    .output()
-    .unwrap();
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && stderr.contains("shards"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Every recorded state by step with a sharded group's slices put together (re-encoded,
+/// so the unsharded run's compares byte for byte); a step recorded again after a restart
+/// must have the same bytes.
+fn whole_by_step(out: &Path) -> BTreeMap<u64, Vec<u8>> {
+    let mut tiles = fiberflow_messages::pieces::Tiles::default();
+    let mut by = BTreeMap::new();
+    for_each_state(out, |s| {
+        if let Some(w) = tiles.add_slice(s) {
+            let bytes = fiberflow_messages::encode(&w);
+            if let Some(old) = by.insert(w.step, bytes.clone()) {
+                assert!(old == bytes, "step {} recorded twice, differently", w.step);
+            }
+        }
+    });
+    by
+}
+
+/// The suspension of the test above in three shards (3334 + 3333 + 3333 fibres, each a
+/// process over zenoh and iceoryx2) that exchange their free steps every step: every
+/// recorded state is bitwise that of the unsharded run, over the three transports and
+/// after a kill -9 of the middle shard's process.
+#[test]
+fn contact_across_three_shards_is_bitwise_the_unsharded_run() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("contact-shards");
+    let file = launch_file(&dir);
+    let one = dir.join("one");
+    run(&file, &one, "inproc");
+    let a = whole_by_step(&one);
+    assert_eq!(a.len(), 81, "steps 0..=80");
+    let three = ["fibers.suspension.shards=3"];
+    for transport in ["inproc", "zenoh", "iceoryx2"] {
+        let out = dir.join(format!("three-{transport}"));
+        let o = cmd(&file, &out, transport, &three).output().unwrap();
+        assert!(o.status.success(), "{transport}: {}", String::from_utf8_lossy(&o.stderr));
+        let w = warnings_in_logs(&out);
+        assert!(w.is_empty(), "{transport}: warnings in node logs: {w:#?}");
+        let b = whole_by_step(&out);
+        assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+        for (k, v) in &a {
+            assert!(v == &b[k], "{transport}, three shards: step {k} differs");
+        }
+    }
+    let out = dir.join("three-kill");
+    std::fs::create_dir_all(&out).unwrap();
+    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
+    let mut child = cmd(&file, &out, "iceoryx2", &three)
+        .stdout(std::process::Stdio::null())
+        .stderr(se)
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&out, 120);
+    let spec = out.join("config/suspension.1.toml").display().to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(pids.len(), 1, "shard 1 not found (run over already?)");
+    unsafe { libc::kill(pids[0], libc::SIGKILL) };
+    assert!(child.wait().unwrap().success());
+    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
+    assert!(err.contains("restarting every node from step"), "{err}");
+    let b = whole_by_step(&out);
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(v == &b[k], "three shards, shard 1 killed: step {k} differs");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -139,8 +139,8 @@ pub struct FiberNodeConfig {
     #[serde(default)]
     pub physical: Option<PhysicalProperties>,
     /// Fibre–fibre contact within the group (docs/contact.md); unset: the fibres pass
-    /// through each other, as in the paper. Needs `shards = 1` and a start without
-    /// overlaps (`placement.kind = "random"`).
+    /// through each other, as in the paper. Needs a start without overlaps
+    /// (`placement.kind = "random"`); a sharded group's shards touch each other.
     #[serde(default)]
     pub contact: Option<ContactConfig>,
 }
@@ -308,8 +308,8 @@ impl FiberNodeConfig {
         Ok(BuiltGroup { group, layers })
     }
 
-    /// The group's contact parameters (None without `contact`), checked: its keys, one
-    /// shard, and a start where no two fibres overlap.
+    /// The group's contact parameters (None without `contact`), checked: its keys, and a
+    /// start where no two fibres overlap.
     fn contact_params(
         &self,
         box_plus: [f64; 3],
@@ -327,13 +327,6 @@ impl FiberNodeConfig {
         }
         if !(1..=10_000).contains(&c.sweeps) {
             return self.bad("contact.sweeps", "in 1..=10000", c.sweeps.to_string());
-        }
-        if self.shards != 1 {
-            return self.bad(
-                "shards",
-                "1 with contact (contact across shards is not built yet)",
-                self.shards.to_string(),
-            );
         }
         let params = ContactParams {
             friction: c.friction,
@@ -643,8 +636,9 @@ mod tests {
         assert_eq!(c.pieces([942.0, 300.0, 471.0]).unwrap()[0].node(), "g");
     }
 
-    /// `[fibers.contact]` turns contact on for the group with its keys checked by name;
-    /// it needs one shard, and a start where fibres overlap is refused naming them.
+    /// `[fibers.contact]` turns contact on for the group with its keys checked by name
+    /// (any shard count: the shards exchange their free steps, `serve`), and a start
+    /// where fibres overlap is refused naming them.
     #[test]
     fn contact_keys_are_checked_and_overlapping_starts_refused() {
         let b = [942.0, 300.0, 471.0];
@@ -662,15 +656,14 @@ mod tests {
                 "fibers[g].contact.friction",
             ),
             ("contact = { sweeps = 0 }", "fibers[g].contact.sweeps"),
-            (
-                "contact = {}\nshards = 2",
-                "fibers[g].shards must be 1 with contact",
-            ),
         ] {
             let c: FiberNodeConfig = toml::from_str(&format!("{random}{extra}")).unwrap();
             let e = c.build(b).err().unwrap().to_string();
             assert!(e.contains(key), "{e}");
         }
+        let sharded: FiberNodeConfig =
+            toml::from_str(&format!("{random}contact = {{}}\nshards = 3")).unwrap();
+        assert!(sharded.build(b).unwrap().group.contact().is_some());
         let crossed: FiberNodeConfig = toml::from_str(
             "group = \"g\"\ncase = \"case1\"\ncontact = {}\n\
              placement = { kind = \"explicit\", centres = [[100.0, 0.0, 100.0], [100.0, 0.1, 100.0]], axes = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]] }",

@@ -2,6 +2,7 @@
 //! Lindström–Uesaka model in lockstep with the flow node and publishes states and metrics.
 
 pub mod config;
+mod exchange;
 pub mod serve;
 
 pub use config::FiberNodeConfig;

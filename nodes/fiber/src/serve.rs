@@ -8,6 +8,7 @@
 //! equations are in `fiber-model`.
 
 use crate::config::{FiberNodeConfig, InitialVelocity};
+use crate::exchange::Exchange;
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
 use fiberflow_fiber_model::group::{FibreGroup, PARALLEL_MIN_SEGMENTS};
@@ -152,10 +153,12 @@ pub fn serve_many(
     // groups large enough to step on the thread pool run a thread each: their serial
     // parts (the samples' check, the state arrays, publishing) then overlap (stepped in
     // turn at 6 × 10⁴ fibres, the flow node waited 3–5 ms longer per step)
+    // shards that exchange their free steps within a step must not wait for each other
+    // on one thread
     if served.len() > 1
-        && served
-            .iter()
-            .any(|s| s.group.segment_count() >= PARALLEL_MIN_SEGMENTS)
+        && served.iter().any(|s| {
+            s.group.segment_count() >= PARALLEL_MIN_SEGMENTS || s.exchange.is_some()
+        })
     {
         tracing::info!(nodes = served.len(), "fibre nodes on a thread each");
         return serve_on_threads(served, step_timeout, timeout_s, ck.start_step);
@@ -264,6 +267,12 @@ struct Served {
     ann_in: Inbox,
     /// The flow node's heartbeats, when it lives on another host ([`Checkpointing::flow_elsewhere`]).
     flow_hb: Option<Inbox>,
+    /// A sharded group with contact: the free steps this shard sends to the group's other
+    /// shards and reads of theirs.
+    exchange: Option<Exchange>,
+    /// Wall seconds of the exchange (sending the free step, waiting for the others'),
+    /// part of the fibre step's.
+    exchange_s: f64,
     /// Refilled every step: its per-fibre arrays are set once and the segment arrays (MBs
     /// per step at scale) keep their allocations.
     state_msg: Encode<FiberGroupState>,
@@ -307,10 +316,10 @@ impl Served {
         ck: &Checkpointing,
     ) -> Result<Self, FiberNodeError> {
         let t = Topics::new(run_id);
-        let piece = cfg
-            .pieces(box_plus)?
-            .into_iter()
-            .nth(shard as usize)
+        let pieces = cfg.pieces(box_plus)?;
+        let piece = pieces
+            .get(shard as usize)
+            .cloned()
             .ok_or_else(|| {
                 FiberNodeError::Protocol(format!(
                     "group {} has {} shards, no shard {shard}",
@@ -319,9 +328,14 @@ impl Served {
             })?;
         // every shard builds the whole group and keeps its slice: the same fibres, bit for
         // bit, whatever the shard count
-        let built = cfg
-            .build(box_plus)?
-            .slice(piece.first_fiber as usize, piece.fibers as usize);
+        let whole = cfg.build(box_plus)?;
+        // a sharded group with contact: its shards exchange their free steps every step
+        let exchange = if whole.group.contact().is_some() && pieces.len() > 1 {
+            Some(Exchange::new(&bus, &t, &piece, &pieces, &whole.group)?)
+        } else {
+            None
+        };
+        let built = whole.slice(piece.first_fiber as usize, piece.fibers as usize);
         let node = piece.node();
         let mut group = built.group;
         if let Some(dir) = &ck.resume_dir {
@@ -412,6 +426,8 @@ impl Served {
             samples_in,
             ann_in,
             flow_hb,
+            exchange,
+            exchange_s: 0.0,
             state_msg,
             full_states_every: ck.full_states_every,
             two_way: ck.two_way,
@@ -578,6 +594,10 @@ impl Served {
                 // our state or the samples were lost in transit: send the state again and
                 // say we wait (the flow node resends samples it already served)
                 self.publish_state(k)?;
+                // a shard still waiting for our free step of the last step may have lost it
+                if let Some(x) = &self.exchange {
+                    x.resend(&self.bus)?;
+                }
                 let others = resend_others()?;
                 self.hb(lifecycle::WAITING, k)?;
                 tracing::info!(
@@ -649,12 +669,44 @@ impl Served {
             // again complete (the recorder keeps the last state 0, the flow node ignores it)
             self.publish_state(0)?;
         }
-        self.group.step(fluid, self.dt)?;
+        if self.exchange.is_none() {
+            self.group.step(fluid, self.dt)?;
+        } else {
+            self.group.step_free(fluid, self.dt)?;
+            drop(samples);
+            self.resolve_with_other_shards(k, step_timeout)?;
+        }
         self.report_unresolved_contact(k + 1);
-        drop(samples);
         stepped_s += t0.elapsed().as_secs_f64();
         self.timing = (waited_s, stepped_s, published_s);
         Ok(())
+    }
+
+    /// A sharded group with contact, after the free step of step `k`: sends it to the
+    /// other shards, waits for theirs and solves contact over the whole group.
+    fn resolve_with_other_shards(
+        &mut self,
+        k: u64,
+        step_timeout: Duration,
+    ) -> Result<(), FiberNodeError> {
+        let Some(mut x) = self.exchange.take() else {
+            return Ok(());
+        };
+        let result = (|| {
+            let t0 = Instant::now();
+            x.send(&self.bus, &self.group, k, k as f64 * self.dt)?;
+            let (bus, node) = (self.bus.clone(), self.node.clone());
+            x.gather(&bus, &node, k, step_timeout, &mut || self.flow_restarted(k))?;
+            self.exchange_s += t0.elapsed().as_secs_f64();
+            self.group.resolve_contact_with(
+                self.piece.first_fiber as usize,
+                x.others(),
+                self.dt,
+            );
+            Ok(())
+        })();
+        self.exchange = Some(x);
+        result
     }
 
     /// With contact on, says when the contact solve left a pair closer than 0.99 of its
@@ -750,12 +802,14 @@ impl Served {
                 steps = self.steps - self.start,
                 steps_with_a_locked_floc = self.locked_contact_steps,
                 steps_left_closer_than_0_99_d = self.unresolved_contact_steps,
+                exchanging_free_steps_s = format!("{:.3}", self.exchange_s),
                 "contact over the run"
             );
         }
         self.hb(lifecycle::DONE, self.steps)?;
         let mut drops = self.samples_in.drops.clone();
-        for (k, v) in self.ann_in.drops.by_topic {
+        let exchanged = self.exchange.as_ref().map(|x| x.drops().by_topic.clone());
+        for (k, v) in self.ann_in.drops.by_topic.into_iter().chain(exchanged.into_iter().flatten()) {
             *drops.by_topic.entry(k).or_insert(0) += v;
         }
         Ok((self.node, drops))

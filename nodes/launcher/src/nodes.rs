@@ -99,6 +99,14 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     for p in lf.pieces().unwrap_or_default() {
         v.push(t.heartbeat(&p.node()));
         v.push(p.samples_topic(&t));
+        // the shards of a group with contact exchange their free steps
+        let touches = lf
+            .fibers
+            .iter()
+            .any(|f| f.group == p.group && f.contact.is_some());
+        if touches && p.shards > 1 {
+            v.push(t.contact_free_step(&p.group, p.first_fiber));
+        }
     }
     v
 }
