@@ -199,7 +199,11 @@ fn contact_across_three_shards_is_bitwise_the_unsharded_run() {
     for transport in ["inproc", "zenoh", "iceoryx2"] {
         let out = dir.join(format!("three-{transport}"));
         let o = cmd(&file, &out, transport, &three).output().unwrap();
-        assert!(o.status.success(), "{transport}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            o.status.success(),
+            "{transport}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         let w = warnings_in_logs(&out);
         assert!(w.is_empty(), "{transport}: warnings in node logs: {w:#?}");
         let b = whole_by_step(&out);
@@ -229,5 +233,149 @@ fn contact_across_three_shards_is_bitwise_the_unsharded_run() {
     for (k, v) in &a {
         assert!(v == &b[k], "three shards, shard 1 killed: step {k} differs");
     }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Two groups of one suspension (`[[suspensions]]`): 5000 case-1 and 5000 case-2 fibres
+/// (twice as dense) placed at random in the same band, contact with μ = 0.5, 40 steps.
+fn two_groups_launch_file(dir: &Path, touching: bool) -> PathBuf {
+    let restart = root().join("recordings/samples/coarse-re150.ckpt");
+    let group = |name: &str, case: &str, seed: u32| {
+        format!(
+            r#"
+[[fibers]]
+group = "{name}"
+case = "{case}"
+initial_velocity = "fluid"
+placement = {{ kind = "random", count = 5000, seed = {seed}, band_plus = [138.0, 162.0] }}
+contact = {{ friction = 0.5 }}
+"#
+        )
+    };
+    let text = format!(
+        r#"[run]
+id = "contact-groups"
+steps = 40
+dt_plus = 0.25
+analyze = false
+step_timeout_s = 120
+
+[flow.source]
+kind = "dns"
+restart = "{}"
+
+[flow.source.dns]
+nx = 64
+ny = 64
+nz = 64
+re_tau = 150.0
+y1_plus = 0.33
+{}{}{}"#,
+        restart.display(),
+        group("light", "case1", 3),
+        group("heavy", "case2", 4),
+        if touching {
+            "\n[[suspensions]]\ngroups = [\"light\", \"heavy\"]\n"
+        } else {
+            ""
+        }
+    );
+    let path = dir.join(format!("groups-{touching}.toml"));
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Both groups' fibres of each recorded step as one state (light's fibres, then heavy's),
+/// with each group's own: (both, light, heavy).
+type Three = (
+    fiberflow_messages::FiberGroupState,
+    fiberflow_messages::FiberGroupState,
+    fiberflow_messages::FiberGroupState,
+);
+
+fn both_groups(out: &Path) -> BTreeMap<u64, Three> {
+    let mut by: BTreeMap<u64, BTreeMap<String, fiberflow_messages::FiberGroupState>> =
+        BTreeMap::new();
+    let mut tiles = fiberflow_messages::pieces::Tiles::default();
+    for_each_state(out, |s| {
+        if let Some(w) = tiles.add_slice(s) {
+            by.entry(w.step).or_default().insert(w.group.clone(), w);
+        }
+    });
+    by.into_iter()
+        .map(|(k, g)| {
+            let (a, b) = (g["light"].clone(), g["heavy"].clone());
+            let mut both = a.clone();
+            both.group = "both".into();
+            both.group_fibers += b.group_fibers;
+            both.segments_per_fiber.extend(&b.segments_per_fiber);
+            both.segment_length.extend(&b.segment_length);
+            both.diameter.extend(&b.diameter);
+            both.density_ratio.extend(&b.density_ratio);
+            both.layer.extend(&b.layer);
+            both.centre.extend(&b.centre);
+            both.axis.extend(&b.axis);
+            both.velocity.extend(&b.velocity);
+            both.angular_velocity.extend(&b.angular_velocity);
+            (k, (both, a, b))
+        })
+        .collect()
+}
+
+/// Two groups in one suspension touch each other: in no recorded state are fibres of the
+/// two groups (or of one) closer than 0.99 d, and fibres of different groups touch; the
+/// same run with the heavy group in two shards (three processes, iceoryx2) records the
+/// same bits. Without `[[suspensions]]` the two groups pass through each other.
+#[test]
+fn two_groups_of_one_suspension_touch_and_shards_keep_the_bits() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("contact-groups");
+    let box_plus = [
+        2.0 * std::f64::consts::PI * 150.0,
+        300.0,
+        std::f64::consts::PI * 150.0,
+    ];
+    let file = two_groups_launch_file(&dir, true);
+    let one = dir.join("one");
+    run(&file, &one, "inproc");
+    let states = both_groups(&one);
+    assert_eq!(states.len(), 41, "steps 0..=40");
+    let mut across = 0;
+    for (step, (both, a, b)) in &states {
+        let r = fiberflow_analysis::flocs::of_state(both, box_plus);
+        assert!(
+            r.closest_over_d >= 0.99,
+            "step {step}: centre-lines {} d apart",
+            r.closest_over_d
+        );
+        let own = fiberflow_analysis::flocs::of_state(a, box_plus).segment_contacts
+            + fiberflow_analysis::flocs::of_state(b, box_plus).segment_contacts;
+        across = across.max(r.segment_contacts - own);
+    }
+    assert!(across > 0, "fibres of the two groups never touched");
+    let out = dir.join("sharded");
+    let o = cmd(&file, &out, "iceoryx2", &["fibers.heavy.shards=2"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let w = warnings_in_logs(&out);
+    assert!(w.is_empty(), "warnings in node logs: {w:#?}");
+    let a = whole_states(&one);
+    let b = whole_states(&out);
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(v == &b[k], "heavy in two shards: {k:?} differs");
+    }
+    // the same groups without [[suspensions]]: they pass through each other
+    let apart = dir.join("apart");
+    run(&two_groups_launch_file(&dir, false), &apart, "inproc");
+    let closest = both_groups(&apart)
+        .values()
+        .map(|(both, _, _)| fiberflow_analysis::flocs::of_state(both, box_plus).closest_over_d)
+        .fold(f64::INFINITY, f64::min);
+    assert!(
+        closest < 0.5,
+        "without a suspension the groups came only to {closest} d"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -488,14 +488,15 @@ impl FibreGroup {
         }
     }
 
-    /// After [`Self::step_free`]: contact over the whole group, this shard's fibres
-    /// (`first_fiber ..` of the group) with the other shards' free steps (`others`, each
-    /// read for this step), keeping the corrections of this shard's fibres. The pairs are
-    /// solved in the whole group's (fibre, segment) order, so this shard's fibres get the
-    /// bits [`Self::step`] of the unsharded group gives them.
+    /// After [`Self::step_free`]: contact over all the fibres that touch, this piece's
+    /// (its first fibre at `order` in the solve: its index in the group, or in the
+    /// suspension's groups one after the other) with the other pieces' free steps
+    /// (`others`, each read for this step), keeping the corrections of this piece's
+    /// fibres. The pairs are solved in that order, so this piece's fibres get the bits
+    /// [`Self::step`] of one unsharded group of all of them gives them.
     pub fn resolve_contact_with(
         &mut self,
-        first_fiber: usize,
+        order: usize,
         others: &[contact::exchange::OtherPiece],
         dt: f64,
     ) {
@@ -504,7 +505,7 @@ impl FibreGroup {
         };
         c.wall_half_height = self.params.wall_half_height;
         let mut search = std::mem::take(&mut self.search);
-        let view = Joined::new(self, first_fiber, others);
+        let view = Joined::new(self, order, others);
         let own = view.own_start;
         let (mut outcome, mut solved) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
         self.search = search;
@@ -674,13 +675,13 @@ struct Joined<'a> {
 const OWN: usize = usize::MAX;
 
 impl<'a> Joined<'a> {
-    fn new(group: &'a FibreGroup, first_fiber: usize, others: &'a [OtherPiece]) -> Self {
+    fn new(group: &'a FibreGroup, order: usize, others: &'a [OtherPiece]) -> Self {
         let mut pieces: Vec<(usize, usize, usize)> = others
             .iter()
             .enumerate()
-            .map(|(p, o)| (o.first_fiber, p, o.after.len()))
+            .map(|(p, o)| (o.order, p, o.after.len()))
             .collect();
-        pieces.push((first_fiber, OWN, group.len()));
+        pieces.push((order, OWN, group.len()));
         pieces.sort_unstable();
         let mut at = Vec::new();
         let mut offsets = vec![0];

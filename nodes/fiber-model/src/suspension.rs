@@ -102,6 +102,24 @@ fn ends(centre: Vector3<f64>, axis: Vector3<f64>, n: usize, l: f64) -> Vec<Vecto
 
 /// Places the suspension (see the module's documentation).
 pub fn random_suspension(s: &Suspension) -> Result<Vec<Placement>, SuspensionError> {
+    random_suspension_avoiding(s, &[])
+}
+
+/// A segment placed before (another group of the same suspension) that new fibres must
+/// keep clear of: its end points and diameter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Placed {
+    pub ends: [Vector3<f64>; 2],
+    pub diameter_plus: f64,
+}
+
+/// [`random_suspension`] keeping every new fibre's centre-lines at least
+/// `max(min_distance_plus, (d + d_placed)/2)` from the segments of `placed` (fibres of the
+/// groups placed before, in a suspension whose groups touch).
+pub fn random_suspension_avoiding(
+    s: &Suspension,
+    placed: &[Placed],
+) -> Result<Vec<Placement>, SuspensionError> {
     let [lx, height, lz] = s.box_plus;
     let h = 0.5 * height;
     let length = s.segment_length_plus * s.segments as f64;
@@ -116,11 +134,17 @@ pub fn random_suspension(s: &Suspension) -> Result<Vec<Placement>, SuspensionErr
     }
     // cells of at least a segment length plus the distance: two segments closer than the
     // distance have centres in the same or neighbouring cells
-    let reach = s.segment_length_plus + gap;
+    let placed_gap = |q: &Placed| gap.max(0.5 * (s.diameter_plus + q.diameter_plus));
+    let longest = placed
+        .iter()
+        .map(|q| (q.ends[1] - q.ends[0]).norm())
+        .fold(s.segment_length_plus, f64::max);
+    let widest = placed.iter().map(placed_gap).fold(gap, f64::max);
+    let reach = 0.5 * (s.segment_length_plus + longest) + widest;
     let cells = |l: f64| ((l / reach).floor() as usize).max(1);
     let (cx, cy, cz) = (cells(lx), cells(height), cells(lz));
     let (wx, wy, wz) = (lx / cx as f64, height / cy as f64, lz / cz as f64);
-    let mut grid: Vec<Vec<(Vector3<f64>, Vector3<f64>)>> = vec![Vec::new(); cx * cy * cz];
+    let mut grid: Vec<Vec<(Vector3<f64>, Vector3<f64>, f64)>> = vec![Vec::new(); cx * cy * cz];
     let cell_of = |p: &Vector3<f64>| -> [usize; 3] {
         [
             ((p.x.rem_euclid(lx) / wx) as usize).min(cx - 1),
@@ -128,6 +152,10 @@ pub fn random_suspension(s: &Suspension) -> Result<Vec<Placement>, SuspensionErr
             ((p.z.rem_euclid(lz) / wz) as usize).min(cz - 1),
         ]
     };
+    for q in placed {
+        let c = cell_of(&(0.5 * (q.ends[0] + q.ends[1])));
+        grid[(c[2] * cy + c[1]) * cx + c[0]].push((q.ends[0], q.ends[1], placed_gap(q)));
+    }
     let mut rng = Stream(s.seed);
     let mut out = Vec::with_capacity(s.count);
     // give up after this many failed attempts in a row (the band is jammed)
@@ -161,12 +189,12 @@ pub fn random_suspension(s: &Suspension) -> Result<Vec<Placement>, SuspensionErr
         if e.iter().any(|p| p.y < lo || p.y > hi) {
             continue;
         }
-        if overlaps(&e, &grid, cell_of, [cx, cy, cz], [lx, lz], gap) {
+        if overlaps(&e, &grid, cell_of, [cx, cy, cz], [lx, lz]) {
             continue;
         }
         for w in e.windows(2) {
             let c = cell_of(&(0.5 * (w[0] + w[1])));
-            grid[(c[2] * cy + c[1]) * cx + c[0]].push((w[0], w[1]));
+            grid[(c[2] * cy + c[1]) * cx + c[0]].push((w[0], w[1], gap));
         }
         misses = 0;
         let (layer, upper) = layer_of(centre.y, h);
@@ -180,15 +208,14 @@ pub fn random_suspension(s: &Suspension) -> Result<Vec<Placement>, SuspensionErr
     Ok(out)
 }
 
-/// Whether a candidate fibre's segments (end points `e`) come closer than `gap` to a
-/// placed segment (periodic in x and z: the nearest image).
+/// Whether a candidate fibre's segments (end points `e`) come closer to a placed segment
+/// than that segment's distance (periodic in x and z: the nearest image).
 fn overlaps(
     e: &[Vector3<f64>],
-    grid: &[Vec<(Vector3<f64>, Vector3<f64>)>],
+    grid: &[Vec<(Vector3<f64>, Vector3<f64>, f64)>],
     cell_of: impl Fn(&Vector3<f64>) -> [usize; 3],
     [cx, cy, cz]: [usize; 3],
     [lx, lz]: [f64; 2],
-    gap: f64,
 ) -> bool {
     let image = |d: f64, l: f64| d - l * (d / l).round();
     for w in e.windows(2) {
@@ -203,7 +230,7 @@ fn overlaps(
                 for dx in -1i64..=1 {
                     let i = (c[0] as i64 + dx).rem_euclid(cx as i64) as usize;
                     let k = (c[2] as i64 + dz).rem_euclid(cz as i64) as usize;
-                    for (q0, q1) in &grid[(k * cy + j as usize) * cx + i] {
+                    for (q0, q1, gap) in &grid[(k * cy + j as usize) * cx + i] {
                         // shift the placed segment to the image nearest the candidate
                         let qm = 0.5 * (q0 + q1);
                         let shift = Vector3::new(
@@ -211,7 +238,7 @@ fn overlaps(
                             0.0,
                             image(qm.z - mid.z, lz) - (qm.z - mid.z),
                         );
-                        if segment_distance(w[0], w[1], q0 + shift, q1 + shift) < gap {
+                        if segment_distance(w[0], w[1], q0 + shift, q1 + shift) < *gap {
                             return true;
                         }
                     }

@@ -5,7 +5,7 @@ use fiberflow_fiber_model::cases::{
 };
 use fiberflow_fiber_model::contact::{self, ContactParams};
 use fiberflow_fiber_model::group::FibreGroup;
-use fiberflow_fiber_model::suspension::{random_suspension, Suspension};
+use fiberflow_fiber_model::suspension::{random_suspension_avoiding, Placed, Suspension};
 use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
 use fiberflow_messages::pieces::{split, Piece};
 use nalgebra::Vector3;
@@ -253,6 +253,53 @@ impl BuiltGroup {
     }
 }
 
+/// Builds the groups of one suspension (groups whose fibres touch each other, the launch
+/// file's `[[suspensions]]`), in its order: a group placed at random keeps clear of the
+/// groups before it. Refuses a start where fibres of different groups overlap (explicit
+/// or layered placements), naming them.
+pub fn build_suspension(
+    members: &[FiberNodeConfig],
+    box_plus: [f64; 3],
+) -> Result<Vec<BuiltGroup>, FibreError> {
+    let mut placed = Vec::new();
+    let mut built: Vec<BuiltGroup> = Vec::with_capacity(members.len());
+    for m in members {
+        let b = m.build_avoiding(box_plus, &placed)?;
+        for k in 0..b.group.len() {
+            for (s, p) in b.group.segments(k).zip(b.group.props(k)) {
+                let half = 0.5 * p.shape.length * s.z;
+                placed.push(Placed {
+                    ends: [s.r - half, s.r + half],
+                    diameter_plus: p.shape.diameter,
+                });
+            }
+        }
+        built.push(b);
+    }
+    let all: Vec<_> = built.iter().flat_map(|b| b.group.fibres()).collect();
+    let period = [Some(box_plus[0]), None, Some(box_plus[2])];
+    let overlaps = contact::overlaps(&all, &period);
+    if let Some(&(a, i, b, j, dist)) = overlaps.first() {
+        let name = |k: usize| {
+            let mut k = k;
+            for (m, g) in members.iter().zip(&built) {
+                if k < g.group.len() {
+                    return format!("fibre {k} of group {}", m.group);
+                }
+                k -= g.group.len();
+            }
+            format!("fibre {k}")
+        };
+        return Err(FibreError::Config(format!(
+            "suspensions: the start overlaps: segment {i} of {} and segment {j} of {} are {dist:.4} apart, closer than their contact distance ({} pairs in all); place the groups at random (placement.kind = \"random\") so that each keeps clear of those before it",
+            name(a),
+            name(b),
+            overlaps.len()
+        )));
+    }
+    Ok(built)
+}
+
 impl FiberNodeConfig {
     /// (segment length+, diameter+, density ratio) after presets and unit conversion.
     pub fn resolved(&self) -> (f64, f64, f64) {
@@ -276,8 +323,18 @@ impl FiberNodeConfig {
 
     /// Validates and builds the group for a channel box (wall units).
     pub fn build(&self, box_plus: [f64; 3]) -> Result<BuiltGroup, FibreError> {
+        self.build_avoiding(box_plus, &[])
+    }
+
+    /// [`Self::build`] with a random placement kept clear of `placed` (the segments of the
+    /// groups before it in a suspension whose groups touch).
+    pub fn build_avoiding(
+        &self,
+        box_plus: [f64; 3],
+        placed: &[Placed],
+    ) -> Result<BuiltGroup, FibreError> {
         let (l, d, rho) = self.checked_sizes()?;
-        let placements = self.placements(box_plus, l, d)?;
+        let placements = self.placements(box_plus, l, d, placed)?;
         if self.shards == 0 || self.shards as usize > placements.len() {
             return self.bad(
                 "shards",
@@ -420,7 +477,13 @@ impl FiberNodeConfig {
     }
 
     /// Where the group's fibres start, by `placement.kind` (checked against the box).
-    fn placements(&self, box_plus: [f64; 3], l: f64, d: f64) -> Result<Vec<Placement>, FibreError> {
+    fn placements(
+        &self,
+        box_plus: [f64; 3],
+        l: f64,
+        d: f64,
+        placed: &[Placed],
+    ) -> Result<Vec<Placement>, FibreError> {
         Ok(match &self.placement {
             PlacementConfig::Layers {
                 per_layer,
@@ -464,16 +527,19 @@ impl FiberNodeConfig {
                     return self.bad("placement.min_distance_plus", ">= 0", gap.to_string());
                 }
                 let band = band_plus.unwrap_or([0.0, box_plus[1]]);
-                random_suspension(&Suspension {
-                    count: *count,
-                    seed: *seed,
-                    box_plus,
-                    band_plus: band,
-                    segments: self.segments,
-                    segment_length_plus: l,
-                    diameter_plus: d,
-                    min_distance_plus: gap,
-                })
+                random_suspension_avoiding(
+                    &Suspension {
+                        count: *count,
+                        seed: *seed,
+                        box_plus,
+                        band_plus: band,
+                        segments: self.segments,
+                        segment_length_plus: l,
+                        diameter_plus: d,
+                        min_distance_plus: gap,
+                    },
+                    placed,
+                )
                 .map_err(|e| FibreError::Config(format!("fibers[{}].{e}", self.group)))?
             }
             PlacementConfig::Explicit { centres, axes } => {
@@ -634,6 +700,36 @@ mod tests {
         }
         c.shards = 1;
         assert_eq!(c.pieces([942.0, 300.0, 471.0]).unwrap()[0].node(), "g");
+    }
+
+    /// The groups of a suspension are placed in order, each clear of those before it: two
+    /// random groups in one band overlap when placed alone, not when placed together; the
+    /// first group is placed as it is alone.
+    #[test]
+    fn a_suspension_places_each_group_clear_of_those_before() {
+        let b = [942.0, 300.0, 471.0];
+        let group = |name: &str, seed: u32| -> FiberNodeConfig {
+            toml::from_str(&format!(
+                "group = \"{name}\"\ncase = \"case1\"\ncontact = {{}}\n\
+                 placement = {{ kind = \"random\", count = 1500, seed = {seed}, band_plus = [135.0, 165.0] }}"
+            ))
+            .unwrap()
+        };
+        let members = [group("a", 1), group("b", 2)];
+        let period = [Some(b[0]), None, Some(b[2])];
+        let alone: Vec<_> = members
+            .iter()
+            .flat_map(|m| m.build(b).unwrap().group.fibres())
+            .collect();
+        assert!(!contact::overlaps(&alone, &period).is_empty());
+        let together = build_suspension(&members, b).unwrap();
+        let all: Vec<_> = together.iter().flat_map(|g| g.group.fibres()).collect();
+        assert!(contact::overlaps(&all, &period).is_empty());
+        assert_eq!(
+            together[0].group.fibres(),
+            members[0].build(b).unwrap().group.fibres()
+        );
+        assert_eq!(together[1].group.len(), 1500);
     }
 
     /// `[fibers.contact]` turns contact on for the group with its keys checked by name

@@ -1,11 +1,13 @@
-//! A shard's side of contact across the shards of its group (`fiber-model`'s
-//! `contact::exchange`): after its free step it sends it to the group's other shards and
-//! waits for theirs, then solves contact over the whole group.
+//! A piece's side of contact across the shards of its group and the groups of its
+//! suspension (`fiber-model`'s `contact::exchange`): after its free step it sends it to
+//! the other pieces and waits for theirs, then solves contact over all of them.
 
+use crate::config::{build_suspension, BuiltGroup, FiberNodeConfig};
 use crate::serve::FiberNodeError;
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::contact::exchange::OtherPiece;
 use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{decode, FiberFreeStep, SCHEMA_VERSION};
@@ -15,10 +17,64 @@ use std::time::{Duration, Instant};
 /// of them may have lost it; they drop copies of a step they hold).
 const RESEND_AFTER: Duration = Duration::from_secs(2);
 
-/// The free steps a shard sends and receives.
+/// Where a piece's group and the pieces it touches come from.
+pub(crate) struct Touching {
+    /// The piece's whole group as built (its slice is the piece).
+    pub whole: BuiltGroup,
+    /// Index of the piece's first fibre in the solve's order.
+    pub order: usize,
+    /// The other pieces it touches (none: contact, if on, stays within the piece).
+    pub others: Vec<(Piece, OtherPiece)>,
+}
+
+/// Builds `cfg`'s group and, with contact on, finds the pieces its piece `own` touches: the
+/// group's other shards, and the pieces of the other groups of its suspension (`members`,
+/// in the suspension's order, `cfg`'s group among them; empty: in no suspension), each
+/// group built as the suspension places it, so that every piece knows the others' fibres'
+/// properties.
+pub(crate) fn touching(
+    cfg: &FiberNodeConfig,
+    own: &Piece,
+    members: &[FiberNodeConfig],
+    box_plus: [f64; 3],
+) -> Result<Touching, FibreError> {
+    let (groups, built) = if members.is_empty() {
+        (vec![cfg.clone()], vec![cfg.build(box_plus)?])
+    } else {
+        (members.to_vec(), build_suspension(members, box_plus)?)
+    };
+    let mut others = Vec::new();
+    let (mut order, mut offset, mut whole) = (0, 0, None);
+    for (g, b) in groups.iter().zip(built) {
+        for p in g.pieces(box_plus)? {
+            let first = p.first_fiber as usize;
+            if p.group == own.group && p.index == own.index {
+                order = offset + first;
+            } else if cfg.contact.is_some() {
+                let fibres = b.group.slice(first, p.fibers as usize).fibres();
+                others.push((p.clone(), OtherPiece::new(first, offset + first, fibres)));
+            }
+        }
+        offset += b.group.len();
+        if g.group == cfg.group {
+            whole = Some(b);
+        }
+    }
+    let whole = whole.ok_or_else(|| {
+        FibreError::Config(format!("group {} is not in its own suspension", cfg.group))
+    })?;
+    Ok(Touching {
+        whole,
+        order,
+        others,
+    })
+}
+
+/// The free steps a piece sends and receives.
 pub(crate) struct Exchange {
-    /// The other shards' pieces, in the order of their first fibres.
+    /// The other pieces, each with its group and first fibre (what their messages name).
     others: Vec<OtherPiece>,
+    names: Vec<(String, u32)>,
     inbox: Inbox,
     msg: Encode<FiberFreeStep>,
     topic: String,
@@ -28,30 +84,25 @@ pub(crate) struct Exchange {
 }
 
 impl Exchange {
-    /// The exchange of `own` with the group's other `pieces`; `whole` is the group as
-    /// built (every shard builds it whole), which gives the others' fibres' properties.
+    /// The exchange of `own` with the `others` it touches ([`touching`]).
     pub(crate) fn new(
         bus: &BusHandle,
         t: &Topics,
         own: &Piece,
-        pieces: &[Piece],
-        whole: &FibreGroup,
+        others: Vec<(Piece, OtherPiece)>,
     ) -> Result<Self, BusError> {
-        let others: Vec<&Piece> = pieces.iter().filter(|p| p.index != own.index).collect();
         let topics: Vec<String> = others
             .iter()
-            .map(|p| t.contact_free_step(&p.group, p.first_fiber))
+            .map(|(p, _)| t.contact_free_step(&p.group, p.first_fiber))
             .collect();
         let inbox = Inbox::new(fiberflow_bus::subscribe_any(bus.as_ref(), &topics)?);
-        let others = others
+        let names = others
             .iter()
-            .map(|p| {
-                let first = p.first_fiber as usize;
-                OtherPiece::new(first, whole.slice(first, p.fibers as usize).fibres())
-            })
+            .map(|(p, _)| (p.group.clone(), p.first_fiber))
             .collect();
         Ok(Self {
-            others,
+            others: others.into_iter().map(|(_, o)| o).collect(),
+            names,
             inbox,
             msg: Encode(FiberFreeStep {
                 schema_version: SCHEMA_VERSION,
@@ -65,7 +116,7 @@ impl Exchange {
         })
     }
 
-    /// The other shards' pieces as last read.
+    /// The other pieces as last read.
     pub(crate) fn others(&self) -> &[OtherPiece] {
         &self.others
     }
@@ -98,8 +149,8 @@ impl Exchange {
         Ok(self.sent)
     }
 
-    /// Waits until every other shard's free step of `step` has been read, sending this
-    /// shard's again every [`RESEND_AFTER`]; `alive` is asked between waits (it fails
+    /// Waits until every other piece's free step of `step` has been read, sending this
+    /// piece's again every [`RESEND_AFTER`]; `alive` is asked between waits (it fails
     /// when the run was restarted). Copies of earlier steps (resends) are let go;
     /// garbage, other groups' and later steps' messages are dropped and counted.
     pub(crate) fn gather(
@@ -134,7 +185,11 @@ impl Exchange {
             }
             if now >= resend_at {
                 self.resend(bus)?;
-                tracing::info!(node, step, "no free step from every shard yet: sending ours again");
+                tracing::info!(
+                    node,
+                    step,
+                    "no free step from every shard yet: sending ours again"
+                );
                 resend_at = now + RESEND_AFTER;
             }
             let wait = left
@@ -150,28 +205,30 @@ impl Exchange {
                     continue;
                 }
             };
-            if m.group != self.msg.0.group {
-                self.inbox.drops.drop_one(&topic, "free step of another group");
-                continue;
-            }
             if m.step < step {
                 // a shard that waited for its samples sent its free step again
                 continue;
             }
             if m.step > step {
-                self.inbox.drops.drop_one(&topic, "free step of a later step");
+                self.inbox
+                    .drops
+                    .drop_one(&topic, "free step of a later step");
                 continue;
             }
-            let Some(o) = self
-                .others
-                .iter_mut()
-                .find(|o| o.first_fiber == m.first_fiber as usize)
+            let Some(i) = self
+                .names
+                .iter()
+                .position(|(g, first)| *g == m.group && *first == m.first_fiber)
             else {
-                self.inbox.drops.drop_one(&topic, "free step of no other shard");
+                self.inbox
+                    .drops
+                    .drop_one(&topic, "free step of no piece this one touches");
                 continue;
             };
-            if let Err(e) = o.read(&m) {
-                self.inbox.drops.drop_one(&topic, &format!("inconsistent: {e}"));
+            if let Err(e) = self.others[i].read(&m) {
+                self.inbox
+                    .drops
+                    .drop_one(&topic, &format!("inconsistent: {e}"));
             }
         }
     }

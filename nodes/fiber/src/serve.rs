@@ -65,6 +65,9 @@ pub struct Checkpointing {
     /// Two-way coupling (`run.coupling = "two-way"`): every state, lean or complete,
     /// carries each segment's hydrodynamic force of the last step for the flow node.
     pub two_way: bool,
+    /// The groups whose fibres touch each other (the launch file's `[[suspensions]]`), each
+    /// in its order.
+    pub suspensions: Vec<Vec<FiberNodeConfig>>,
     /// The flow node runs on another host and may be restarted there (multi-host runs):
     /// a flow node that says READY again after this node's first step has started the
     /// run over from a checkpoint, and this node fails so that its launcher restarts it
@@ -156,9 +159,9 @@ pub fn serve_many(
     // shards that exchange their free steps within a step must not wait for each other
     // on one thread
     if served.len() > 1
-        && served.iter().any(|s| {
-            s.group.segment_count() >= PARALLEL_MIN_SEGMENTS || s.exchange.is_some()
-        })
+        && served
+            .iter()
+            .any(|s| s.group.segment_count() >= PARALLEL_MIN_SEGMENTS || s.exchange.is_some())
     {
         tracing::info!(nodes = served.len(), "fibre nodes on a thread each");
         return serve_on_threads(served, step_timeout, timeout_s, ck.start_step);
@@ -270,6 +273,8 @@ struct Served {
     /// A sharded group with contact: the free steps this shard sends to the group's other
     /// shards and reads of theirs.
     exchange: Option<Exchange>,
+    /// Index of this piece's first fibre in the order of the contact solve.
+    order: usize,
     /// Wall seconds of the exchange (sending the free step, waiting for the others'),
     /// part of the fibre step's.
     exchange_s: f64,
@@ -317,25 +322,31 @@ impl Served {
     ) -> Result<Self, FiberNodeError> {
         let t = Topics::new(run_id);
         let pieces = cfg.pieces(box_plus)?;
-        let piece = pieces
-            .get(shard as usize)
-            .cloned()
-            .ok_or_else(|| {
-                FiberNodeError::Protocol(format!(
-                    "group {} has {} shards, no shard {shard}",
-                    cfg.group, cfg.shards
-                ))
-            })?;
+        let piece = pieces.get(shard as usize).cloned().ok_or_else(|| {
+            FiberNodeError::Protocol(format!(
+                "group {} has {} shards, no shard {shard}",
+                cfg.group, cfg.shards
+            ))
+        })?;
         // every shard builds the whole group and keeps its slice: the same fibres, bit for
         // bit, whatever the shard count
-        let whole = cfg.build(box_plus)?;
-        // a sharded group with contact: its shards exchange their free steps every step
-        let exchange = if whole.group.contact().is_some() && pieces.len() > 1 {
-            Some(Exchange::new(&bus, &t, &piece, &pieces, &whole.group)?)
-        } else {
+        // with contact, the pieces this one touches (the group's other shards, the other
+        // groups of its suspension) exchange their free steps every step
+        let members = ck
+            .suspensions
+            .iter()
+            .find(|m| m.iter().any(|c| c.group == cfg.group))
+            .map_or(&[][..], Vec::as_slice);
+        let touching = crate::exchange::touching(cfg, &piece, members, box_plus)?;
+        let order = touching.order;
+        let exchange = if touching.others.is_empty() {
             None
+        } else {
+            Some(Exchange::new(&bus, &t, &piece, touching.others)?)
         };
-        let built = whole.slice(piece.first_fiber as usize, piece.fibers as usize);
+        let built = touching
+            .whole
+            .slice(piece.first_fiber as usize, piece.fibers as usize);
         let node = piece.node();
         let mut group = built.group;
         if let Some(dir) = &ck.resume_dir {
@@ -427,6 +438,7 @@ impl Served {
             ann_in,
             flow_hb,
             exchange,
+            order,
             exchange_s: 0.0,
             state_msg,
             full_states_every: ck.full_states_every,
@@ -682,8 +694,8 @@ impl Served {
         Ok(())
     }
 
-    /// A sharded group with contact, after the free step of step `k`: sends it to the
-    /// other shards, waits for theirs and solves contact over the whole group.
+    /// With contact across pieces, after the free step of step `k`: sends it to the other
+    /// pieces, waits for theirs and solves contact over all of them.
     fn resolve_with_other_shards(
         &mut self,
         k: u64,
@@ -698,11 +710,8 @@ impl Served {
             let (bus, node) = (self.bus.clone(), self.node.clone());
             x.gather(&bus, &node, k, step_timeout, &mut || self.flow_restarted(k))?;
             self.exchange_s += t0.elapsed().as_secs_f64();
-            self.group.resolve_contact_with(
-                self.piece.first_fiber as usize,
-                x.others(),
-                self.dt,
-            );
+            self.group
+                .resolve_contact_with(self.order, x.others(), self.dt);
             Ok(())
         })();
         self.exchange = Some(x);
@@ -809,7 +818,13 @@ impl Served {
         self.hb(lifecycle::DONE, self.steps)?;
         let mut drops = self.samples_in.drops.clone();
         let exchanged = self.exchange.as_ref().map(|x| x.drops().by_topic.clone());
-        for (k, v) in self.ann_in.drops.by_topic.into_iter().chain(exchanged.into_iter().flatten()) {
+        for (k, v) in self
+            .ann_in
+            .drops
+            .by_topic
+            .into_iter()
+            .chain(exchanged.into_iter().flatten())
+        {
             *drops.by_topic.entry(k).or_insert(0) += v;
         }
         Ok((self.node, drops))

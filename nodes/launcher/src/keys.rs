@@ -37,7 +37,14 @@ pub fn launch_keys() -> Result<Vec<Key>> {
         .unwrap_or_default();
     let mut out = Vec::new();
     let walker = Walker { defs: &defs };
-    for section in ["run", "flow", "fibers", "recorder", "network"] {
+    for section in [
+        "run",
+        "flow",
+        "fibers",
+        "suspensions",
+        "recorder",
+        "network",
+    ] {
         let prop = schema
             .pointer(&format!("/properties/{section}"))
             .with_context(|| format!("the launch-file schema has no `{section}`"))?;

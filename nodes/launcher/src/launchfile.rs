@@ -236,6 +236,17 @@ pub struct HostSection {
     pub private_key: PathBuf,
 }
 
+/// `[[suspensions]]`: groups whose fibres touch each other (fibre–fibre contact between
+/// groups, docs/contact.md); groups in no suspension touch only their own fibres.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SuspensionSection {
+    /// Two or more group names, each with `contact` set alike (the same `friction` and
+    /// `sweeps`), in no other suspension. Placed in this order: a group placed at random
+    /// keeps clear of the groups before it.
+    pub groups: Vec<String>,
+}
+
 /// The whole launch file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -244,6 +255,8 @@ pub struct LaunchFile {
     pub flow: FlowNodeConfig,
     #[serde(default)]
     pub fibers: Vec<FiberNodeConfig>,
+    #[serde(default)]
+    pub suspensions: Vec<SuspensionSection>,
     #[serde(default)]
     pub recorder: RecorderSection,
     #[serde(default)]
@@ -399,10 +412,85 @@ impl LaunchFile {
                 );
             }
         }
+        self.validate_suspensions()?;
         if let Some(n) = &self.network {
             self.validate_network(n)?;
         }
         Ok(())
+    }
+
+    /// `[[suspensions]]`: known groups with contact set alike, each in one suspension, and
+    /// a start without overlaps between them.
+    fn validate_suspensions(&self) -> Result<()> {
+        let mut seen = std::collections::BTreeSet::new();
+        for (i, s) in self.suspensions.iter().enumerate() {
+            if s.groups.len() < 2 {
+                bail!(
+                    "suspensions[{i}].groups must name 2 or more groups (got {:?})",
+                    s.groups
+                );
+            }
+            let members = self.suspension_members(i)?;
+            for m in &members {
+                if !seen.insert(m.group.clone()) {
+                    bail!(
+                        "suspensions[{i}].groups: group {:?} is named twice or is in another suspension",
+                        m.group
+                    );
+                }
+                let (Some(c), Some(c0)) = (&m.contact, &members[0].contact) else {
+                    bail!(
+                        "suspensions[{i}].groups: group {:?} has no contact; allowed: groups with fibers.contact set",
+                        m.group
+                    );
+                };
+                if c != c0 {
+                    bail!(
+                        "suspensions[{i}].groups: groups {:?} and {:?} set fibers.contact differently ({c0:?} and {c:?}); allowed: the same friction and sweeps",
+                        members[0].group,
+                        m.group
+                    );
+                }
+            }
+            fiberflow_fiber::config::build_suspension(&members, self.box_plus())
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        }
+        Ok(())
+    }
+
+    /// The groups of suspension `i`, in its order.
+    pub fn suspension_members(&self, i: usize) -> Result<Vec<FiberNodeConfig>> {
+        let s = self
+            .suspensions
+            .get(i)
+            .with_context(|| format!("no suspension {i}"))?;
+        s.groups
+            .iter()
+            .map(|g| {
+                self.fibers
+                    .iter()
+                    .find(|f| &f.group == g)
+                    .cloned()
+                    .with_context(|| {
+                        format!(
+                            "suspensions[{i}].groups: no fibre group {g:?} (groups: {})",
+                            self.groups().join(", ")
+                        )
+                    })
+            })
+            .collect()
+    }
+
+    /// The groups of the suspension `group` belongs to, in its order (empty: none).
+    pub fn suspension_of(&self, group: &str) -> Result<Vec<FiberNodeConfig>> {
+        match self
+            .suspensions
+            .iter()
+            .position(|s| s.groups.iter().any(|g| g == group))
+        {
+            Some(i) => self.suspension_members(i),
+            None => Ok(Vec::new()),
+        }
     }
 
     fn validate_network(&self, n: &NetworkSection) -> Result<()> {
@@ -776,6 +864,61 @@ pub(crate) mod tests {
                 "two-way.toml"
             ]
         );
+    }
+
+    /// `[[suspensions]]` names known groups, each with contact set alike and in one
+    /// suspension only; bad ones are refused naming the key; a good one loads and its
+    /// groups are placed clear of each other.
+    #[test]
+    fn suspensions_are_checked() {
+        let dir = std::env::temp_dir().join(format!("ff-susp-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("s.toml");
+        let group = |name: &str, contact: &str| {
+            format!(
+                "[[fibers]]\ngroup = \"{name}\"\ncase = \"case1\"\n\
+                 placement = {{ kind = \"random\", count = 300, band_plus = [130.0, 170.0] }}\n{contact}\n"
+            )
+        };
+        let text = |extra: &str, b_contact: &str| {
+            format!(
+                "[run]\nid = \"s\"\nsteps = 2\ndt_plus = 0.25\n\
+                 [flow.source]\nkind = \"analytic\"\nflow = {{ kind = \"simple_shear\", shear_rate = 0.1 }}\n\
+                 {}{}{}{extra}",
+                group("a", "contact = { friction = 0.5 }"),
+                group("b", b_contact),
+                group("c", "contact = { friction = 0.5 }"),
+            )
+        };
+        let ok = "[[suspensions]]\ngroups = [\"a\", \"b\"]\n";
+        std::fs::write(&p, text(ok, "contact = { friction = 0.5 }")).unwrap();
+        let (lf, _) = LaunchFile::load_with(&p, &[]).unwrap();
+        assert_eq!(lf.suspension_of("b").unwrap().len(), 2);
+        assert!(lf.suspension_of("c").unwrap().is_empty());
+        for (extra, b_contact, key) in [
+            (
+                "[[suspensions]]\ngroups = [\"a\"]\n",
+                "contact = {}",
+                "suspensions[0].groups must name 2 or more",
+            ),
+            (
+                "[[suspensions]]\ngroups = [\"a\", \"x\"]\n",
+                "contact = {}",
+                "suspensions[0].groups: no fibre group \"x\"",
+            ),
+            (ok, "", "group \"b\" has no contact"),
+            (ok, "contact = { friction = 0.3 }", "set fibers.contact differently"),
+            (
+                "[[suspensions]]\ngroups = [\"a\", \"c\"]\n[[suspensions]]\ngroups = [\"c\", \"b\"]\n",
+                "contact = { friction = 0.5 }",
+                "group \"c\" is named twice or is in another suspension",
+            ),
+        ] {
+            std::fs::write(&p, text(extra, b_contact)).unwrap();
+            let e = format!("{:#}", LaunchFile::load_with(&p, &[]).unwrap_err());
+            assert!(e.contains(key), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// Two-way coupling needs a DNS to act on: an analytic flow is refused by key.

@@ -99,12 +99,14 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     for p in lf.pieces().unwrap_or_default() {
         v.push(t.heartbeat(&p.node()));
         v.push(p.samples_topic(&t));
-        // the shards of a group with contact exchange their free steps
-        let touches = lf
+        // the pieces that touch exchange their free steps: shards of a group with contact,
+        // groups of a suspension
+        let contact = lf
             .fibers
             .iter()
             .any(|f| f.group == p.group && f.contact.is_some());
-        if touches && p.shards > 1 {
+        let in_suspension = lf.suspensions.iter().any(|s| s.groups.contains(&p.group));
+        if contact && (p.shards > 1 || in_suspension) {
             v.push(t.contact_free_step(&p.group, p.first_fiber));
         }
     }
@@ -365,6 +367,9 @@ fn run_fibre_nodes(
         full_states_every: lf.recorder.states_every_steps,
         two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
         flow_elsewhere: flow_elsewhere(spec)?,
+        suspensions: (0..lf.suspensions.len())
+            .map(|i| lf.suspension_members(i))
+            .collect::<Result<_>>()?,
     };
     let served = fiberflow_fiber::serve::serve_many(
         &nodes,

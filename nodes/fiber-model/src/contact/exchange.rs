@@ -1,11 +1,11 @@
-//! Contact across the shards of a group: each shard (a slice of the group's fibres, in a
-//! process of its own) makes its free step, sends it to the others
-//! ([`fiberflow_messages::FiberFreeStep`]), and solves contact over the whole group from
-//! its own fibres and theirs, keeping the corrections of its own
-//! ([`crate::group::FibreGroup::resolve_contact_with`]). Every shard solves the same pairs
-//! in the same (fibre, segment) order from the same numbers, so its fibres end the step
-//! with the bits one unsharded group gives them, whatever the shard count
-//! (docs/contact.md, "Across shards").
+//! Contact across the shards of a group, and between the groups of a suspension: each
+//! piece (a shard's slice of a group's fibres, in a process of its own) makes its free
+//! step, sends it to the others ([`fiberflow_messages::FiberFreeStep`]), and solves
+//! contact over all of them from its own fibres and theirs, keeping the corrections of
+//! its own ([`crate::group::FibreGroup::resolve_contact_with`]). Every piece solves the
+//! same pairs in the same (fibre, segment) order from the same numbers, so its fibres end
+//! the step with the bits one unsharded group of all the fibres gives them, whatever the
+//! shard count (docs/contact.md, "Across shards").
 
 use crate::fibre::{Fibre, Segment};
 use fiberflow_messages::FiberFreeStep;
@@ -16,8 +16,12 @@ use nalgebra::Vector3;
 /// start); their segments are overwritten from each step's message.
 #[derive(Debug, Clone)]
 pub struct OtherPiece {
-    /// Index of its first fibre in the whole group.
+    /// Index of its first fibre in its group (what its messages name).
     pub first_fiber: usize,
+    /// Index of its first fibre in the order of the solve: the group's, or for a
+    /// suspension of several groups, the groups' in the suspension's order, one after
+    /// the other.
+    pub order: usize,
     /// Its fibres at the start of the step: centres and axes of the start, everything else
     /// as after the free step (what the solve reads of a start; as for a shard's own).
     pub before: Vec<Fibre>,
@@ -39,11 +43,12 @@ pub enum ExchangeError {
 }
 
 impl OtherPiece {
-    /// The piece of fibres `first_fiber ..` with these fibres' properties (their segments
-    /// are replaced by [`Self::read`]).
-    pub fn new(first_fiber: usize, fibres: Vec<Fibre>) -> Self {
+    /// The piece of fibres `first_fiber ..` of its group, at `order` in the solve, with
+    /// these fibres' properties (their segments are replaced by [`Self::read`]).
+    pub fn new(first_fiber: usize, order: usize, fibres: Vec<Fibre>) -> Self {
         Self {
             first_fiber,
+            order,
             before: fibres.clone(),
             after: fibres,
             step: None,
@@ -127,7 +132,7 @@ mod tests {
                         .iter()
                         .enumerate()
                         .filter(|&(t, _)| t != s)
-                        .map(|(_, (first, g))| OtherPiece::new(*first, g.fibres()))
+                        .map(|(_, (first, g))| OtherPiece::new(*first, *first, g.fibres()))
                         .collect()
                 })
                 .collect();
@@ -245,6 +250,45 @@ mod tests {
         );
     }
 
+    /// Two groups of unlike fibres in one suspension (30 case-1 fibres, 30 of shorter,
+    /// thinner and denser segments), each in two pieces: every piece's fibres have the bits
+    /// one group of all 60 gives them, and fibres of the two groups touch.
+    #[test]
+    fn two_groups_of_unlike_fibres_touch_as_one_group() {
+        let side = 30.0;
+        let placed = crowded_box(side, 5);
+        let n = placed.len();
+        let fibres: Vec<Fibre> = placed
+            .iter()
+            .enumerate()
+            .map(|(k, pl)| {
+                if k < n / 2 {
+                    fibre(pl.centre, pl.axis)
+                } else {
+                    Fibre::straight(pl.centre, pl.axis.normalize(), &[2.5; 7], &[0.2; 7], 2300.0)
+                        .unwrap()
+                }
+            })
+            .collect();
+        let c = ContactParams {
+            friction: 0.5,
+            period: [Some(side), None, Some(side)],
+            ..Default::default()
+        };
+        let gamma = 3.0;
+        let shear = |_: usize, r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * (r.y - 0.5 * side), 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        let p = params(Vector3::zeros());
+        let cuts = [0, 11, n / 2, n / 2 + 16, n];
+        let (across, _) = whole_against_shards(fibres, p, c, &cuts, &shear, 12);
+        assert!(
+            across > 0,
+            "no contact across pieces: the test checks nothing"
+        );
+    }
+
     /// The two encounters of the unsharded tests with each fibre in a shard of its own:
     /// driven head-on at 3.4 d per step, and carried across each other in shear (μ = 0
     /// and 0.5). Centre-lines never closer than 0.99 d, and the same bits as one group.
@@ -330,7 +374,7 @@ mod tests {
                 fibre(Vector3::y(), Vector3::z()),
             ],
         );
-        let mut piece = OtherPiece::new(2, g.fibres());
+        let mut piece = OtherPiece::new(2, 2, g.fibres());
         let mut m = FiberFreeStep {
             schema_version: fiberflow_messages::SCHEMA_VERSION,
             group: "g".into(),
