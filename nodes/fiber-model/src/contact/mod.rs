@@ -1466,6 +1466,98 @@ pub(crate) mod tests {
         assert!(contacts > 50, "only {contacts} contacts in 25 steps");
     }
 
+    /// At scale: 10⁴ case-1 fibres at random in a band 24 wall units thick across the
+    /// paper's box (crowding N ≈ 4.6 in the band), in shear with random velocities added,
+    /// μ = 0.5, 10 steps: every step the contact forces sum to zero and so do their
+    /// torques (to round-off), momentum is what the free step left, fibres touch, and no
+    /// centre-lines end closer than 0.99 d.
+    #[test]
+    fn contact_forces_of_ten_thousand_fibres_sum_to_zero_every_step() {
+        let (lx, lz) = (942.48, 471.24);
+        let period = [Some(lx), None, Some(lz)];
+        let placed = random_suspension(&Suspension {
+            count: 10_000,
+            seed: 9,
+            box_plus: [lx, 300.0, lz],
+            band_plus: [138.0, 162.0],
+            segments: N,
+            segment_length_plus: L,
+            diameter_plus: D,
+            min_distance_plus: D,
+        })
+        .unwrap();
+        let mut x = 777u64;
+        let mut rnd = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let gamma = 1.0;
+        let shear = |r: &Vector3<f64>| FluidSample {
+            vel: Vector3::new(gamma * r.y, 0.0, 0.0),
+            grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        };
+        let mut fibres: Vec<Fibre> = placed
+            .iter()
+            .map(|pl| {
+                let mut f = fibre(pl.centre, pl.axis);
+                let v = Vector3::new(rnd(), rnd(), rnd()) * 4.0;
+                f.segments
+                    .iter_mut()
+                    .for_each(|s| s.v = shear(&s.r).vel + v);
+                f
+            })
+            .collect();
+        let p = params(Vector3::zeros());
+        let c = ContactParams {
+            friction: 0.5,
+            period,
+            ..Default::default()
+        };
+        let momentum = |fs: &[Fibre]| {
+            fs.iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
+        };
+        let mut contacts = 0;
+        for _ in 0..10 {
+            let before = fibres.clone();
+            fibres.par_iter_mut().for_each(|f| {
+                let samples: Vec<FluidSample> = f.segments.iter().map(|s| shear(&s.r)).collect();
+                step(&p, f, &samples, DT).unwrap();
+            });
+            let free = momentum(&fibres);
+            let out = resolve(&mut fibres, &before, &[], &c, DT);
+            contacts += out.contacts.len();
+            let scale: f64 = fibres
+                .iter()
+                .flat_map(|f| f.segments.iter().zip(&f.props))
+                .map(|(s, p)| s.v.norm() * p.mass)
+                .sum();
+            assert!((momentum(&fibres) - free).norm() <= 1e-12 * scale);
+            let (force, torque) = out.segment_loads(&fibres, DT);
+            let fsum: f64 = force.iter().map(|f| f.norm()).sum();
+            assert!(force.iter().sum::<Vector3<f64>>().norm() <= 1e-12 * fsum.max(1e-300));
+            let mut total_t: Vector3<f64> = torque.iter().sum();
+            for ct in &out.contacts {
+                let fa = ct.impulse / DT;
+                let ra = fibres[ct.a.0].segments[ct.a.1].r;
+                let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
+                total_t += ra.cross(&fa) + rb.cross(&(-fa));
+            }
+            assert!(total_t.norm() <= 1e-11 * fsum.max(1e-300) * lx, "{total_t}");
+            let m = touching(&fibres, &period, -0.01);
+            assert!(
+                m.is_empty(),
+                "{} pairs closer than 0.99 d: {:?}",
+                m.len(),
+                m.first()
+            );
+        }
+        assert!(contacts > 100, "only {contacts} contacts in 10 steps");
+    }
+
     /// Friction: a fibre lying across two fixed ones (rails 12 apart, so it cannot tip),
     /// gravity tilted by θ = 20° along the upper fibre's axis. Coulomb: it stays for
     /// μ ≥ tan θ and slides below. At μ = 1.02 tan θ the points of contact move less than
