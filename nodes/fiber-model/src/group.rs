@@ -521,6 +521,7 @@ impl FibreGroup {
         // what the log reports is this shard's: its fibres moved and locked
         outcome.moved.retain(|k| mine.contains(k));
         outcome.locked.retain(|k| mine.contains(k));
+        outcome.frozen.retain(|k| mine.contains(k));
         self.last_contact = outcome;
     }
 

@@ -292,6 +292,9 @@ struct Served {
     unresolved_contact_steps: u64,
     /// Steps whose contact solve locked an island (docs/contact.md).
     locked_contact_steps: u64,
+    /// Steps whose contact solve kept fibres where they started, and how many in all.
+    frozen_contact_steps: u64,
+    frozen_fibres: u64,
     checkpoint_every: u64,
     checkpoint_root: Option<PathBuf>,
     dt: f64,
@@ -445,6 +448,8 @@ impl Served {
             two_way: ck.two_way,
             unresolved_contact_steps: 0,
             locked_contact_steps: 0,
+            frozen_contact_steps: 0,
+            frozen_fibres: 0,
             checkpoint_every: ck.every,
             checkpoint_root: ck.root.clone(),
             dt: 0.0,
@@ -757,6 +762,19 @@ impl Served {
             }
             self.locked_contact_steps += 1;
         }
+        if !out.frozen.is_empty() {
+            if self.frozen_contact_steps.is_multiple_of(100) {
+                tracing::info!(
+                    node = %self.node,
+                    step,
+                    fibres = out.frozen.len(),
+                    steps_so_far = self.frozen_contact_steps + 1,
+                    "contact kept fibres where they started the step (still overlapping when the rounds ran out)"
+                );
+            }
+            self.frozen_contact_steps += 1;
+            self.frozen_fibres += out.frozen.len() as u64;
+        }
     }
 
     /// Publishes the state of step `step` just integrated to (and its metrics when due).
@@ -811,6 +829,8 @@ impl Served {
                 steps = self.steps - self.start,
                 steps_with_a_locked_floc = self.locked_contact_steps,
                 steps_left_closer_than_0_99_d = self.unresolved_contact_steps,
+                steps_with_fibres_kept_at_their_start = self.frozen_contact_steps,
+                fibres_kept_at_their_start = self.frozen_fibres,
                 exchanging_free_steps_s = format!("{:.3}", self.exchange_s),
                 "contact over the run"
             );

@@ -49,7 +49,7 @@ fn cited(text: &str) -> Vec<String> {
         rest = &rest[i + 7..];
         out.push(ident(rest));
     }
-    for prefix in ["`e2e ", "`survive ", "`two_way "] {
+    for prefix in ["`e2e ", "`survive ", "`two_way ", "`contact ", "`hosts "] {
         let mut rest = text;
         while let Some(i) = rest.find(prefix) {
             rest = &rest[i + prefix.len()..];

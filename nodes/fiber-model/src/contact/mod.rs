@@ -108,6 +108,9 @@ pub struct Outcome {
     /// Fibres of islands the sweeps could not separate, moved as one rigid body over the
     /// step instead (their pairs are not in `contacts`), ascending.
     pub locked: Vec<usize>,
+    /// Fibres still closer than a contact distance to another when the rounds ran out,
+    /// and those that then overlapped them: kept where they started the step, ascending.
+    pub frozen: Vec<usize>,
 }
 
 impl Outcome {
@@ -891,6 +894,68 @@ fn move_by(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>,
     r.com += dv * dt;
 }
 
+/// The backstop after the last round (section 9 of docs/contact.md): fibres of pairs
+/// still closer than their contact distance are kept where they started the step (their
+/// centres, axes and normals; velocities as the solve left them), and so, in turn, is
+/// every fibre that then overlaps one of them. From a start without overlaps no pair is
+/// left closer than its contact distance. Returns which fibres it froze.
+#[allow(clippy::too_many_arguments)]
+fn freeze_what_still_overlaps<S: Segments>(
+    s: &S,
+    search: &Search,
+    cands: &mut Vec<Candidate>,
+    fibres: &mut [Fibre],
+    before: &[Fibre],
+    moved: &mut [bool],
+    load: &mut dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]),
+) -> Vec<bool> {
+    let n = fibres.len();
+    let mut frozen = vec![false; n];
+    let overlapping = |cands: &[Candidate], fibres: &[Fibre]| {
+        cands
+            .iter()
+            .any(|c| geometry(fibres, c).2 / c.reach < -1e-6)
+    };
+    if !overlapping(cands, fibres) {
+        return frozen;
+    }
+    // `load` copies fibres into both lists; the start is read from `before`, which the
+    // caller owns, so fresh pairs' fibres are loaded into a scratch copy of it
+    let mut start: Vec<Fibre> = before.to_vec();
+    loop {
+        let mut newly: Vec<usize> = cands
+            .iter()
+            .filter(|c| geometry(fibres, c).2 / c.reach < -1e-6)
+            .flat_map(|c| [c.a.0, c.b.0])
+            .filter(|&k| !frozen[k])
+            .collect();
+        newly.sort_unstable();
+        newly.dedup();
+        if newly.is_empty() {
+            return frozen;
+        }
+        for &k in &newly {
+            frozen[k] = true;
+            moved[k] = true;
+            for (seg, was) in fibres[k].segments.iter_mut().zip(&start[k].segments) {
+                (seg.r, seg.z, seg.n) = (was.r, was.z, was.n);
+            }
+        }
+        let fresh: Vec<Candidate> = search
+            .around(s, fibres, &start, moved, &newly)
+            .into_iter()
+            .filter(|c| {
+                cands
+                    .binary_search_by_key(&(c.a, c.b), |x| (x.a, x.b))
+                    .is_err()
+            })
+            .collect();
+        load(&fresh, fibres, &mut start);
+        cands.extend(fresh);
+        cands.sort_by_key(|c| (c.a, c.b));
+    }
+}
+
 /// Applies contact to `fibres` (the state after the free step; `before` the same fibres at
 /// its start), with fibres `fixed[k]` immovable (a support). See the module's
 /// documentation for the method.
@@ -1014,8 +1079,18 @@ pub(crate) fn resolve_segments<S: Segments>(
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
     }
+    let frozen = freeze_what_still_overlaps(
+        s,
+        search,
+        &mut cands,
+        &mut fibres,
+        &before,
+        &mut moved_fibres,
+        &mut load,
+    );
     outcome.moved = (0..n).filter(|&k| moved_fibres[k]).collect();
     outcome.locked = (0..n).filter(|&k| locked[k]).collect();
+    outcome.frozen = (0..n).filter(|&k| frozen[k]).collect();
     outcome.candidates = cands.len();
     for c in &cands {
         let (point, _, gap) = geometry(&fibres, c);
@@ -1556,6 +1631,74 @@ pub(crate) mod tests {
             );
         }
         assert!(contacts > 100, "only {contacts} contacts in 10 steps");
+    }
+
+    /// The backstop alone (no solve): after a free step of 60 crowded fibres thrown at
+    /// random, the fibres of overlapping pairs, and in turn those that then overlap them,
+    /// are kept where they started; every other fibre stays where the free step left it,
+    /// and no pair is left closer than its contact distance.
+    #[test]
+    fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
+        let side = 30.0;
+        let period = [Some(side), None, Some(side)];
+        let mut x = 4242u64;
+        let mut rnd = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let before: Vec<Fibre> = crowded_box(side, 11)
+            .iter()
+            .map(|pl| {
+                let mut f = fibre(pl.centre, pl.axis);
+                let v = Vector3::new(rnd(), rnd(), rnd()) * 6.0;
+                f.segments.iter_mut().for_each(|s| s.v = v);
+                f
+            })
+            .collect();
+        let p = params(Vector3::zeros());
+        let mut free = before.clone();
+        for f in free.iter_mut() {
+            let samples = vec![FluidSample::at_rest(); f.len()];
+            step(&p, f, &samples, DT).unwrap();
+        }
+        let view = Slices::new(&before, &free);
+        let mut search = Search::default();
+        search.rebuild(&view, &period, 0.0);
+        let mut cands = search.pairs();
+        let overlapping = |fs: &[Fibre], cands: &[Candidate]| {
+            cands
+                .iter()
+                .filter(|c| geometry(fs, c).2 / c.reach < -1e-6)
+                .count()
+        };
+        let first = overlapping(&free, &cands);
+        assert!(first > 5, "only {first} overlapping pairs: the test checks little");
+        let mut fibres = free.clone();
+        let mut moved = vec![false; free.len()];
+        // every fibre is loaded already
+        let mut load = |_: &[Candidate], _: &mut [Fibre], _: &mut [Fibre]| {};
+        let frozen = freeze_what_still_overlaps(
+            &view,
+            &search,
+            &mut cands,
+            &mut fibres,
+            &before,
+            &mut moved,
+            &mut load,
+        );
+        assert_eq!(overlapping(&fibres, &cands), 0);
+        assert!(touching(&fibres, &period, -1e-6).is_empty());
+        let n_frozen = frozen.iter().filter(|&&f| f).count();
+        assert!(n_frozen > 0 && n_frozen < fibres.len(), "{n_frozen} frozen");
+        for (k, f) in fibres.iter().enumerate() {
+            let was = if frozen[k] { &before[k] } else { &free[k] };
+            for (a, b) in f.segments.iter().zip(&was.segments) {
+                assert_eq!((a.r, a.z, a.n), (b.r, b.z, b.n), "fibre {k}");
+            }
+            assert_eq!(moved[k], frozen[k]);
+        }
     }
 
     /// Friction: a fibre lying across two fixed ones (rails 12 apart, so it cannot tip),
