@@ -129,7 +129,23 @@ struct Reading {
 /// (a recording with `states_every_steps` > 1) take the fibre node's own metrics message.
 /// Messages that fail their consistency checks are skipped.
 pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, AnalysisError> {
+    Ok(read_recording(mcap_path)?.0)
+}
+
+/// The contacts and flocs of each suspension of a run (groups whose fibres touch each
+/// other, `[[suspensions]]` in the run folder's `launch.toml`) over its recorded complete
+/// states, named by its groups joined with `+`.
+pub type SuspensionFlocs = Vec<(String, Vec<crate::flocs::FlocRow>)>;
+
+/// [`read_groups`], and the flocs of the run's suspensions.
+pub fn read_recording(
+    mcap_path: &Path,
+) -> Result<(BTreeMap<String, GroupSeries>, SuspensionFlocs), AnalysisError> {
     use fiberflow_messages::sanity::Sane;
+    let suspensions = crate::flocs::suspensions_of_run(mcap_path);
+    let mut suspension_rows: Vec<Vec<crate::flocs::FlocRow>> = vec![Vec::new(); suspensions.len()];
+    // a suspension's groups' states of a step, until all have come
+    let mut pending: BTreeMap<(usize, u64), BTreeMap<String, FiberGroupState>> = BTreeMap::new();
     let segs = fiberflow_messages::segments::segment_paths(mcap_path).map_err(io_err(mcap_path))?;
     let mut by: BTreeMap<String, Reading> = BTreeMap::new();
     // a sharded group's slices, put back together per step
@@ -171,6 +187,18 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
                 }
                 if let Some(b) = box_plus {
                     r.flocs.push(crate::flocs::of_state(&s, b));
+                    if let Some(i) = suspensions.iter().position(|m| m.contains(&s.group)) {
+                        let got = pending.entry((i, s.step)).or_default();
+                        got.insert(s.group.clone(), s.clone());
+                        if suspensions[i].iter().all(|g| got.contains_key(g)) {
+                            let states: Vec<&FiberGroupState> =
+                                suspensions[i].iter().filter_map(|g| got.get(g)).collect();
+                            if let Some(m) = crate::flocs::merged(&states) {
+                                suspension_rows[i].push(crate::flocs::of_state(&m, b));
+                            }
+                            pending.remove(&(i, s.step));
+                        }
+                    }
                 }
                 r.from_states.insert(s.step, row_of_state(&s));
             } else if topic.ends_with("/metrics") && topic.contains("/fibers/") {
@@ -218,7 +246,13 @@ pub fn read_groups(mcap_path: &Path) -> Result<BTreeMap<String, GroupSeries>, An
         }
         out.insert(g, gs);
     }
-    Ok(out)
+    let named = suspensions
+        .iter()
+        .map(|m| m.join("+"))
+        .zip(suspension_rows)
+        .filter(|(_, rows)| !rows.is_empty())
+        .collect();
+    Ok((out, named))
 }
 
 /// Per-fibre sums of squared cross-stream displacements (eq. 20) per lag bin: the MSD and
@@ -481,7 +515,7 @@ pub fn analyse(
     thresholds: &[f64],
 ) -> Result<Analysis, AnalysisError> {
     std::fs::create_dir_all(out).map_err(io_err(out))?;
-    let groups = read_groups(mcap_path)?;
+    let (groups, suspension_flocs) = read_recording(mcap_path)?;
     if groups.is_empty() {
         return Err(AnalysisError::Data(format!(
             "{}: no fibre states recorded",
@@ -528,6 +562,7 @@ pub fn analyse(
         .iter()
         .filter(|(_, g)| !g.flocs.is_empty())
         .map(|(n, g)| (n.clone(), g.flocs.clone()))
+        .chain(suspension_flocs)
         .collect();
     for (name, rows) in &floc_rows {
         write(out, &format!("{name}_flocs.csv"), &crate::flocs::csv(rows))?;

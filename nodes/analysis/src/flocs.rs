@@ -251,6 +251,59 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
 }
 
 /// `{group}_flocs.csv`: one row per recorded full state.
+/// The groups of each `[[suspensions]]` table of a run folder's `launch.toml` (groups
+/// whose fibres touch each other); none for a single file or a launch without one.
+pub fn suspensions_of_run(run: &std::path::Path) -> Vec<Vec<String>> {
+    let Ok(text) = std::fs::read_to_string(run.join("launch.toml")) else {
+        return Vec::new();
+    };
+    let Ok(doc) = text.parse::<toml::Table>() else {
+        return Vec::new();
+    };
+    let Some(list) = doc.get("suspensions").and_then(toml::Value::as_array) else {
+        return Vec::new();
+    };
+    list.iter()
+        .filter_map(|s| s.get("groups")?.as_array())
+        .map(|g| {
+            g.iter()
+                .filter_map(|n| n.as_str().map(String::from))
+                .collect()
+        })
+        .filter(|g: &Vec<String>| g.len() >= 2)
+        .collect()
+}
+
+/// The fibres of several groups' states of one step as one state, in the order given:
+/// the suspension whose groups touch each other, for [`of_state`].
+pub fn merged(states: &[&FiberGroupState]) -> Option<FiberGroupState> {
+    let (first, rest) = states.split_first()?;
+    let mut m = (*first).clone();
+    m.first_fiber = 0;
+    m.group = states
+        .iter()
+        .map(|s| s.group.as_str())
+        .collect::<Vec<_>>()
+        .join("+");
+    for s in rest {
+        if s.step != m.step || s.is_lean() != m.is_lean() {
+            return None;
+        }
+        m.group_fibers += s.group_fibers;
+        m.segments_per_fiber.extend(&s.segments_per_fiber);
+        m.segment_length.extend(&s.segment_length);
+        m.diameter.extend(&s.diameter);
+        m.density_ratio.extend(&s.density_ratio);
+        m.layer.extend(&s.layer);
+        m.centre.extend(&s.centre);
+        m.axis.extend(&s.axis);
+        m.velocity.extend(&s.velocity);
+        m.angular_velocity.extend(&s.angular_velocity);
+        m.hydro_force.extend(&s.hydro_force);
+    }
+    Some(m)
+}
+
 pub fn csv(rows: &[FlocRow]) -> String {
     let mut out = String::from(
         "step,t_plus,fibres,contacts_per_fibre,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding",
@@ -419,6 +472,42 @@ mod tests {
             5.0 * std::f64::consts::FRAC_PI_4 * 0.232f64.powi(2) * 21.0 / (942.0 * 300.0 * 471.0);
         let want = 2.0 / 3.0 * cv * (21.0 / 0.232f64).powi(2);
         assert!((r.crowding - want).abs() < 1e-12 * want);
+    }
+
+    /// A suspension's groups are analysed as one: two groups of two fibres each, where
+    /// each group's fibres are apart but touch a fibre of the other group, have no floc
+    /// alone and one of four fibres merged; the merged state lists both groups' fibres in
+    /// order. `suspensions_of_run` reads `[[suspensions]]` from a run folder's launch.toml.
+    #[test]
+    fn a_suspension_s_groups_make_flocs_together() {
+        let box_plus = [942.0, 300.0, 471.0];
+        let mut a = state(&[(10.0, 0.0), (10.0, 0.464)]);
+        a.group = "a".into();
+        let mut b = state(&[(10.0, 0.232), (10.0, 0.696)]);
+        b.group = "b".into();
+        assert_eq!(
+            (of_state(&a, box_plus).flocs, of_state(&b, box_plus).flocs),
+            (0, 0)
+        );
+        let m = merged(&[&a, &b]).unwrap();
+        assert_eq!(m.group, "a+b");
+        assert_eq!((m.group_fibers, m.segments_per_fiber.len()), (4, 4));
+        assert_eq!(&m.centre[..a.centre.len()], &a.centre[..]);
+        let r = of_state(&m, box_plus);
+        assert_eq!((r.fibres, r.flocs, r.largest), (4, 1, 4));
+        let dir = std::env::temp_dir().join(format!("ff-susp-run-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(suspensions_of_run(&dir).is_empty());
+        std::fs::write(
+            dir.join("launch.toml"),
+            "[run]\nid = \"x\"\n[[suspensions]]\ngroups = [\"a\", \"b\"]\n",
+        )
+        .unwrap();
+        assert_eq!(
+            suspensions_of_run(&dir),
+            vec![vec!["a".to_string(), "b".into()]]
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// Contact points are the midpoints between touching centre-lines: two parallel

@@ -42,6 +42,12 @@ use search::Slices;
 
 /// Most rounds of solving islands and searching for the pairs their corrections made.
 const MAX_ROUNDS: usize = 8;
+
+/// How far within its contact distance a pair may be left when the rounds run out (as a
+/// share of it) before the backstop keeps its fibres where they started: the lock's
+/// threshold (an island whose sweeps end closer than 0.995 d is locked). The next step's
+/// solve starts by separating what is left.
+const FREEZE_DEPTH: f64 = 0.005;
 use crate::lanes::sin_cos1;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -895,10 +901,10 @@ fn move_by(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>,
 }
 
 /// The backstop after the last round (section 9 of docs/contact.md): fibres of pairs
-/// still closer than their contact distance are kept where they started the step (their
-/// centres, axes and normals; velocities as the solve left them), and so, in turn, is
-/// every fibre that then overlaps one of them. From a start without overlaps no pair is
-/// left closer than its contact distance. Returns which fibres it froze.
+/// still closer than (1 − [`FREEZE_DEPTH`]) of their contact distance are kept where they
+/// started the step (their centres, axes and normals; velocities as the solve left
+/// them), and so, in turn, is every fibre that then comes that close to one of them. From
+/// a start where no pair was that close, none is left so. Returns which fibres it froze.
 #[allow(clippy::too_many_arguments)]
 fn freeze_what_still_overlaps<S: Segments>(
     s: &S,
@@ -914,7 +920,7 @@ fn freeze_what_still_overlaps<S: Segments>(
     let overlapping = |cands: &[Candidate], fibres: &[Fibre]| {
         cands
             .iter()
-            .any(|c| geometry(fibres, c).2 / c.reach < -1e-6)
+            .any(|c| geometry(fibres, c).2 / c.reach < -FREEZE_DEPTH)
     };
     if !overlapping(cands, fibres) {
         return frozen;
@@ -925,7 +931,7 @@ fn freeze_what_still_overlaps<S: Segments>(
     loop {
         let mut newly: Vec<usize> = cands
             .iter()
-            .filter(|c| geometry(fibres, c).2 / c.reach < -1e-6)
+            .filter(|c| geometry(fibres, c).2 / c.reach < -FREEZE_DEPTH)
             .flat_map(|c| [c.a.0, c.b.0])
             .filter(|&k| !frozen[k])
             .collect();
@@ -939,6 +945,19 @@ fn freeze_what_still_overlaps<S: Segments>(
             moved[k] = true;
             for (seg, was) in fibres[k].segments.iter_mut().zip(&start[k].segments) {
                 (seg.r, seg.z, seg.n) = (was.r, was.z, was.n);
+            }
+        }
+        // a pair both of whose fibres are kept at the start is on the side it is on there
+        // (one found after a round took the side it had then, which corrections that
+        // pushed it through may have turned)
+        for c in cands.iter_mut().filter(|c| frozen[c.a.0] && frozen[c.b.0]) {
+            let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
+            let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+            let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
+            let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+            let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
+            if v.norm() > 1e-12 * c.reach {
+                c.normal0 = v.normalize();
             }
         }
         let fresh: Vec<Candidate> = search
@@ -1670,11 +1689,14 @@ pub(crate) mod tests {
         let overlapping = |fs: &[Fibre], cands: &[Candidate]| {
             cands
                 .iter()
-                .filter(|c| geometry(fs, c).2 / c.reach < -1e-6)
+                .filter(|c| geometry(fs, c).2 / c.reach < -FREEZE_DEPTH)
                 .count()
         };
         let first = overlapping(&free, &cands);
-        assert!(first > 5, "only {first} overlapping pairs: the test checks little");
+        assert!(
+            first > 5,
+            "only {first} overlapping pairs: the test checks little"
+        );
         let mut fibres = free.clone();
         let mut moved = vec![false; free.len()];
         // every fibre is loaded already
@@ -1689,7 +1711,7 @@ pub(crate) mod tests {
             &mut load,
         );
         assert_eq!(overlapping(&fibres, &cands), 0);
-        assert!(touching(&fibres, &period, -1e-6).is_empty());
+        assert!(touching(&fibres, &period, -FREEZE_DEPTH).is_empty());
         let n_frozen = frozen.iter().filter(|&&f| f).count();
         assert!(n_frozen > 0 && n_frozen < fibres.len(), "{n_frozen} frozen");
         for (k, f) in fibres.iter().enumerate() {
@@ -1699,6 +1721,33 @@ pub(crate) mod tests {
             }
             assert_eq!(moved[k], frozen[k]);
         }
+        // pairs on the wrong side (as a pair found after a round can be, when corrections
+        // pushed it through): once both fibres are kept at the start, each is judged on
+        // the side it is on there
+        let mut cands = search.pairs();
+        let mut turned = 0;
+        for c in cands
+            .iter_mut()
+            .filter(|c| geometry(&free, c).2 > 0.0)
+            .take(20)
+        {
+            c.normal0 = -c.normal0;
+            turned += 1;
+        }
+        assert_eq!(turned, 20);
+        let mut fibres = free.clone();
+        let mut moved = vec![false; free.len()];
+        freeze_what_still_overlaps(
+            &view,
+            &search,
+            &mut cands,
+            &mut fibres,
+            &before,
+            &mut moved,
+            &mut load,
+        );
+        assert_eq!(overlapping(&fibres, &cands), 0);
+        assert!(touching(&fibres, &period, -FREEZE_DEPTH).is_empty());
     }
 
     /// Friction: a fibre lying across two fixed ones (rails 12 apart, so it cannot tip),
