@@ -144,7 +144,7 @@ pub fn random_suspension_avoiding(
     let cells = |l: f64| ((l / reach).floor() as usize).max(1);
     let (cx, cy, cz) = (cells(lx), cells(height), cells(lz));
     let (wx, wy, wz) = (lx / cx as f64, height / cy as f64, lz / cz as f64);
-    let mut grid: Vec<Vec<(Vector3<f64>, Vector3<f64>, f64)>> = vec![Vec::new(); cx * cy * cz];
+    let mut grid: Vec<Vec<PlacedSegment>> = vec![Vec::new(); cx * cy * cz];
     let cell_of = |p: &Vector3<f64>| -> [usize; 3] {
         [
             ((p.x.rem_euclid(lx) / wx) as usize).min(cx - 1),
@@ -208,11 +208,15 @@ pub fn random_suspension_avoiding(
     Ok(out)
 }
 
+/// A placed segment in the placement's cells: its end points and how close a new one may
+/// come.
+type PlacedSegment = (Vector3<f64>, Vector3<f64>, f64);
+
 /// Whether a candidate fibre's segments (end points `e`) come closer to a placed segment
 /// than that segment's distance (periodic in x and z: the nearest image).
 fn overlaps(
     e: &[Vector3<f64>],
-    grid: &[Vec<(Vector3<f64>, Vector3<f64>, f64)>],
+    grid: &[Vec<PlacedSegment>],
     cell_of: impl Fn(&Vector3<f64>) -> [usize; 3],
     [cx, cy, cz]: [usize; 3],
     [lx, lz]: [f64; 2],

@@ -900,6 +900,9 @@ fn move_by(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>,
     r.com += dv * dt;
 }
 
+/// Copies the fibres of candidate pairs into the solve's lists (now, at the start).
+type Load<'a> = dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]) + 'a;
+
 /// The backstop after the last round (section 9 of docs/contact.md): fibres of pairs
 /// still closer than (1 − [`FREEZE_DEPTH`]) of their contact distance are kept where they
 /// started the step (their centres, axes and normals; velocities as the solve left
@@ -913,7 +916,7 @@ fn freeze_what_still_overlaps<S: Segments>(
     fibres: &mut [Fibre],
     before: &[Fibre],
     moved: &mut [bool],
-    load: &mut dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]),
+    load: &mut Load<'_>,
 ) -> Vec<bool> {
     let n = fibres.len();
     let mut frozen = vec![false; n];
