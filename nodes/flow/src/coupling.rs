@@ -61,7 +61,7 @@ fn outbox_depth(run: &RunInfo) -> usize {
 /// The coupling loop's state between its stages.
 /// The self-induced correction's kernel weights: being computed on a thread of their
 /// own from the start, or ready.
-enum PendingWidths {
+pub(crate) enum PendingWidths {
     Computing(std::thread::JoinHandle<crate::self_induced::Widths>),
     Ready(crate::self_induced::Widths),
     /// The thread computing them panicked (reported once, as an error).
@@ -69,6 +69,22 @@ enum PendingWidths {
 }
 
 impl PendingWidths {
+    /// Starts computing the weights on a thread of their own when the run needs them (a
+    /// two-way run on the DNS with the history correction): started before the flow node
+    /// waits for its nodes to join, so that the wait hides them (≈0.5 s of CPU on the
+    /// coarse grid).
+    pub(crate) fn start(cfg: &FlowNodeConfig, run: &RunInfo, field: &Field) -> Option<Self> {
+        match (field, run.two_way, cfg.self_induced) {
+            (Field::Dns(d), true, crate::config::SelfInduced::History) => {
+                let (grid, re_tau) = (d.solver.grid.clone(), d.solver.cfg.re_tau);
+                Some(Self::Computing(std::thread::spawn(move || {
+                    crate::self_induced::Widths::new(&grid, re_tau)
+                })))
+            }
+            _ => None,
+        }
+    }
+
     /// The weights, waiting for their thread the first time.
     fn get(&mut self) -> Result<&crate::self_induced::Widths, FlowError> {
         if matches!(self, Self::Computing(_)) {
@@ -127,6 +143,7 @@ impl<'a> Coupling<'a> {
         states: States,
         hb_in: Inbox,
         stats: Option<RunningStats>,
+        self_widths: Option<PendingWidths>,
     ) -> Result<Self, FlowError> {
         let cpu_from = fiberflow_bus::usage::process_cpu_s();
         let threads_from = fiberflow_bus::usage::threads_cpu_s();
@@ -139,16 +156,6 @@ impl<'a> Coupling<'a> {
         let histories = match &run.resume_dir {
             Some(dir) if run.two_way => crate::checkpoint::read_histories(dir)?,
             _ => BTreeMap::new(),
-        };
-        let self_widths = match (&field, run.two_way, cfg.self_induced) {
-            (Field::Dns(d), true, crate::config::SelfInduced::History) => {
-                // computed beside the wait for the first states (≈0.5 s on the coarse grid)
-                let (grid, re_tau) = (d.solver.grid.clone(), d.solver.cfg.re_tau);
-                Some(PendingWidths::Computing(std::thread::spawn(move || {
-                    crate::self_induced::Widths::new(&grid, re_tau)
-                })))
-            }
-            _ => None,
         };
         if run.two_way {
             tracing::info!(

@@ -55,9 +55,21 @@ pub fn serve(
     // the states alone: metrics (hundreds of kB per group and step at scale) never reach
     // this node
     let mut states = States::new(Inbox::new(bus.subscribe(&t.fiber_state("*"))?));
+    // two-way: the self-induced correction's weights, computed while the nodes join
+    let widths = crate::coupling::PendingWidths::start(cfg, run, &field);
     join(cfg, &bus, &t, run, &mut hb_in)?;
     announce(cfg, &bus, &t, run, &mut states)?;
-    let mut c = Coupling::new(cfg, bus, t, run, field, states, hb_in, resumed_stats)?;
+    let mut c = Coupling::new(
+        cfg,
+        bus,
+        t,
+        run,
+        field,
+        states,
+        hb_in,
+        resumed_stats,
+        widths,
+    )?;
     for k in run.start_step..=run.steps {
         c.gather(k)?;
         c.checkpoint_if_due(k)?;
