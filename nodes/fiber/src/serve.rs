@@ -270,8 +270,8 @@ struct Served {
     ann_in: Inbox,
     /// The flow node's heartbeats, when it lives on another host ([`Checkpointing::flow_elsewhere`]).
     flow_hb: Option<Inbox>,
-    /// A sharded group with contact: the free steps this shard sends to the group's other
-    /// shards and reads of theirs.
+    /// Contact across pieces (the group's other shards, its suspension's other groups):
+    /// the free steps this piece sends to them and reads of theirs.
     exchange: Option<Exchange>,
     /// Index of this piece's first fibre in the order of the contact solve.
     order: usize,
@@ -331,10 +331,10 @@ impl Served {
                 cfg.group, cfg.shards
             ))
         })?;
-        // every shard builds the whole group and keeps its slice: the same fibres, bit for
-        // bit, whatever the shard count
-        // with contact, the pieces this one touches (the group's other shards, the other
-        // groups of its suspension) exchange their free steps every step
+        // every shard builds the whole group (and the groups of its suspension) and keeps
+        // its slice: the same fibres, bit for bit, whatever the shard count; with contact,
+        // the pieces this one touches (the group's other shards, the other groups of its
+        // suspension) exchange their free steps every step
         let members = ck
             .suspensions
             .iter()
