@@ -159,11 +159,11 @@ impl FlowNodeConfig {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// A valid DNS flow configuration on a 16³ grid.
-    fn dns_config() -> FlowNodeConfig {
+    pub(crate) fn dns_config() -> FlowNodeConfig {
         FlowNodeConfig {
             source: FlowSource::Dns {
                 dns: DnsConfig::with_cells(16, 16, 16),

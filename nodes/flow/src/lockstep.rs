@@ -351,7 +351,7 @@ pub(crate) fn admit(s: &FiberGroupState, k: u64, run: &RunInfo) -> Admit {
 
 /// A run of one group, `case1`, in one piece of one 7-segment fibre.
 #[cfg(test)]
-fn one_piece_run() -> RunInfo {
+pub(crate) fn one_piece_run() -> RunInfo {
     let groups = vec!["case1".to_string()];
     RunInfo {
         run_id: "fz".into(),

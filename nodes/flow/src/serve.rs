@@ -151,8 +151,12 @@ fn join(
             heartbeat(bus, t, lifecycle::READY, run.start_step, 0)?;
             last_hb = Instant::now();
         }
+        // READY only: a node says RUNNING once it has this run's announcement, which goes
+        // out after the join, so a RUNNING now comes from a node of the run before a
+        // restart (a worker host's node still stepping, about to fail on this READY), which
+        // will not answer the announcement
         if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {
-            if hb.state == lifecycle::READY || hb.state == lifecycle::RUNNING {
+            if hb.state == lifecycle::READY {
                 joined.insert(hb.node);
             }
         }
@@ -196,6 +200,49 @@ fn announce(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Only READY joins a node: a RUNNING heartbeat (a node of the run before a restart,
+    /// still stepping) leaves the join waiting, and times out naming the node; READY
+    /// completes it.
+    #[test]
+    fn a_running_node_of_the_run_before_does_not_join() {
+        use fiberflow_messages::{encode, SCHEMA_VERSION};
+        let bus: BusHandle = std::sync::Arc::new(fiberflow_bus::inproc::InprocBus::new());
+        let mut run = crate::lockstep::one_piece_run();
+        run.expected_nodes = vec!["stiff".into()];
+        let t = Topics::new(&run.run_id);
+        let mut cfg = crate::config::tests::dns_config();
+        cfg.join_timeout_s = 1.0;
+        let say = |state: u8| {
+            let hb = Heartbeat {
+                schema_version: SCHEMA_VERSION,
+                node: "stiff".into(),
+                state,
+                step: 229,
+                dropped: 0,
+            };
+            let (bus, topic) = (bus.clone(), t.heartbeat("stiff"));
+            std::thread::spawn(move || {
+                for _ in 0..30 {
+                    bus.publish(&topic, &encode(&hb)).unwrap();
+                    std::thread::sleep(Duration::from_millis(50));
+                }
+            })
+        };
+        let mut hb_in = Inbox::new(
+            bus.subscribe(&format!("{}/control/heartbeat/**", t.prefix()))
+                .unwrap(),
+        );
+        let talker = say(lifecycle::RUNNING);
+        let e = join(&cfg, &bus, &t, &run, &mut hb_in)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("join timeout") && e.contains("stiff"), "{e}");
+        talker.join().unwrap();
+        let talker = say(lifecycle::READY);
+        join(&cfg, &bus, &t, &run, &mut hb_in).unwrap();
+        talker.join().unwrap();
+    }
 
     /// A coupled run's dt_plus is checked against the RK3 Courant limit on the field it
     /// starts from, with an error that names the key and the allowed range.
