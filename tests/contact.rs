@@ -68,6 +68,34 @@ fn run(file: &Path, out: &Path, transport: &str) {
     assert!(w.is_empty(), "{transport}: warnings in node logs: {w:#?}");
 }
 
+/// Runs the launch over iceoryx2, kills fibre node `node` (SIGKILL) after the first
+/// checkpoint, and checks that the launcher rolled the run back and completed it.
+fn run_killing(file: &Path, out: &Path, sets: &[&str], node: &str) {
+    std::fs::create_dir_all(out).unwrap();
+    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
+    let mut child = cmd(file, out, "iceoryx2", sets)
+        .stdout(std::process::Stdio::null())
+        .stderr(se)
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(out, 120);
+    let spec = out
+        .join(format!("config/{node}.toml"))
+        .display()
+        .to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(
+        pids.len(),
+        1,
+        "fibre node {node} not found (run over already?)"
+    );
+    // SAFETY: plain syscall on a process this test's launcher started
+    unsafe { libc::kill(pids[0], libc::SIGKILL) };
+    assert!(child.wait().unwrap().success());
+    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
+    assert!(err.contains("restarting every node from step"), "{err}");
+}
+
 /// Every recorded fibre state by step, decoded.
 fn states(out: &Path) -> BTreeMap<u64, fiberflow_messages::FiberGroupState> {
     let mut by = BTreeMap::new();
@@ -146,21 +174,7 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
     // kill -9 of the fibre node after the first checkpoint: rolled back, resumed, and
     // every state bitwise that of the uninterrupted run
     let out = dir.join("kill-fibres");
-    std::fs::create_dir_all(&out).unwrap();
-    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
-    let mut child = cmd(&file, &out, "iceoryx2", &[])
-        .stdout(std::process::Stdio::null())
-        .stderr(se)
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&out, 120);
-    let spec = out.join("config/suspension.toml").display().to_string();
-    let pids = pids_with(&spec);
-    assert_eq!(pids.len(), 1, "fibre node not found (run over already?)");
-    unsafe { libc::kill(pids[0], libc::SIGKILL) };
-    assert!(child.wait().unwrap().success());
-    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
-    assert!(err.contains("restarting every node from step"), "{err}");
+    run_killing(&file, &out, &[], "suspension");
     assert_same(&a, &states(&out), "kill -9 fibres, restarted");
     std::fs::remove_dir_all(&dir).ok();
 }
@@ -213,21 +227,7 @@ fn contact_across_three_shards_is_bitwise_the_unsharded_run() {
         }
     }
     let out = dir.join("three-kill");
-    std::fs::create_dir_all(&out).unwrap();
-    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
-    let mut child = cmd(&file, &out, "iceoryx2", &three)
-        .stdout(std::process::Stdio::null())
-        .stderr(se)
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&out, 120);
-    let spec = out.join("config/suspension.1.toml").display().to_string();
-    let pids = pids_with(&spec);
-    assert_eq!(pids.len(), 1, "shard 1 not found (run over already?)");
-    unsafe { libc::kill(pids[0], libc::SIGKILL) };
-    assert!(child.wait().unwrap().success());
-    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
-    assert!(err.contains("restarting every node from step"), "{err}");
+    run_killing(&file, &out, &three, "suspension.1");
     let b = whole_by_step(&out);
     assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
     for (k, v) in &a {
@@ -305,18 +305,7 @@ fn both_groups(out: &Path) -> BTreeMap<u64, Three> {
     by.into_iter()
         .map(|(k, g)| {
             let (a, b) = (g["light"].clone(), g["heavy"].clone());
-            let mut both = a.clone();
-            both.group = "both".into();
-            both.group_fibers += b.group_fibers;
-            both.segments_per_fiber.extend(&b.segments_per_fiber);
-            both.segment_length.extend(&b.segment_length);
-            both.diameter.extend(&b.diameter);
-            both.density_ratio.extend(&b.density_ratio);
-            both.layer.extend(&b.layer);
-            both.centre.extend(&b.centre);
-            both.axis.extend(&b.axis);
-            both.velocity.extend(&b.velocity);
-            both.angular_velocity.extend(&b.angular_velocity);
+            let both = fiberflow_analysis::flocs::merged(&[&a, &b]).expect("one step");
             (k, (both, a, b))
         })
         .collect()

@@ -1221,6 +1221,41 @@ pub(crate) mod tests {
         Rigid::of(f, false).com
     }
 
+    /// Total momentum of the fibres' segments.
+    fn momentum(fs: &[Fibre]) -> Vector3<f64> {
+        fs.iter()
+            .flat_map(|f| f.segments.iter().zip(&f.props))
+            .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
+    }
+
+    /// After a contact solve of `fibres` (`free`: their momentum after the free step):
+    /// momentum is unchanged, and the contact forces and their torques about the origin
+    /// (each pair's second segment at its image beside the first) sum to zero, to
+    /// round-off relative to the largest force (and `lever`, the box, for torques).
+    fn assert_balanced(out: &Outcome, fibres: &[Fibre], free: Vector3<f64>, lever: f64) {
+        let scale: f64 = fibres
+            .iter()
+            .flat_map(|f| f.segments.iter().zip(&f.props))
+            .map(|(s, p)| s.v.norm() * p.mass)
+            .sum();
+        assert!((momentum(fibres) - free).norm() <= 1e-12 * scale);
+        let (force, torque) = out.segment_loads(fibres, DT);
+        let total_f = force.iter().sum::<Vector3<f64>>();
+        let fmax = force.iter().map(|f| f.norm()).fold(0.0, f64::max);
+        assert!(total_f.norm() <= 1e-12 * fmax.max(1e-300) * force.len() as f64);
+        let mut total_t: Vector3<f64> = torque.iter().sum();
+        for ct in &out.contacts {
+            let fa = ct.impulse / DT;
+            let ra = fibres[ct.a.0].segments[ct.a.1].r;
+            let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
+            total_t += ra.cross(&fa) + rb.cross(&(-fa));
+        }
+        assert!(
+            total_t.norm() <= 1e-11 * (fmax * lever).max(1e-300),
+            "{total_t}"
+        );
+    }
+
     pub(crate) fn uniform(v: Vector3<f64>) -> FluidSample {
         FluidSample {
             vel: v,
@@ -1509,11 +1544,6 @@ pub(crate) mod tests {
             period,
             ..Default::default()
         };
-        let momentum = |fs: &[Fibre]| {
-            fs.iter()
-                .flat_map(|f| f.segments.iter().zip(&f.props))
-                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
-        };
         let mut contacts = 0;
         for _ in 0..25 {
             let before = fibres.clone();
@@ -1524,35 +1554,7 @@ pub(crate) mod tests {
             let free = momentum(&fibres);
             let out = resolve(&mut fibres, &before, &[], &c, DT);
             contacts += out.contacts.len();
-            let scale: f64 = fibres
-                .iter()
-                .flat_map(|f| f.segments.iter().zip(&f.props))
-                .map(|(s, p)| s.v.norm() * p.mass)
-                .sum();
-            assert!((momentum(&fibres) - free).norm() <= 1e-12 * scale);
-            let (force, torque) = out.segment_loads(&fibres, DT);
-            let total_f = force.iter().sum::<Vector3<f64>>();
-            let fmax = force.iter().map(|f| f.norm()).fold(0.0, f64::max);
-            assert!(total_f.norm() <= 1e-12 * fmax.max(1e-300) * force.len() as f64);
-            // torque about the origin: each segment's r × F plus its own torque, the
-            // second segment of a pair taken at its image beside the first
-            let mut total_t = Vector3::zeros();
-            let mut k = 0;
-            for f in &fibres {
-                for s in &f.segments {
-                    total_t += torque[k];
-                    k += 1;
-                    let _ = s;
-                }
-            }
-            for ct in &out.contacts {
-                let fa = ct.impulse / DT;
-                let ra = fibres[ct.a.0].segments[ct.a.1].r;
-                let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
-                total_t += ra.cross(&fa) + rb.cross(&(-fa));
-            }
-            let tmax = fmax * side;
-            assert!(total_t.norm() <= 1e-11 * tmax.max(1e-300), "{total_t}");
+            assert_balanced(&out, &fibres, free, side);
             let m = min_distance(&fibres, &period);
             assert!(
                 m >= 0.99 * D,
@@ -1612,11 +1614,6 @@ pub(crate) mod tests {
             period,
             ..Default::default()
         };
-        let momentum = |fs: &[Fibre]| {
-            fs.iter()
-                .flat_map(|f| f.segments.iter().zip(&f.props))
-                .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
-        };
         let mut contacts = 0;
         for _ in 0..10 {
             let before = fibres.clone();
@@ -1627,23 +1624,7 @@ pub(crate) mod tests {
             let free = momentum(&fibres);
             let out = resolve(&mut fibres, &before, &[], &c, DT);
             contacts += out.contacts.len();
-            let scale: f64 = fibres
-                .iter()
-                .flat_map(|f| f.segments.iter().zip(&f.props))
-                .map(|(s, p)| s.v.norm() * p.mass)
-                .sum();
-            assert!((momentum(&fibres) - free).norm() <= 1e-12 * scale);
-            let (force, torque) = out.segment_loads(&fibres, DT);
-            let fsum: f64 = force.iter().map(|f| f.norm()).sum();
-            assert!(force.iter().sum::<Vector3<f64>>().norm() <= 1e-12 * fsum.max(1e-300));
-            let mut total_t: Vector3<f64> = torque.iter().sum();
-            for ct in &out.contacts {
-                let fa = ct.impulse / DT;
-                let ra = fibres[ct.a.0].segments[ct.a.1].r;
-                let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
-                total_t += ra.cross(&fa) + rb.cross(&(-fa));
-            }
-            assert!(total_t.norm() <= 1e-11 * fsum.max(1e-300) * lx, "{total_t}");
+            assert_balanced(&out, &fibres, free, lx);
             let m = touching(&fibres, &period, -0.01);
             assert!(
                 m.is_empty(),
