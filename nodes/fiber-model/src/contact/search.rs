@@ -488,13 +488,14 @@ fn fresh_pair(
 }
 
 /// The candidate pair of two segments in the step ([`Search::pairs`]): segments of
-/// different fibres whose mid-step centres are close enough for them to touch at some
+/// different fibres, or non-adjacent segments of one fibre (adjacent ones share a joint),
+/// whose mid-step centres are close enough for them to touch at some
 /// moment of the step — within (l_a + l_b)/2 + (d_a + d_b)/2 + |Δr_a − Δr_b|/2 + turn_a +
 /// turn_b, a necessary condition — and whose centre-lines at the start are within their
 /// contact distance plus the skin |Δr_a − Δr_b| + turn_a + turn_b ([`candidate`]).
 /// `first` is a bound on the first distance that every pair's exceeds.
 fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option<Candidate> {
-    if ea.fibre == eb.fibre {
+    if ea.fibre == eb.fibre && ea.segment.abs_diff(eb.segment) < 2 {
         return None;
     }
     let (ea, eb) = if ea.key() < eb.key() {
@@ -882,7 +883,7 @@ impl Search {
                     near.cells_within(&mid_q, radius, |n| {
                         for &j in &order[near.slots(n)] {
                             let (kb, ib) = here[j as usize];
-                            if kb != q {
+                            if kb != q || ib.abs_diff(i) >= 2 {
                                 found.extend(fresh_pair(
                                     (q, i),
                                     pq,
@@ -962,7 +963,8 @@ mod tests {
             })
     }
 
-    /// Every pair of segments of different fibres by [`pair`] alone (no cell list).
+    /// Every pair of segments of different fibres, and of non-adjacent segments of one
+    /// fibre, by [`pair`] alone (no cell list).
     fn all_pairs(search: &Search) -> Vec<Candidate> {
         let e = &search.entries;
         let mut out = Vec::new();
@@ -974,7 +976,8 @@ mod tests {
         out
     }
 
-    /// Every pair of segments of different fibres, one of them `moved`, that may have
+    /// Every pair of segments (of different fibres, or non-adjacent ones of one fibre),
+    /// one of them `moved`, that may have
     /// come within reach between `was` (the start of the step) and `now` (skin: their
     /// relative motion and turns) and overlaps now on the side it was on in `was`.
     fn all_overlaps(was: &[Fibre], now: &[Fibre], moved: &[usize]) -> Vec<Candidate> {
@@ -988,7 +991,9 @@ mod tests {
         let mut out = Vec::new();
         for (n, &(ka, ia)) in segs.iter().enumerate() {
             for &(kb, ib) in &segs[n + 1..] {
-                if ka == kb || !(moved.contains(&ka) || moved.contains(&kb)) {
+                if (ka == kb && ia.abs_diff(ib) < 2)
+                    || !(moved.contains(&ka) || moved.contains(&kb))
+                {
                     continue;
                 }
                 out.extend(fresh_pair(
