@@ -146,7 +146,8 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
     run(&file, &a_out, "inproc");
     let a = states(&a_out);
     assert_eq!(a.len(), 81, "steps 0..=80");
-    // fibres touch, and never come closer than 0.99 d (the box of the coarse grid)
+    // fibres touch, and never come closer than 0.99 d, to each other or to themselves (the
+    // box of the coarse grid)
     let box_plus = [
         2.0 * std::f64::consts::PI * 150.0,
         300.0,
@@ -159,6 +160,11 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
             r.closest_over_d >= 0.99,
             "step {step}: centre-lines {} d apart",
             r.closest_over_d
+        );
+        assert!(
+            r.self_closest_over_d >= 0.99,
+            "step {step}: a fibre's own segments {} d apart",
+            r.self_closest_over_d
         );
         touched = touched.max(r.contacts_per_fibre);
     }

@@ -6,7 +6,7 @@
 //! A run without contact has fibres that pass through each other: there the same numbers
 //! measure how much they interpenetrate.
 
-use fiberflow_fiber_model::contact::{closest_points, touching};
+use fiberflow_fiber_model::contact::{closest_points, self_touching, touching};
 use fiberflow_fiber_model::fibre::{Fibre, Segment, SegmentProps};
 use fiberflow_messages::FiberGroupState;
 use nalgebra::Vector3;
@@ -54,6 +54,11 @@ pub struct FlocRow {
     pub closest_over_d: f64,
     /// Crowding number N = (2/3) c_v (L/d)² of the group in the box.
     pub crowding: f64,
+    /// Pairs of non-adjacent segments of one fibre in contact (a fibre folded onto
+    /// itself), and their closest centre-lines over the mean diameter (∞ when none is
+    /// within 1% of touching; below 1, a fibre folded through itself).
+    pub self_contacts: usize,
+    pub self_closest_over_d: f64,
     /// The same by where the fibres are ([`BAND_NAMES`]).
     pub bands: [BandRow; 3],
 }
@@ -224,6 +229,8 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
     let in_flocs = size.iter().filter(|&&c| c >= 2).sum::<usize>();
     let mean_d = s.diameter.iter().sum::<f64>() / s.diameter.len().max(1) as f64;
     let closest = pairs.iter().map(|p| p.4).fold(f64::INFINITY, f64::min);
+    let own = self_touching(&fibres, CONTACT_TOLERANCE);
+    let own_closest = own.iter().map(|p| p.3).fold(f64::INFINITY, f64::min);
     let fibre_volume: f64 = fibres
         .iter()
         .flat_map(|f| f.props.iter())
@@ -246,6 +253,8 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         in_flocs: in_flocs as f64 / n.max(1) as f64,
         closest_over_d: closest / mean_d,
         crowding: 2.0 / 3.0 * cv * (length / mean_d).powi(2),
+        self_contacts: own.len(),
+        self_closest_over_d: own_closest / mean_d,
         bands,
     }
 }
@@ -314,7 +323,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
             ",fibres_{name},contacts_per_fibre_{name},share_in_flocs_{name}"
         );
     }
-    out.push('\n');
+    out.push_str(",self_contacts,self_closest_over_d\n");
     for r in rows {
         let _ = write!(
             out,
@@ -337,7 +346,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
                 b.fibres, b.contacts_per_fibre, b.in_flocs
             );
         }
-        out.push('\n');
+        let _ = writeln!(out, ",{},{:.5}", r.self_contacts, r.self_closest_over_d);
     }
     out
 }
@@ -345,7 +354,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
 /// The Markdown table of every group's first and last recorded state.
 pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
     let mut out = String::from(
-        "# Contacts and flocs\n\nSegments of different fibres are in contact when their centre-lines are within 1% of a diameter; flocs are clusters of two or more fibres joined by contacts. Without `[fibers.contact]` fibres pass through each other, and these numbers measure how much.\n\n| group | t+ | crowding N | contacts per fibre | flocs | largest floc | share in flocs | closest / d | contacts per fibre: wall / log / centre (fibres) |\n|---|---|---|---|---|---|---|---|---|\n",
+        "# Contacts and flocs\n\nSegments of different fibres are in contact when their centre-lines are within 1% of a diameter; flocs are clusters of two or more fibres joined by contacts; \"closest own\" is the closest approach of non-adjacent segments of one fibre (below 1: a fibre folded through itself). Without `[fibers.contact]` fibres pass through each other, and these numbers measure how much.\n\n| group | t+ | crowding N | contacts per fibre | flocs | largest floc | share in flocs | closest / d | closest own / d | contacts per fibre: wall / log / centre (fibres) |\n|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for (name, rows) in groups {
         let ends = match (rows.first(), rows.last()) {
@@ -356,7 +365,7 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
         for r in ends {
             let _ = writeln!(
                 out,
-                "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} | {} |",
+                "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} | {} | {} |",
                 r.t_plus,
                 r.crowding,
                 r.contacts_per_fibre,
@@ -365,6 +374,11 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
                 r.in_flocs,
                 if r.closest_over_d.is_finite() {
                     format!("{:.4}", r.closest_over_d)
+                } else {
+                    "> 1.01".into()
+                },
+                if r.self_closest_over_d.is_finite() {
+                    format!("{:.4}", r.self_closest_over_d)
                 } else {
                     "> 1.01".into()
                 },
@@ -442,6 +456,25 @@ mod tests {
         }
     }
 
+    /// A fibre whose third segment lies back alongside its first, 0.2 apart (folded through
+    /// itself): one pair of its own segments in contact, 0.2 / 0.232 apart; its neighbours
+    /// along the chain (adjacent segments) do not count, nor does it touch another fibre.
+    #[test]
+    fn a_fibre_folded_through_itself_is_counted() {
+        let mut s = state(&[(10.0, 0.0), (60.0, 0.0)]);
+        s.centre[6..9].copy_from_slice(&[10.2, 0.0, 100.0]);
+        let r = of_state(&s, [942.0, 300.0, 471.0]);
+        assert_eq!(r.self_contacts, 1);
+        assert!((r.self_closest_over_d - 0.2 / 0.232).abs() < 1e-12);
+        assert_eq!(r.segment_contacts, 0);
+        let text = csv(&[r]);
+        let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+        let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
+        let at = header.iter().position(|h| *h == "self_contacts").unwrap();
+        assert_eq!(row[at], "1");
+        assert_eq!(row[at + 1], "0.86207");
+    }
+
     /// Four parallel fibres: a chain of three touching (0.232 and 0.233 apart, within 1%),
     /// one alone; a pair 0.24 apart (3% off) does not count. Flocs, sizes, contacts per
     /// fibre and the closest approach follow by hand; the crowding number is (2/3) c_v (L/d)².
@@ -468,6 +501,8 @@ mod tests {
             "{}",
             r.closest_over_d
         );
+        assert_eq!(r.self_contacts, 0);
+        assert!(r.self_closest_over_d.is_infinite());
         let cv =
             5.0 * std::f64::consts::FRAC_PI_4 * 0.232f64.powi(2) * 21.0 / (942.0 * 300.0 * 471.0);
         let want = 2.0 / 3.0 * cv * (21.0 / 0.232f64).powi(2);
@@ -556,13 +591,13 @@ mod tests {
         assert!((centre.in_flocs - 1.0).abs() < 1e-12);
         let csv = csv(&[r]);
         assert!(csv.lines().next().unwrap().ends_with(
-            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre"
+            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre,self_contacts,self_closest_over_d"
         ));
         assert!(csv
             .lines()
             .nth(1)
             .unwrap()
-            .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000"));
+            .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000,0,inf"));
     }
 
     /// Floc members are named by their floc's lowest fibre; a lone fibre is in none.

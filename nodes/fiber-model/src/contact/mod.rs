@@ -360,6 +360,37 @@ pub fn touching(
         .collect()
 }
 
+/// Pairs of non-adjacent segments of one fibre whose centre-lines are closer than their
+/// contact distance times (1 + `tolerance`): (fibre, segment i, segment j > i + 1,
+/// distance), in (fibre, i, j) order. A fibre folded through itself has such pairs
+/// closer than d.
+pub fn self_touching(fibres: &[Fibre], tolerance: f64) -> Vec<(usize, usize, usize, f64)> {
+    fibres
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(k, f)| {
+            let mut out = Vec::new();
+            for i in 0..f.len() {
+                for j in i + 2..f.len() {
+                    let (pi, pj) = (&f.props[i].shape, &f.props[j].shape);
+                    let reach = 0.5 * (pi.diameter + pj.diameter) * (1.0 + tolerance);
+                    let far = 0.5 * (pi.length + pj.length) + reach;
+                    if !((f.segments[i].r - f.segments[j].r).norm() < far) {
+                        continue;
+                    }
+                    let ((p0, p1), (q0, q1)) = (ends(f, i), ends(f, j));
+                    let (s, t) = closest_points(&p0, &p1, &q0, &q1);
+                    let distance = ((p0 + (p1 - p0) * s) - (q0 + (q1 - q0) * t)).norm();
+                    if distance < reach {
+                        out.push((k, i, j, distance));
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
 /// The state of a candidate at the end of the free step: contact point, normal (on a's
 /// side) and separation minus contact distance (negative: too close, or crossed), and the
 /// closest points' parameters along each segment.
@@ -1774,15 +1805,22 @@ pub(crate) mod tests {
         );
     }
 
-    /// Smallest centre-line distance between non-adjacent segments of one fibre.
+    /// Smallest centre-line distance between non-adjacent segments of one fibre (brute
+    /// force), checked against [`self_touching`] with a tolerance that takes them all.
     fn min_self_distance(f: &Fibre) -> f64 {
         let mut m = f64::INFINITY;
+        let mut pairs = 0;
         for i in 0..f.len() {
             for j in i + 2..f.len() {
                 let ((p0, p1), (q0, q1)) = (ends(f, i), ends(f, j));
                 m = m.min(segment_distance(p0, p1, q0, q1));
+                pairs += 1;
             }
         }
+        let all = self_touching(std::slice::from_ref(f), 1e9);
+        assert_eq!(all.len(), pairs);
+        let closest = all.iter().map(|p| p.3).fold(f64::INFINITY, f64::min);
+        assert!((closest - m).abs() <= 1e-12 * m);
         m
     }
 
