@@ -95,9 +95,10 @@ fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
     out
 }
 
-/// Where the segments of different fibres touch in one full state: the midpoint of the
-/// closest points of each pair in contact (within 1% of its contact distance), folded into
-/// the box along the periodic x1 and x3, in (fibre, segment) order of the pairs.
+/// Where segments touch in one full state: the midpoint of the closest points of each
+/// pair of segments of different fibres in contact (within 1% of its contact distance), in
+/// (fibre, segment) order of the pairs, then of each pair of a fibre's own non-adjacent
+/// segments in contact; folded into the box along the periodic x1 and x3.
 pub fn contact_points(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<[f64; 3]> {
     let fibres = fibres_of(s);
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
@@ -105,8 +106,12 @@ pub fn contact_points(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<[f64; 3]> 
         let (sg, h) = (&f.segments[i], 0.5 * f.props[i].shape.length);
         (sg.r - sg.z * h, sg.r + sg.z * h)
     };
+    let own = self_touching(&fibres, CONTACT_TOLERANCE)
+        .into_iter()
+        .map(|(k, i, j, _)| (k, i, k, j, 0.0));
     touching(&fibres, &period, CONTACT_TOLERANCE)
         .into_iter()
+        .chain(own)
         .map(|(fa, ia, fb, ib, _)| {
             let (p0, p1) = ends(&fibres[fa], ia);
             let (q0, q1) = ends(&fibres[fb], ib);
@@ -558,6 +563,16 @@ mod tests {
             assert!((q[0] - 10.116).abs() < 1e-9 && q[1].abs() < 1e-12, "{q:?}");
             assert!((100.0 - 1.5..=118.0 + 1.5).contains(&q[2]), "{q:?}");
         }
+        // a fibre whose third segment lies back alongside its first, 0.2 apart: one more
+        // point, between those two
+        let mut folded = state(&[(10.0, 0.0), (10.232, 0.0)]);
+        folded.centre[6..9].copy_from_slice(&[9.8, 0.0, 100.0]);
+        let p = contact_points(&folded, box_plus);
+        let last = p.last().copied().unwrap_or_default();
+        assert!(
+            (last[0] - 9.9).abs() < 1e-9 && (100.0 - 1.5..=100.0 + 1.5).contains(&last[2]),
+            "{last:?}"
+        );
         let p = contact_points(&state(&[(0.05, 0.0), (941.95 - 0.132, 0.0)]), box_plus);
         assert!(!p.is_empty());
         for q in &p {
