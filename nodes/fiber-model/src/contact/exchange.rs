@@ -106,7 +106,9 @@ impl OtherPiece {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::contact::tests::{com, crowded_box, fibre, min_distance, params, uniform, D, DT};
+    use crate::contact::tests::{
+        com, crowded_box, fibre, hairpin, min_distance, params, uniform, D, DT,
+    };
     use crate::contact::ContactParams;
     use crate::group::FibreGroup;
     use crate::step::{FluidSample, ModelParams};
@@ -192,12 +194,12 @@ mod tests {
         cuts: &[usize],
         fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample,
         steps: u64,
-    ) -> (usize, f64) {
+    ) -> (usize, f64, usize) {
         let mut whole = FibreGroup::new(p, fibres);
         whole.set_contact(Some(c));
         let mut shards = Shards::cut(&whole, cuts);
         let shard_of = |k: usize| cuts.iter().rposition(|&f| f <= k);
-        let (mut across, mut closest) = (0, f64::INFINITY);
+        let (mut across, mut closest, mut own) = (0, f64::INFINITY, 0);
         for step in 0..steps {
             let samples: Vec<FluidSample> = (0..whole.len())
                 .flat_map(|k| {
@@ -216,9 +218,15 @@ mod tests {
                 .iter()
                 .filter(|x| shard_of(x.a.0) != shard_of(x.b.0))
                 .count();
+            own += whole
+                .last_contact()
+                .contacts
+                .iter()
+                .filter(|x| x.a.0 == x.b.0)
+                .count();
             closest = closest.min(min_distance(&whole.fibres(), &c.period));
         }
-        (across, closest)
+        (across, closest, own)
     }
 
     /// 60 crowded fibres in a periodic box in shear, μ = 0.3, cut into three shards of
@@ -243,11 +251,40 @@ mod tests {
             grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         };
         let p = params(Vector3::zeros());
-        let (across, _) = whole_against_shards(fibres, p, c, &[0, 17, 40, n], &shear, 10);
+        let (across, _, _) = whole_against_shards(fibres, p, c, &[0, 17, 40, n], &shear, 10);
         assert!(
             across > 0,
             "no contact across shards: the test checks nothing"
         );
+    }
+
+    /// Three hairpins side by side (their arms driven into each other, as in
+    /// `contact::tests::a_fibre_folded_onto_itself_does_not_pass_through_itself`, and the
+    /// hairpins into each other), each in a shard of its own: every shard's fibres have the
+    /// unsharded group's bits while the fibres touch themselves and each other.
+    #[test]
+    fn fibres_touching_themselves_in_shards_keep_the_bits() {
+        let fibres: Vec<Fibre> = (0..3)
+            .map(|k| {
+                let mut f = hairpin();
+                let shift = Vector3::new(0.0, 0.0, 0.3 * k as f64);
+                f.segments.iter_mut().for_each(|s| s.r += shift);
+                f
+            })
+            .collect();
+        let c = ContactParams {
+            friction: 0.5,
+            ..Default::default()
+        };
+        let u = 2.0;
+        let fluid = |k: usize, r: &Vector3<f64>| {
+            let v = if r.x < -1.0 { -u * r.y.signum() } else { 0.0 };
+            uniform(Vector3::new(0.0, v, if k == 1 { 0.5 } else { 0.0 }))
+        };
+        let p = params(Vector3::zeros());
+        let (across, _, own) = whole_against_shards(fibres, p, c, &[0, 1, 2, 3], &fluid, 40);
+        assert!(own > 10, "the fibres touched themselves {own} times");
+        assert!(across > 0, "no contact across shards: the test checks less");
     }
 
     /// Two groups of unlike fibres in one suspension (30 case-1 fibres, 30 of shorter,
@@ -282,7 +319,7 @@ mod tests {
         };
         let p = params(Vector3::zeros());
         let cuts = [0, 11, n / 2, n / 2 + 16, n];
-        let (across, _) = whole_against_shards(fibres, p, c, &cuts, &shear, 12);
+        let (across, _, _) = whole_against_shards(fibres, p, c, &cuts, &shear, 12);
         assert!(
             across > 0,
             "no contact across pieces: the test checks nothing"
@@ -308,7 +345,7 @@ mod tests {
             uniform(Vector3::new(0.0, if k == 0 { -u } else { u }, 0.0))
         };
         let mut whole = FibreGroup::new(p, vec![a.clone(), b.clone()]);
-        let (across, closest) = whole_against_shards(
+        let (across, closest, _) = whole_against_shards(
             vec![a, b],
             p,
             ContactParams::default(),
@@ -354,7 +391,7 @@ mod tests {
                 friction: mu,
                 ..Default::default()
             };
-            let (across, closest) = whole_against_shards(fs, p, c, &[0, 1, 2], &shear, 160);
+            let (across, closest, _) = whole_against_shards(fs, p, c, &[0, 1, 2], &shear, 160);
             assert!(across >= 1, "μ = {mu}: they never touched");
             assert!(
                 closest >= 0.99 * D,

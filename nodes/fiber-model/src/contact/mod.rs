@@ -1827,7 +1827,7 @@ pub(crate) mod tests {
     /// A hairpin: nine case-1-like segments, four along +x at y = +1.5, one down across
     /// the bend at x = 0, four back along −x at y = −1.5 (arms 3 wall units apart), no
     /// bending stiffness (free joints).
-    fn hairpin() -> Fibre {
+    pub(crate) fn hairpin() -> Fibre {
         let mut f =
             Fibre::straight(Vector3::zeros(), Vector3::x(), &[L; 9], &[D; 9], 1150.0).unwrap();
         for (i, s) in f.segments.iter_mut().enumerate() {
