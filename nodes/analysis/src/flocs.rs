@@ -398,8 +398,8 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
     out
 }
 
-/// `{group}_flocs.png`: contacts per fibre, the share of fibres in flocs and the closest
-/// approach over d, against t+.
+/// `{group}_flocs.png`: contacts per fibre, the share of fibres in flocs, the closest
+/// approach of two fibres and of a fibre's own segments over d, against t+.
 pub fn plot(
     path: &std::path::Path,
     group: &str,
@@ -424,6 +424,7 @@ pub fn plot(
             series("contacts per fibre", 0, &|r| r.contacts_per_fibre),
             series("share of fibres in flocs", 1, &|r| r.in_flocs),
             series("closest centre-lines / d", 2, &|r| r.closest_over_d),
+            series("closest own segments / d", 3, &|r| r.self_closest_over_d),
         ],
         false,
         false,
