@@ -866,18 +866,31 @@ impl Chain {
         let pushes: Vec<_> = pushes.iter().map(|&((i, p), j)| (i, p, j)).collect();
         let change = self.response(f, &pushes, Some(dt));
         for ((range, r), (dv, dw)) in self.pieces.iter_mut().zip(change) {
-            let phi = dw * dt;
-            for s in f.segments[range.clone()].iter_mut() {
-                let rho = s.r - r.com;
-                s.v += dv + dw.cross(&rho);
-                s.w += dw;
-                s.r = r.com + dv * dt + rotate_vector(&rho, &phi);
-                s.z = rotate_vector(&s.z, &phi).normalize();
-                s.n = rotate_vector(&s.n, &phi).normalize();
-            }
-            r.com += dv * dt;
+            rigid_motion(&mut f.segments[range.clone()], &mut r.com, &dv, &dw, dt);
         }
     }
+}
+
+/// Segments of one rigid body (centre of mass `com`) given the velocity change `dv`,
+/// `dw`: their velocities change, and they move over the step by Δt times that change
+/// (turned about the centre of mass by Δt dw, which moves by Δt dv).
+fn rigid_motion(
+    segments: &mut [Segment],
+    com: &mut Vector3<f64>,
+    dv: &Vector3<f64>,
+    dw: &Vector3<f64>,
+    dt: f64,
+) {
+    let phi = dw * dt;
+    for s in segments.iter_mut() {
+        let rho = s.r - *com;
+        s.v += dv + dw.cross(&rho);
+        s.w += dw;
+        s.r = *com + dv * dt + rotate_vector(&rho, &phi);
+        s.z = rotate_vector(&s.z, &phi).normalize();
+        s.n = rotate_vector(&s.n, &phi).normalize();
+    }
+    *com += dv * dt;
 }
 
 /// Fibres joined by candidate pairs, solved together: its fibres (ascending) and its pairs
@@ -1234,16 +1247,7 @@ fn move_by(f: &mut Fibre, r: &mut Rigid, point: &Vector3<f64>, j: &Vector3<f64>,
     }
     let dv = j * r.inv_mass;
     let dw = r.inv_inertia * (point - r.com).cross(j);
-    let phi = dw * dt;
-    for s in f.segments.iter_mut() {
-        let rho = s.r - r.com;
-        s.v += dv + dw.cross(&rho);
-        s.w += dw;
-        s.r = r.com + dv * dt + rotate_vector(&rho, &phi);
-        s.z = rotate_vector(&s.z, &phi).normalize();
-        s.n = rotate_vector(&s.n, &phi).normalize();
-    }
-    r.com += dv * dt;
+    rigid_motion(&mut f.segments, &mut r.com, &dv, &dw, dt);
 }
 
 /// Copies the fibres of candidate pairs into the solve's lists (now, at the start).
