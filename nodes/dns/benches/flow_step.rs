@@ -105,5 +105,46 @@ fn bench_statistics(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_step, bench_statistics);
+/// Two-way coupling's share of the field step at paper size: the coarse grid's step with
+/// and without the body force of 300 seven-segment fibres (2100 points at random in the
+/// channel), alternately in one group.
+fn bench_body_force(c: &mut Criterion) {
+    let mut group = c.benchmark_group("flow_step_two_way");
+    group.sample_size(20);
+    let mut seed = 0x5eed_u64;
+    let mut rnd = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let pi = std::f64::consts::PI;
+    let points: Vec<[f64; 3]> = (0..2100)
+        .map(|_| [2.0 * pi * rnd(), 1.8 * rnd() - 0.9, pi * rnd()])
+        .collect();
+    let forces: Vec<[f64; 3]> = (0..2100)
+        .map(|_| [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5].map(|f| 1e-6 * f))
+        .collect();
+    let mut plain = solver(64);
+    let mut laden = solver(64);
+    laden.set_body_force(&points, &forces);
+    for (name, s) in [
+        ("coarse_one_way", &mut plain),
+        ("coarse_body_force_300_fibres", &mut laden),
+    ] {
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                if let Err(e) = s.step() {
+                    panic!("step: {e}");
+                }
+            })
+        });
+    }
+    group.bench_function("spread_300_fibres", |b| {
+        b.iter(|| laden.set_body_force(&points, &forces))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_step, bench_statistics, bench_body_force);
 criterion_main!(benches);

@@ -295,22 +295,12 @@ impl Solver {
                     }
                     if let Some(force) = body {
                         // the fibres' reaction, constant over the step (Σ α = 1 over the
-                        // three substeps, so the step's impulse is dt·a exactly); only the
-                        // rows the fibres touch hold anything
+                        // three substeps, so the step's impulse is dt·a exactly), added at
+                        // the nodes the fibres touch
                         let c = alpha * dt;
-                        let at = k * plane;
-                        let f = &force.field;
-                        for (comp, (o, bf)) in
-                            [(&mut *ou, &f.u), (&mut *ov, &f.v), (&mut *ow, &f.w)]
-                                .into_iter()
-                                .enumerate()
-                        {
-                            for &j in force.rows(comp, k) {
-                                let r = j as usize * px + 1..j as usize * px + 1 + nx;
-                                let src = &bf[at + r.start..at + r.end];
-                                for (o, a) in o[r].iter_mut().zip(src) {
-                                    *o += c * a;
-                                }
+                        for (comp, o) in [&mut *ou, &mut *ov, &mut *ow].into_iter().enumerate() {
+                            for &(at, a) in force.entries(comp, k) {
+                                o[at as usize] += c * a;
                             }
                         }
                     }

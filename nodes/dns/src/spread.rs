@@ -38,6 +38,33 @@ pub fn roma_peskin(r: f64) -> f64 {
     }
 }
 
+/// φ at the three nodes around a point, `t` its offset from the nearest node (|t| ≤ ½):
+/// [φ(t + 1), φ(t), φ(t − 1)] for the nodes below, at and above. One square root serves
+/// all three (1 − |r| = ∓t in φ's outer branch); the same values as [`roma_peskin`] to
+/// round-off (test `three_weights_are_the_kernel`).
+#[inline]
+fn around(t: f64) -> [f64; 3] {
+    let q = (1.0 - 3.0 * t * t).max(0.0).sqrt();
+    [
+        (2.0 - 3.0 * t - q) / 6.0,
+        (1.0 + q) / 3.0,
+        (2.0 + 3.0 * t - q) / 6.0,
+    ]
+}
+
+/// `s.round()` for 0 ≤ s < 2⁵², the same bits, without a call into the C library (the
+/// baseline x86-64 target has no rounding instruction): the integer part by conversion,
+/// then up when the fraction (exact) is at least ½.
+#[inline]
+fn round_non_negative(s: f64) -> f64 {
+    let whole = s as u64 as f64;
+    if s - whole >= 0.5 {
+        whole + 1.0
+    } else {
+        whole
+    }
+}
+
 /// Nodes of one direction that a point touches: first padded index and up to three
 /// weights (those of nodes outside the fluid already zero), summing to 1.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,10 +76,15 @@ struct Stencil {
 /// Periodic direction: nodes at `(i + shift) * d` (shift 0 for a face-centred component,
 /// −0.5 for a cell-centred one, in padded index i = 1..=n); `x` in outer units.
 fn periodic(x: f64, d: f64, n: usize, shift: f64) -> Stencil {
-    // fractional node index of x, in [0, n)
-    let s = (x / d - shift).rem_euclid(n as f64);
-    let nearest = s.round();
-    let w = [-1.0, 0.0, 1.0].map(|o| roma_peskin(s - (nearest + o)));
+    // fractional node index of x, in [0, n) (a point inside the box needs no remainder)
+    let (s, nf) = (x / d - shift, n as f64);
+    let s = if (0.0..nf).contains(&s) {
+        s
+    } else {
+        s.rem_euclid(nf)
+    };
+    let nearest = round_non_negative(s);
+    let w = around(s - nearest);
     let sum = w[0] + w[1] + w[2];
     Stencil {
         // padded index of node `nearest - 1` (node m sits at padded index m); wrapped by
@@ -73,12 +105,13 @@ fn wall_normal(y: f64, pos: &[f64], lo: usize, hi: usize) -> Stencil {
     j = j.min(hi);
     let t = ((y - pos[j]) / (pos[j + 1] - pos[j])).clamp(0.0, 1.0);
     let s = j as f64 + t;
-    let nearest = s.round() as isize;
-    let mut w = [0.0; 3];
+    let nearest = round_non_negative(s);
+    let mut w = around(s - nearest);
+    let nearest = nearest as isize;
     for (o, wo) in w.iter_mut().enumerate() {
         let m = nearest - 1 + o as isize;
-        if m >= lo as isize && m <= hi as isize {
-            *wo = roma_peskin(s - m as f64);
+        if m < lo as isize || m > hi as isize {
+            *wo = 0.0;
         }
     }
     let sum = w[0] + w[1] + w[2];
@@ -100,22 +133,23 @@ fn stencils(g: &Grid, p: [f64; 3]) -> PointStencils {
     let y = p[1].clamp(-1.0, 1.0);
     // u: x faces, y centres, z centres; v: x centres, y faces, z centres; w: x centres,
     // y centres, z faces
+    // six stencils serve the nine: faces and centres per direction
+    let (x_face, x_centre) = (
+        periodic(p[0], g.dx, g.nx, 0.0),
+        periodic(p[0], g.dx, g.nx, -0.5),
+    );
+    let (y_centre, y_face) = (
+        wall_normal(y, &g.yc, 1, g.ny),
+        wall_normal(y, &g.yf, 1, g.ny - 1),
+    );
+    let (z_centre, z_face) = (
+        periodic(p[2], g.dz, g.nz, -0.5),
+        periodic(p[2], g.dz, g.nz, 0.0),
+    );
     PointStencils {
-        x: [
-            periodic(p[0], g.dx, g.nx, 0.0),
-            periodic(p[0], g.dx, g.nx, -0.5),
-            periodic(p[0], g.dx, g.nx, -0.5),
-        ],
-        y: [
-            wall_normal(y, &g.yc, 1, g.ny),
-            wall_normal(y, &g.yf, 1, g.ny - 1),
-            wall_normal(y, &g.yc, 1, g.ny),
-        ],
-        z: [
-            periodic(p[2], g.dz, g.nz, -0.5),
-            periodic(p[2], g.dz, g.nz, -0.5),
-            periodic(p[2], g.dz, g.nz, 0.0),
-        ],
+        x: [x_face, x_centre, x_centre],
+        y: [y_centre, y_face, y_centre],
+        z: [z_centre, z_centre, z_face],
     }
 }
 
@@ -123,12 +157,18 @@ fn stencils(g: &Grid, p: [f64; 3]) -> PointStencils {
 /// node index n ≡ 0.
 #[inline]
 fn wrap(m: isize, n: usize) -> usize {
-    let r = m.rem_euclid(n as isize) as usize;
-    if r == 0 {
-        n
+    let ni = n as isize;
+    // a stencil's nodes lie within one node of the box: no division (tens of cycles a node)
+    let r = if m >= 1 && m <= ni {
+        m
+    } else if m > ni && m <= 2 * ni {
+        m - ni
+    } else if m < 1 && m > -ni {
+        m + ni
     } else {
-        r
-    }
+        m.rem_euclid(ni) + if m.rem_euclid(ni) == 0 { ni } else { 0 }
+    };
+    r as usize
 }
 
 /// Control volume of the node at padded y index j of component c (0 u, 1 v, 2 w).
@@ -139,14 +179,21 @@ fn volume(g: &Grid, c: usize, j: usize) -> f64 {
 }
 
 /// The fibres' body force per unit mass on the grid (dense, staggered like the velocity),
-/// and which of its rows hold anything: per component and padded k-plane, the padded y
-/// rows the last spreading wrote, ascending. Clearing and adding visit only those rows, so
-/// a few hundred fibres cost what they touch, not the whole field (`docs/two-way.md`, "Cost").
+/// and its non-zero nodes: per component and padded k-plane, (index within the plane,
+/// value) in index order. Clearing visits only those nodes, and a field step adds only
+/// them, so a few hundred fibres cost what they touch, not the whole field (at paper size
+/// the touched rows covered nearly every row of the coarse grid: adding them in each
+/// substep cost ≈ 10% of the step; `docs/two-way.md`, "Cost").
 #[derive(Debug, Clone)]
 pub struct BodyForce {
-    /// Node accelerations (outer units), zero outside [`Self::rows`].
+    /// Node accelerations (outer units), zero outside [`Self::entries`].
     pub field: Velocity,
-    rows: [Vec<Vec<u32>>; 3],
+    entries: [Vec<Vec<(u32, f64)>>; 3],
+    /// Kept from one spreading to the next so that a step allocates nothing: each point's
+    /// stencils, each plane's (point, z offset) list and its bits of the nodes written.
+    stencils: Vec<PointStencils>,
+    by_plane: Vec<Vec<(u32, u8)>>,
+    written: Vec<Vec<u64>>,
 }
 
 impl BodyForce {
@@ -154,14 +201,18 @@ impl BodyForce {
     pub fn zeros(g: &Grid) -> Self {
         Self {
             field: Velocity::zeros(g),
-            rows: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
+            entries: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
+            stencils: Vec::new(),
+            by_plane: vec![Vec::new(); g.nz + 2],
+            written: vec![vec![0; g.plane().div_ceil(64)]; g.nz + 2],
         }
     }
 
-    /// The padded y rows of plane `k` of component `c` (0 u, 1 v, 2 w) that may hold a
-    /// non-zero value, ascending.
-    pub fn rows(&self, c: usize, k: usize) -> &[u32] {
-        &self.rows[c][k]
+    /// The nodes of plane `k` of component `c` (0 u, 1 v, 2 w) that the last spreading
+    /// wrote, each once: (index within the plane, value of [`Self::field`] there). Every
+    /// non-zero node is among them.
+    pub fn entries(&self, c: usize, k: usize) -> &[(u32, f64)] {
+        &self.entries[c][k]
     }
 }
 
@@ -170,14 +221,34 @@ impl BodyForce {
 /// *on the fluid* there, in outer units (ρ = 1): node accelerations are added in the
 /// order of the list.
 pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut BodyForce) {
-    let stencils: Vec<PointStencils> = points.par_iter().map(|&p| stencils(g, p)).collect();
+    let BodyForce {
+        field,
+        entries,
+        stencils,
+        by_plane,
+        written,
+    } = out;
+    stencils.clear();
+    stencils.par_extend(points.par_iter().map(|&p| self::stencils(g, p)));
+    let stencils = &stencils[..];
     let plane = g.plane();
     let nz = g.nz;
-    let BodyForce { field, rows } = out;
     let Velocity { u, v, w } = field;
-    for (c, (field, rows)) in [u, v, w].into_iter().zip(rows.iter_mut()).enumerate() {
+    for (c, (field, entries)) in [u, v, w].into_iter().zip(entries.iter_mut()).enumerate() {
+        // 1 / the control volume of each row (a division per node took as long as the rest)
+        let jmax = if c == 1 { g.ny - 1 } else { g.ny };
+        let per_volume: Vec<f64> = (0..g.ny + 2)
+            .map(|j| {
+                if (1..=jmax).contains(&j) {
+                    1.0 / volume(g, c, j)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let per_volume = &per_volume[..];
         // each plane's points, in the list's order (so the sums are those of one pass)
-        let mut by_plane: Vec<Vec<(usize, usize)>> = vec![Vec::new(); nz + 2];
+        by_plane.iter_mut().for_each(Vec::clear);
         for (n, (st, f)) in stencils.iter().zip(forces).enumerate() {
             if f[c] == 0.0 {
                 continue;
@@ -185,49 +256,49 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
             let sz = &st.z[c];
             for oz in 0..3 {
                 if sz.w[oz] != 0.0 {
-                    by_plane[wrap(sz.first + oz as isize, nz)].push((n, oz));
+                    by_plane[wrap(sz.first + oz as isize, nz)].push((n as u32, oz as u8));
                 }
             }
         }
         field
             .par_chunks_mut(plane)
-            .zip(rows.par_iter_mut())
+            .zip(entries.par_iter_mut())
             .zip(by_plane.par_iter())
-            .for_each(|((pl, touched), points)| {
-                // the rows the last spreading wrote go back to zero
-                for &j in touched.iter() {
-                    let r = j as usize * g.px;
-                    pl[r..r + g.px].iter_mut().for_each(|x| *x = 0.0);
+            .zip(written.par_iter_mut())
+            .for_each(|(((pl, nodes), points), written)| {
+                // the nodes the last spreading wrote go back to zero
+                for &(at, _) in nodes.iter() {
+                    pl[at as usize] = 0.0;
                 }
-                touched.clear();
-                // the rows this spreading writes, marked (then listed in order: a sort of
-                // the ≈ 3 rows per point took as long as the spreading at 10⁵ fibres)
-                let mut marked = vec![false; pl.len() / g.px];
+                nodes.clear();
                 for &(n, oz) in points {
-                    let st = &stencils[n];
-                    let fc = forces[n][c];
-                    let wz = st.z[c].w[oz];
+                    let st = &stencils[n as usize];
+                    let fc = forces[n as usize][c];
+                    let wz = st.z[c].w[oz as usize];
                     let (sx, sy) = (&st.x[c], &st.y[c]);
                     for (oy, &wy) in sy.w.iter().enumerate() {
                         if wy == 0.0 {
                             continue;
                         }
                         let j = (sy.first + oy as isize) as usize;
-                        marked[j] = true;
-                        let scale = fc * wz * wy / volume(g, c, j);
+                        let scale = fc * wz * wy * per_volume[j];
                         for (ox, &wx) in sx.w.iter().enumerate() {
-                            let i = wrap(sx.first + ox as isize, g.nx);
-                            pl[i + g.px * j] += scale * wx;
+                            let at = wrap(sx.first + ox as isize, g.nx) + g.px * j;
+                            pl[at] += scale * wx;
+                            // listed once, the first time it is written
+                            let (word, bit) = (at / 64, 1u64 << (at % 64));
+                            if written[word] & bit == 0 {
+                                written[word] |= bit;
+                                nodes.push((at as u32, 0.0));
+                            }
                         }
                     }
                 }
-                touched.extend(
-                    marked
-                        .iter()
-                        .enumerate()
-                        .filter(|(_, &m)| m)
-                        .map(|(j, _)| j as u32),
-                );
+                // their values; the bits go back to zero for the next component
+                for (at, a) in nodes.iter_mut() {
+                    *a = pl[*at as usize];
+                    written[*at as usize / 64] = 0;
+                }
             });
     }
 }
@@ -266,6 +337,46 @@ mod tests {
             let first: f64 = (-2..=2).zip(&w).map(|(m, x)| (s - m as f64) * x).sum();
             assert!((sum - 1.0).abs() < 1e-15, "sum {sum} at {s}");
             assert!(first.abs() < 1e-15, "first moment {first} at {s}");
+        }
+    }
+
+    /// The three weights from one square root are φ at the three nodes to 1e-15, for
+    /// offsets across [−½, ½].
+    #[test]
+    fn three_weights_are_the_kernel() {
+        for i in 0..=1000 {
+            let t = i as f64 / 1000.0 - 0.5;
+            let w = around(t);
+            for (o, wo) in w.iter().enumerate() {
+                let r = t - (o as f64 - 1.0);
+                assert!((wo - roma_peskin(r)).abs() < 1e-15, "t {t} o {o}");
+            }
+        }
+    }
+
+    /// The wrapping without a division gives the padded index of the remainder for nodes
+    /// near the box and far from it.
+    #[test]
+    fn wrapping_is_the_remainder() {
+        for n in [1usize, 2, 16, 64] {
+            for m in -5 * n as isize..5 * n as isize {
+                let r = m.rem_euclid(n as isize) as usize;
+                assert_eq!(wrap(m, n), if r == 0 { n } else { r }, "m {m} n {n}");
+            }
+        }
+    }
+
+    /// The rounding without the C library gives `round`'s bits, at halves and next to them.
+    #[test]
+    fn rounding_is_rounds() {
+        let mut xs = vec![0.0, 0.5, 1.5, 2.5, 63.5, 64.0 - 1e-13, 0.49999999999999994];
+        for i in 0..100_000 {
+            xs.push(i as f64 * 0.000_731 * 64.0 / 73.1);
+        }
+        for x in xs {
+            for y in [x, f64::from_bits(x.to_bits() + 1), x.next_down().max(0.0)] {
+                assert_eq!(round_non_negative(y).to_bits(), y.round().to_bits(), "{y}");
+            }
         }
     }
 
@@ -322,7 +433,7 @@ mod tests {
 
     /// Spreading again clears what the last spreading wrote: forces at one set of points and
     /// then at another give the bits of the second set spread onto a fresh field, and the
-    /// touched rows cover every non-zero node.
+    /// entries list each written node once, with its value, every non-zero node among them.
     #[test]
     fn spreading_again_leaves_nothing_of_the_last_points() {
         let g = grid();
@@ -341,12 +452,17 @@ mod tests {
                 .zip(b.iter())
                 .all(|(p, q)| p.to_bits() == q.to_bits()));
             for k in 0..g.nz + 2 {
-                for j in 0..g.ny + 2 {
-                    let row = &a[k * g.plane() + j * g.px..k * g.plane() + (j + 1) * g.px];
-                    if row.iter().any(|x| *x != 0.0) {
-                        assert!(reused.rows(c, k).contains(&(j as u32)), "c{c} k{k} j{j}");
-                    }
+                let plane = &a[k * g.plane()..(k + 1) * g.plane()];
+                let mut listed = reused.entries(c, k).to_vec();
+                listed.sort_by_key(|e| e.0);
+                // each node once, with its value, and every non-zero node among them
+                assert!(listed.windows(2).all(|w| w[0].0 < w[1].0), "c{c} k{k}");
+                for &(at, x) in &listed {
+                    assert_eq!(x.to_bits(), plane[at as usize].to_bits());
                 }
+                let nonzero = plane.iter().filter(|x| **x != 0.0).count();
+                let listed_nonzero = listed.iter().filter(|e| e.1 != 0.0).count();
+                assert_eq!(nonzero, listed_nonzero, "c{c} k{k}");
             }
         }
     }

@@ -1,8 +1,9 @@
 //! The stages of the flow node's coupling loop (`serve::serve` calls them in order, each
 //! step): gather every piece's state at t_k, write a coupled checkpoint when one is due,
 //! sample the field at t_k at the states' segment centres (two-way: put the fibres'
-//! forces on the fluid and remove each fibre's own disturbance from its samples), publish
-//! the samples and the viewers' slices, advance the field to t_{k+1}, report its status.
+//! forces on the fluid), then advance the field to t_{k+1} while each fibre's own
+//! disturbance leaves its samples (two-way) and the samples and the viewers' slices go out,
+//! and report the field's status.
 
 use crate::config::FlowNodeConfig;
 use crate::error::FlowError;
@@ -13,6 +14,7 @@ use crate::sampling::{Field, PieceSamples};
 use crate::step_times::{Stages, StepTimes};
 use fiberflow_bus::{BusHandle, Encode, Inbox, Outbox};
 use fiberflow_dns::stats::RunningStats;
+use fiberflow_dns::StepReport;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{
     encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION,
@@ -306,63 +308,102 @@ impl<'a> Coupling<'a> {
             .filter_map(|(_, _, msg)| Arc::try_unwrap(msg).ok())
             .map(|Encode(m)| (m.velocity, m.velocity_gradient))
             .collect();
-        let mut samples = self.field.sample_pieces(&pieces, spare);
+        let samples = self.field.sample_pieces(&pieces, spare);
         self.timing.sampling_s += t0.elapsed().as_secs_f64();
         if self.run.two_way {
             let t0 = Instant::now();
-            self.feed_back(&step_states, &mut samples)?;
+            self.spread_forces(&step_states)?;
             self.timing.feedback_s += t0.elapsed().as_secs_f64();
         }
         Ok((step_states, samples))
     }
 
-    /// Two-way: spreads the states' forces on the grid and corrects the samples for each
-    /// fibre's self-induced disturbance (docs/two-way.md).
-    fn feed_back(
-        &mut self,
-        step_states: &StepStates,
-        samples: &mut [PieceSamples],
-    ) -> Result<(), FlowError> {
+    /// Two-way: spreads the states' forces on the grid, the fluid's body force over its
+    /// next step (docs/two-way.md).
+    fn spread_forces(&mut self, step_states: &StepStates) -> Result<(), FlowError> {
         let Field::Dns(d) = &mut self.field else {
             return Ok(());
         };
-        let re_tau = d.solver.cfg.re_tau;
-        crate::feedback::gather(step_states, re_tau, &mut self.feedback)?;
+        crate::feedback::gather(step_states, d.solver.cfg.re_tau, &mut self.feedback)?;
         d.solver
             .set_body_force(&self.feedback.points, &self.feedback.forces);
-        let Some(pending) = self.self_widths.as_mut() else {
-            return Ok(());
-        };
-        let w = pending.get()?;
-        for key in step_states.keys() {
-            self.histories.entry(key.clone()).or_default();
-        }
-        let mut work: Vec<(&mut crate::self_induced::History, &FiberGroupState)> = self
-            .histories
-            .iter_mut()
-            .filter_map(|(k, h)| step_states.get(k).map(|s| (h, s)))
-            .collect();
-        let dt_plus = self.cfg.dt_plus;
-        samples
-            .par_iter_mut()
-            .zip(work.par_iter_mut())
-            .for_each(|((vel, _), (h, s))| {
-                h.correct_and_advance(
-                    w,
-                    re_tau,
-                    dt_plus,
-                    &s.segments_per_fiber,
-                    &s.centre,
-                    &s.hydro_force,
-                    vel,
-                )
-            });
         Ok(())
     }
 
+    /// Serves step `k` and advances the field: the viewers' slices of t_k when due, then,
+    /// while the field steps to t_{k+1} (unless `k` is the last step), each fibre's own
+    /// disturbance leaves its samples (two-way) and the samples go out. Neither side reads
+    /// what the other writes, so the bits are those of one after the other; the correction
+    /// fills the field step's idle moments instead of waiting before it (docs/two-way.md,
+    /// "Cost"). Returns the field step's report (None for the last step or the analytic flow).
+    pub(crate) fn serve_and_step(
+        &mut self,
+        k: u64,
+        step_states: StepStates,
+        mut samples: Vec<PieceSamples>,
+    ) -> Result<Option<StepReport>, FlowError> {
+        self.publish_slices_if_due(k)?;
+        let last = k == self.run.steps;
+        let cfg = self.cfg;
+        let Self {
+            field,
+            histories,
+            self_widths,
+            timing,
+            ..
+        } = self;
+        let (solver, re_tau) = match field {
+            Field::Dns(d) => {
+                let re_tau = d.solver.cfg.re_tau;
+                (Some(&mut d.solver), re_tau)
+            }
+            Field::Analytic(_) => (None, 0.0),
+        };
+        let widths = match (self.run.two_way, solver.is_some(), self_widths.as_mut()) {
+            (true, true, Some(w)) => Some(w.get()?),
+            _ => None,
+        };
+        let ((corrected_s, published), stepped) = rayon::join(
+            || {
+                let t0 = Instant::now();
+                if let Some(w) = widths {
+                    correct(
+                        histories,
+                        w,
+                        re_tau,
+                        cfg.dt_plus,
+                        &step_states,
+                        &mut samples,
+                    );
+                }
+                (t0.elapsed().as_secs_f64(), (step_states, samples))
+            },
+            || -> Result<Option<(StepReport, f64)>, FlowError> {
+                match solver {
+                    Some(solver) if !last => {
+                        let t0 = Instant::now();
+                        let r = solver.step()?;
+                        Ok(Some((r, t0.elapsed().as_secs_f64())))
+                    }
+                    _ => Ok(None),
+                }
+            },
+        );
+        timing.feedback_s += corrected_s;
+        let (step_states, samples) = published;
+        self.publish(k, step_states, samples)?;
+        Ok(match stepped? {
+            Some((r, field_step_s)) => {
+                self.timing.field_step_s += field_step_s;
+                Some(r)
+            }
+            None => None,
+        })
+    }
+
     /// Hands every piece's samples to the outbox together (the fibre nodes sharing a
-    /// process are woken once for all), then the viewers' slices when due.
-    pub(crate) fn publish(
+    /// process are woken once for all).
+    fn publish(
         &mut self,
         k: u64,
         step_states: StepStates,
@@ -401,7 +442,12 @@ impl<'a> Coupling<'a> {
         let t0 = Instant::now();
         self.out.send_together(step_samples)?;
         self.timing.publishing_s += t0.elapsed().as_secs_f64();
-        let cfg = self.cfg;
+        Ok(())
+    }
+
+    /// The viewers' slices of the field at t_k, when due (before it steps on).
+    fn publish_slices_if_due(&mut self, k: u64) -> Result<(), FlowError> {
+        let (cfg, run, t) = (self.cfg, self.run, &self.t);
         if let Field::Dns(d) = &self.field {
             if cfg.slices_every_steps > 0
                 && (k.is_multiple_of(cfg.slices_every_steps) || k == run.steps)
@@ -414,9 +460,13 @@ impl<'a> Coupling<'a> {
         Ok(())
     }
 
-    /// Advances the field to t_{k+1} while the groups integrate; takes statistics and
+    /// After the field stepped to t_{k+1} (`stepped`, its report): takes statistics and
     /// publishes the profiles when due. Returns the status of step k + 1.
-    pub(crate) fn advance(&mut self, k: u64) -> Result<FlowStatus, FlowError> {
+    pub(crate) fn advance(
+        &mut self,
+        k: u64,
+        stepped: Option<StepReport>,
+    ) -> Result<FlowStatus, FlowError> {
         let (cfg, run) = (self.cfg, self.run);
         let next = k + 1;
         let t_plus = next as f64 * cfg.dt_plus;
@@ -438,9 +488,11 @@ impl<'a> Coupling<'a> {
             Field::Dns(d) => d,
         };
         let solver = &mut d.solver;
-        let t0 = Instant::now();
-        let r = solver.step()?;
-        self.timing.field_step_s += t0.elapsed().as_secs_f64();
+        let Some(r) = stepped else {
+            return Err(FlowError::Protocol(format!(
+                "step {k}: the field did not step (an internal error)"
+            )));
+        };
         // the DNS branch always has statistics; the analytic one has none
         let stats = self
             .stats
@@ -534,4 +586,38 @@ impl<'a> Coupling<'a> {
             drops,
         })
     }
+}
+
+/// Two-way: removes each fibre's own disturbance from its samples and books the step's
+/// forces in its memories (`self_induced::History`), piece by piece in parallel (every
+/// fibre's arithmetic is its own: the bits do not depend on the threads).
+fn correct(
+    histories: &mut BTreeMap<(String, u32), crate::self_induced::History>,
+    widths: &crate::self_induced::Widths,
+    re_tau: f64,
+    dt_plus: f64,
+    step_states: &StepStates,
+    samples: &mut [PieceSamples],
+) {
+    for key in step_states.keys() {
+        histories.entry(key.clone()).or_default();
+    }
+    let mut work: Vec<(&mut crate::self_induced::History, &FiberGroupState)> = histories
+        .iter_mut()
+        .filter_map(|(k, h)| step_states.get(k).map(|s| (h, s)))
+        .collect();
+    samples
+        .par_iter_mut()
+        .zip(work.par_iter_mut())
+        .for_each(|((vel, _), (h, s))| {
+            h.correct_and_advance(
+                widths,
+                re_tau,
+                dt_plus,
+                &s.segments_per_fiber,
+                &s.centre,
+                &s.hydro_force,
+                vel,
+            )
+        });
 }

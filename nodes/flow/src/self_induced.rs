@@ -162,8 +162,11 @@ pub fn mode_weights(d: [f64; 3]) -> Modes {
             }
         })
     });
-    let pair_coeff =
-        std::array::from_fn(|b| (0..LANES).map(|q| 3.0 * moments[q / 3][q % 3][b]).collect());
+    let pair_coeff = std::array::from_fn(|b| {
+        (0..LANES)
+            .map(|q| (3.0 * moments[q / 3][q % 3][b]) as f32)
+            .collect()
+    });
     let held = |m: &usize| w[*m].iter().any(|x| *x != 0.0);
     let first = (0..MODES).find(held).unwrap_or(0);
     let end = (0..MODES).rev().find(held).map_or(first, |m| m + 1);
@@ -185,7 +188,7 @@ pub struct Modes {
     /// The pair shares' coefficients (`pair_shares::add_pair`): plane b, lane 3k + a holds
     /// 3⟨k_b²⟩ of mode k, component a, so that sinc(√(Σ_b c_b r_b²)) is the mode's average
     /// of e^{ik·r} to second order in r (a shell's sinc(|k|r) is 1 − |k|²r²/6 + …).
-    pub pair_coeff: [Vec<f64>; 3],
+    pub pair_coeff: [Vec<f32>; 3],
     /// The modes the grid holds (from the first to the last with a weight): the others
     /// carry nothing.
     pub active: std::ops::Range<usize>,
@@ -302,7 +305,7 @@ fn fibre(
     force: &[f64],
     velocity: &mut [f64],
     m: &mut [f64],
-    share: &mut Vec<f64>,
+    share: &mut Vec<f32>,
 ) {
     let segs = 0..n;
     let mut mean = [0.0; 3];
@@ -356,7 +359,7 @@ fn fibre(
     share.resize(n * LANES, 1.0);
     for i in 0..n {
         for j in i + 1..n {
-            let r2 = gap(i, j).map(|x| x * x);
+            let r2 = gap(i, j).map(|x| (x * x) as f32);
             let (lo, hi) = share.split_at_mut(j * LANES);
             add_pair(
                 &w.pair_coeff,
@@ -377,7 +380,7 @@ fn fibre(
             .skip(w.active.start)
         {
             for a in 0..3 {
-                du[a] += share[i * LANES + 3 * k + a] / n as f64 * mk[a];
+                du[a] += share[i * LANES + 3 * k + a] as f64 / n as f64 * mk[a];
             }
         }
         for a in 0..3 {

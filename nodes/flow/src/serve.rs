@@ -74,11 +74,11 @@ pub fn serve(
         c.gather(k)?;
         c.checkpoint_if_due(k)?;
         let (step_states, samples) = c.sample()?;
-        c.publish(k, step_states, samples)?;
+        let stepped = c.serve_and_step(k, step_states, samples)?;
         if k == run.steps {
             break;
         }
-        let status = c.advance(k)?;
+        let status = c.advance(k, stepped)?;
         c.report(k, &status, &mut on_status)?;
     }
     c.finish()
