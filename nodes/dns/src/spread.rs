@@ -192,7 +192,7 @@ pub struct BodyForce {
     /// Kept from one spreading to the next so that a step allocates nothing: each point's
     /// stencils, each plane's (point, z offset) list and its bits of the nodes written.
     stencils: Vec<PointStencils>,
-    by_plane: Vec<Vec<(u32, u8)>>,
+    by_plane: [Vec<Vec<(u32, u8)>>; 3],
     written: Vec<Vec<u64>>,
 }
 
@@ -203,7 +203,7 @@ impl BodyForce {
             field: Velocity::zeros(g),
             entries: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
             stencils: Vec::new(),
-            by_plane: vec![Vec::new(); g.nz + 2],
+            by_plane: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
             written: vec![vec![0; g.plane().div_ceil(64)]; g.nz + 2],
         }
     }
@@ -231,13 +231,12 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
     stencils.clear();
     stencils.par_extend(points.par_iter().map(|&p| self::stencils(g, p)));
     let stencils = &stencils[..];
-    let plane = g.plane();
-    let nz = g.nz;
-    let Velocity { u, v, w } = field;
-    for (c, (field, entries)) in [u, v, w].into_iter().zip(entries.iter_mut()).enumerate() {
-        // 1 / the control volume of each row (a division per node took as long as the rest)
+    let (plane, nz) = (g.plane(), g.nz);
+    // 1 / the control volume of each row and component (a division per node took as long
+    // as the rest)
+    let per_volume: [Vec<f64>; 3] = std::array::from_fn(|c| {
         let jmax = if c == 1 { g.ny - 1 } else { g.ny };
-        let per_volume: Vec<f64> = (0..g.ny + 2)
+        (0..g.ny + 2)
             .map(|j| {
                 if (1..=jmax).contains(&j) {
                     1.0 / volume(g, c, j)
@@ -245,9 +244,11 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
                     0.0
                 }
             })
-            .collect();
-        let per_volume = &per_volume[..];
-        // each plane's points, in the list's order (so the sums are those of one pass)
+            .collect()
+    });
+    // each plane's points per component, in the list's order (so the sums are those of
+    // one pass)
+    for (c, by_plane) in by_plane.iter_mut().enumerate() {
         by_plane.iter_mut().for_each(Vec::clear);
         for (n, (st, f)) in stencils.iter().zip(forces).enumerate() {
             if f[c] == 0.0 {
@@ -260,46 +261,90 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
                 }
             }
         }
-        field
-            .par_chunks_mut(plane)
-            .zip(entries.par_iter_mut())
-            .zip(by_plane.par_iter())
-            .zip(written.par_iter_mut())
-            .for_each(|(((pl, nodes), points), written)| {
-                // the nodes the last spreading wrote go back to zero
-                for &(at, _) in nodes.iter() {
-                    pl[at as usize] = 0.0;
+    }
+    // one pass over the planes, the three components of each plane together
+    let Velocity { u, v, w } = field;
+    let [eu, ev, ew] = entries;
+    let [bu, bv, bw] = &*by_plane;
+    u.par_chunks_mut(plane)
+        .zip(v.par_chunks_mut(plane))
+        .zip(w.par_chunks_mut(plane))
+        .zip(
+            eu.par_iter_mut()
+                .zip(ev.par_iter_mut())
+                .zip(ew.par_iter_mut()),
+        )
+        .zip(bu.par_iter().zip(bv.par_iter()).zip(bw.par_iter()))
+        .zip(written.par_iter_mut())
+        .for_each(
+            |(((((pu, pv), pw), ((nu, nv), nw)), ((lu, lv), lw)), written)| {
+                for (c, (pl, nodes, points)) in [(pu, nu, lu), (pv, nv, lv), (pw, nw, lw)]
+                    .into_iter()
+                    .enumerate()
+                {
+                    spread_plane(
+                        g,
+                        c,
+                        stencils,
+                        forces,
+                        &per_volume[c],
+                        pl,
+                        nodes,
+                        points,
+                        written,
+                    );
                 }
-                nodes.clear();
-                for &(n, oz) in points {
-                    let st = &stencils[n as usize];
-                    let fc = forces[n as usize][c];
-                    let wz = st.z[c].w[oz as usize];
-                    let (sx, sy) = (&st.x[c], &st.y[c]);
-                    for (oy, &wy) in sy.w.iter().enumerate() {
-                        if wy == 0.0 {
-                            continue;
-                        }
-                        let j = (sy.first + oy as isize) as usize;
-                        let scale = fc * wz * wy * per_volume[j];
-                        for (ox, &wx) in sx.w.iter().enumerate() {
-                            let at = wrap(sx.first + ox as isize, g.nx) + g.px * j;
-                            pl[at] += scale * wx;
-                            // listed once, the first time it is written
-                            let (word, bit) = (at / 64, 1u64 << (at % 64));
-                            if written[word] & bit == 0 {
-                                written[word] |= bit;
-                                nodes.push((at as u32, 0.0));
-                            }
-                        }
-                    }
+            },
+        );
+}
+
+/// One component `c` of one plane `pl` of [`spread`]: clears the nodes the last spreading
+/// wrote (`nodes`), adds the shares of the plane's `points` (point, z offset), and lists
+/// the nodes written, each once (`written`: a bit per node, left zero).
+#[allow(clippy::too_many_arguments)]
+fn spread_plane(
+    g: &Grid,
+    c: usize,
+    stencils: &[PointStencils],
+    forces: &[[f64; 3]],
+    per_volume: &[f64],
+    pl: &mut [f64],
+    nodes: &mut Vec<(u32, f64)>,
+    points: &[(u32, u8)],
+    written: &mut [u64],
+) {
+    // the nodes the last spreading wrote go back to zero
+    for &(at, _) in nodes.iter() {
+        pl[at as usize] = 0.0;
+    }
+    nodes.clear();
+    for &(n, oz) in points {
+        let st = &stencils[n as usize];
+        let fc = forces[n as usize][c];
+        let wz = st.z[c].w[oz as usize];
+        let (sx, sy) = (&st.x[c], &st.y[c]);
+        for (oy, &wy) in sy.w.iter().enumerate() {
+            if wy == 0.0 {
+                continue;
+            }
+            let j = (sy.first + oy as isize) as usize;
+            let scale = fc * wz * wy * per_volume[j];
+            for (ox, &wx) in sx.w.iter().enumerate() {
+                let at = wrap(sx.first + ox as isize, g.nx) + g.px * j;
+                pl[at] += scale * wx;
+                // listed once, the first time it is written
+                let (word, bit) = (at / 64, 1u64 << (at % 64));
+                if written[word] & bit == 0 {
+                    written[word] |= bit;
+                    nodes.push((at as u32, 0.0));
                 }
-                // their values; the bits go back to zero for the next component
-                for (at, a) in nodes.iter_mut() {
-                    *a = pl[*at as usize];
-                    written[*at as usize / 64] = 0;
-                }
-            });
+            }
+        }
+    }
+    // their values; the bits go back to zero for the next component
+    for (at, a) in nodes.iter_mut() {
+        *a = pl[*at as usize];
+        written[*at as usize / 64] = 0;
     }
 }
 
