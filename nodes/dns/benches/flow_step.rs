@@ -111,13 +111,8 @@ fn bench_statistics(c: &mut Criterion) {
 fn bench_body_force(c: &mut Criterion) {
     let mut group = c.benchmark_group("flow_step_two_way");
     group.sample_size(20);
-    let mut seed = 0x5eed_u64;
-    let mut rnd = move || {
-        seed ^= seed << 13;
-        seed ^= seed >> 7;
-        seed ^= seed << 17;
-        (seed >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = fiberflow_dns::init::SplitMix64::new(0x5eed);
+    let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
     let pi = std::f64::consts::PI;
     let points: Vec<[f64; 3]> = (0..2100)
         .map(|_| [2.0 * pi * rnd(), 1.8 * rnd() - 0.9, pi * rnd()])
