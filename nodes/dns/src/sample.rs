@@ -552,7 +552,7 @@ impl Sampler {
 /// (`fmod` and `floor` are library calls on the baseline x86-64 target: with the tables
 /// they were a good part of sampling a point.)
 #[inline(always)]
-fn rem_euclid_fast(x: f64, l: f64) -> f64 {
+pub(crate) fn rem_euclid_fast(x: f64, l: f64) -> f64 {
     if (0.0..l).contains(&x) {
         x
     } else if x < 0.0 && x > -l {

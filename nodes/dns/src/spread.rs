@@ -76,13 +76,8 @@ struct Stencil {
 /// Periodic direction: nodes at `(i + shift) * d` (shift 0 for a face-centred component,
 /// −0.5 for a cell-centred one, in padded index i = 1..=n); `x` in outer units.
 fn periodic(x: f64, d: f64, n: usize, shift: f64) -> Stencil {
-    // fractional node index of x, in [0, n) (a point inside the box needs no remainder)
-    let (s, nf) = (x / d - shift, n as f64);
-    let s = if (0.0..nf).contains(&s) {
-        s
-    } else {
-        s.rem_euclid(nf)
-    };
+    // fractional node index of x, in [0, n) (without the library's remainder near the box)
+    let s = crate::sample::rem_euclid_fast(x / d - shift, n as f64);
     let nearest = round_non_negative(s);
     let w = around(s - nearest);
     let sum = w[0] + w[1] + w[2];
