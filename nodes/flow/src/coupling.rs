@@ -292,8 +292,8 @@ impl<'a> Coupling<'a> {
     }
 
     /// Every piece's samples of the field at t_k, in one pass in cell order (parallel; the
-    /// same bits as one by one). Two-way: the states' forces become the fluid's body force
-    /// over its next step, and each fibre's own disturbance leaves its samples.
+    /// same bits as one by one). Two-way: the states' forces are gathered as points, the
+    /// fluid's body force over its next step (spread in [`Self::serve_and_step`]).
     pub(crate) fn sample(&mut self) -> Result<(StepStates, Vec<PieceSamples>), FlowError> {
         let t0 = Instant::now();
         let step_states = self.states.take();
@@ -311,31 +311,23 @@ impl<'a> Coupling<'a> {
         let samples = self.field.sample_pieces(&pieces, spare);
         self.timing.sampling_s += t0.elapsed().as_secs_f64();
         if self.run.two_way {
-            let t0 = Instant::now();
-            self.spread_forces(&step_states)?;
-            self.timing.feedback_s += t0.elapsed().as_secs_f64();
+            if let Field::Dns(d) = &self.field {
+                let t0 = Instant::now();
+                // a copy: the states go back to the inbox once their samples are out
+                crate::feedback::gather(&step_states, d.solver.cfg.re_tau, &mut self.feedback)?;
+                self.timing.feedback_s += t0.elapsed().as_secs_f64();
+            }
         }
         Ok((step_states, samples))
     }
 
-    /// Two-way: spreads the states' forces on the grid, the fluid's body force over its
-    /// next step (docs/two-way.md).
-    fn spread_forces(&mut self, step_states: &StepStates) -> Result<(), FlowError> {
-        let Field::Dns(d) = &mut self.field else {
-            return Ok(());
-        };
-        crate::feedback::gather(step_states, d.solver.cfg.re_tau, &mut self.feedback)?;
-        d.solver
-            .set_body_force(&self.feedback.points, &self.feedback.forces);
-        Ok(())
-    }
-
     /// Serves step `k` and advances the field: the viewers' slices of t_k when due, then,
-    /// while the field steps to t_{k+1} (unless `k` is the last step), each fibre's own
-    /// disturbance leaves its samples (two-way) and the samples go out. Neither side reads
-    /// what the other writes, so the bits are those of one after the other; the correction
-    /// fills the field step's idle moments instead of waiting before it (docs/two-way.md,
-    /// "Cost"). Returns the field step's report (None for the last step or the analytic flow).
+    /// while the field takes the fibres' forces (two-way) and steps to t_{k+1} (unless `k`
+    /// is the last step), each fibre's own disturbance leaves its samples (two-way) and the
+    /// samples go out, so that the fibre nodes step while the field does. Neither side
+    /// reads what the other writes, so the bits are those of one after the other
+    /// (docs/two-way.md, "Cost"). Returns the field step's report (None for the last step
+    /// or the analytic flow).
     pub(crate) fn serve_and_step(
         &mut self,
         k: u64,
@@ -344,12 +336,16 @@ impl<'a> Coupling<'a> {
     ) -> Result<Option<StepReport>, FlowError> {
         self.publish_slices_if_due(k)?;
         let last = k == self.run.steps;
-        let cfg = self.cfg;
+        let (cfg, run) = (self.cfg, self.run);
         let Self {
             field,
             histories,
             self_widths,
             timing,
+            feedback,
+            out,
+            served,
+            t,
             ..
         } = self;
         let (solver, re_tau) = match field {
@@ -359,14 +355,14 @@ impl<'a> Coupling<'a> {
             }
             Field::Analytic(_) => (None, 0.0),
         };
-        let widths = match (self.run.two_way, solver.is_some(), self_widths.as_mut()) {
+        let widths = match (run.two_way, solver.is_some(), self_widths.as_mut()) {
             (true, true, Some(w)) => Some(w.get()?),
             _ => None,
         };
-        let ((corrected_s, published), stepped) = rayon::join(
-            || {
-                let t0 = Instant::now();
+        let (served_states, stepped) = rayon::join(
+            || -> Result<Vec<FiberGroupState>, FlowError> {
                 if let Some(w) = widths {
+                    let t0 = Instant::now();
                     correct(
                         histories,
                         w,
@@ -375,74 +371,46 @@ impl<'a> Coupling<'a> {
                         &step_states,
                         &mut samples,
                     );
+                    timing.feedback_s += t0.elapsed().as_secs_f64();
                 }
-                (t0.elapsed().as_secs_f64(), (step_states, samples))
+                let to = Publish {
+                    run,
+                    t,
+                    dt_plus: cfg.dt_plus,
+                    out,
+                    served,
+                    timing,
+                };
+                publish(to, k, step_states, samples)
             },
-            || -> Result<Option<(StepReport, f64)>, FlowError> {
-                match solver {
-                    Some(solver) if !last => {
-                        let t0 = Instant::now();
-                        let r = solver.step()?;
-                        Ok(Some((r, t0.elapsed().as_secs_f64())))
-                    }
-                    _ => Ok(None),
+            || -> Result<Option<(StepReport, f64, f64)>, FlowError> {
+                let Some(solver) = solver else {
+                    return Ok(None);
+                };
+                let t0 = Instant::now();
+                if run.two_way {
+                    solver.set_body_force(&feedback.points, &feedback.forces);
                 }
+                let spread_s = t0.elapsed().as_secs_f64();
+                if last {
+                    return Ok(None);
+                }
+                let t0 = Instant::now();
+                let r = solver.step()?;
+                Ok(Some((r, spread_s, t0.elapsed().as_secs_f64())))
             },
         );
-        timing.feedback_s += corrected_s;
-        let (step_states, samples) = published;
-        self.publish(k, step_states, samples)?;
+        for s in served_states? {
+            self.states.recycle(s);
+        }
         Ok(match stepped? {
-            Some((r, field_step_s)) => {
+            Some((r, spread_s, field_step_s)) => {
+                self.timing.feedback_s += spread_s;
                 self.timing.field_step_s += field_step_s;
                 Some(r)
             }
             None => None,
         })
-    }
-
-    /// Hands every piece's samples to the outbox together (the fibre nodes sharing a
-    /// process are woken once for all).
-    fn publish(
-        &mut self,
-        k: u64,
-        step_states: StepStates,
-        samples: Vec<PieceSamples>,
-    ) -> Result<(), FlowError> {
-        let (run, t) = (self.run, &self.t);
-        let t_plus = k as f64 * self.cfg.dt_plus;
-        let mut step_samples: Vec<(String, Arc<dyn fiberflow_bus::Outgoing>)> =
-            Vec::with_capacity(step_states.len());
-        for (((group, first_fiber), s), (vel, grad)) in step_states.into_iter().zip(samples) {
-            let t0 = Instant::now();
-            let msg = FlowSamples {
-                schema_version: SCHEMA_VERSION,
-                group: group.clone(),
-                step: k,
-                t_plus,
-                first_fiber,
-                group_fibers: s.group_fibers,
-                velocity: vel,
-                velocity_gradient: grad,
-            };
-            // admitted states belong to a piece of the run
-            let topic = run
-                .pieces
-                .iter()
-                .find(|p| p.group == group && p.first_fiber == first_fiber)
-                .map(|p| p.samples_topic(t))
-                .unwrap_or_else(|| t.flow_samples(&group));
-            let msg = Arc::new(Encode(msg));
-            self.timing.encoding_s += t0.elapsed().as_secs_f64();
-            step_samples.push((topic.clone(), msg.clone()));
-            self.served
-                .insert((group.clone(), first_fiber), (k, topic, msg));
-            self.states.recycle(s);
-        }
-        let t0 = Instant::now();
-        self.out.send_together(step_samples)?;
-        self.timing.publishing_s += t0.elapsed().as_secs_f64();
-        Ok(())
     }
 
     /// The viewers' slices of the field at t_k, when due (before it steps on).
@@ -586,6 +554,63 @@ impl<'a> Coupling<'a> {
             drops,
         })
     }
+}
+
+/// What publishing a step's samples writes to: the outbox, the samples kept to serve again,
+/// and the loop's timing.
+struct Publish<'p> {
+    run: &'p RunInfo,
+    t: &'p Topics,
+    dt_plus: f64,
+    out: &'p mut Outbox,
+    served: &'p mut Served,
+    timing: &'p mut Timing,
+}
+
+/// Hands every piece's samples to the outbox together (the fibre nodes sharing a process
+/// are woken once for all). Returns the states served, whose arrays later states are
+/// decoded into.
+fn publish(
+    to: Publish<'_>,
+    k: u64,
+    step_states: StepStates,
+    samples: Vec<PieceSamples>,
+) -> Result<Vec<FiberGroupState>, FlowError> {
+    let (run, t) = (to.run, to.t);
+    let t_plus = k as f64 * to.dt_plus;
+    let mut step_samples: Vec<(String, Arc<dyn fiberflow_bus::Outgoing>)> =
+        Vec::with_capacity(step_states.len());
+    let mut done = Vec::with_capacity(step_states.len());
+    for (((group, first_fiber), s), (vel, grad)) in step_states.into_iter().zip(samples) {
+        let t0 = Instant::now();
+        let msg = FlowSamples {
+            schema_version: SCHEMA_VERSION,
+            group: group.clone(),
+            step: k,
+            t_plus,
+            first_fiber,
+            group_fibers: s.group_fibers,
+            velocity: vel,
+            velocity_gradient: grad,
+        };
+        // admitted states belong to a piece of the run
+        let topic = run
+            .pieces
+            .iter()
+            .find(|p| p.group == group && p.first_fiber == first_fiber)
+            .map(|p| p.samples_topic(t))
+            .unwrap_or_else(|| t.flow_samples(&group));
+        let msg = Arc::new(Encode(msg));
+        to.timing.encoding_s += t0.elapsed().as_secs_f64();
+        step_samples.push((topic.clone(), msg.clone()));
+        to.served
+            .insert((group.clone(), first_fiber), (k, topic, msg));
+        done.push(s);
+    }
+    let t0 = Instant::now();
+    to.out.send_together(step_samples)?;
+    to.timing.publishing_s += t0.elapsed().as_secs_f64();
+    Ok(done)
 }
 
 /// Two-way: removes each fibre's own disturbance from its samples and books the step's

@@ -239,14 +239,18 @@ impl CellList {
         self.ids = ids;
     }
 
+    /// The cell coordinates of `r`, clamped to the grid (clamping keeps points within a
+    /// cell's side of each other in neighbouring cells).
     fn coords(&self, r: &Vector3<f64>) -> [i64; 3] {
         std::array::from_fn(|k| {
             let x = if self.periodic[k] {
-                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
+                fold(r[k], self.side[k] * self.dims[k] as f64)
             } else {
                 r[k] - self.lo[k]
             };
-            ((x / self.side[k]).floor() as i64).clamp(0, self.dims[k] as i64 - 1)
+            // truncation, not `floor` (a call into the C library on the baseline x86-64
+            // target): the two differ only below zero, where both clamp to cell 0
+            ((x / self.side[k]) as i64).clamp(0, self.dims[k] as i64 - 1)
         })
     }
 
@@ -358,6 +362,23 @@ impl CellList {
 
     fn slots(&self, id: usize) -> std::ops::Range<usize> {
         self.start[id] as usize..self.start[id + 1] as usize
+    }
+}
+
+/// `x.rem_euclid(period)`, bit for bit, without the floating remainder (a call into the C
+/// library on the baseline x86-64 target) for a point within one period of the box.
+#[inline(always)]
+fn fold(x: f64, period: f64) -> f64 {
+    if (0.0..period).contains(&x) {
+        x
+    } else if x < 0.0 && x > -period {
+        // rem_euclid: x % period is x itself here, then + period
+        x + period
+    } else if x >= period && x < 2.0 * period {
+        // the remainder is exact: x − period
+        x - period
+    } else {
+        x.rem_euclid(period)
     }
 }
 
@@ -907,6 +928,59 @@ impl Search {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The cell coordinates fold without the library remainder and truncate instead of
+    /// `floor`: the same bits and the same cells as the library's, inside the box, one
+    /// period either side, on the edges and far away.
+    #[test]
+    fn folding_is_the_remainder_and_cells_are_the_floor() {
+        let period = 942.477_796_076_938;
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            period,
+            -period,
+            2.0 * period,
+            -1e-300,
+            1e-300,
+            period - 1e-13,
+            -period + 1e-13,
+            5.5 * period,
+            -7.25 * period,
+            f64::NAN,
+            f64::INFINITY,
+        ];
+        let mut rng = Rng(7);
+        for _ in 0..100_000 {
+            xs.push((rng.next() * 6.0 - 3.0) * period);
+        }
+        for &x in &xs {
+            let (got, want) = (fold(x, period), x.rem_euclid(period));
+            assert!(
+                got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                "{x}: {got} against {want}"
+            );
+        }
+        let cells = CellList {
+            dims: [283, 91, 141],
+            side: [period / 283.0, 3.3, 471.2 / 141.0],
+            lo: [0.0, -150.0, 0.0],
+            periodic: [true, false, true],
+            ..Default::default()
+        };
+        for w in xs.windows(3) {
+            let r = Vector3::new(w[0], w[1] / period * 200.0, w[2] / 2.0);
+            let want: [i64; 3] = std::array::from_fn(|k| {
+                let x = if cells.periodic[k] {
+                    r[k].rem_euclid(cells.side[k] * cells.dims[k] as f64)
+                } else {
+                    r[k] - cells.lo[k]
+                };
+                ((x / cells.side[k]).floor() as i64).clamp(0, cells.dims[k] as i64 - 1)
+            });
+            assert_eq!(cells.coords(&r), want, "{r:?}");
+        }
+    }
     use crate::contact::geometry;
 
     /// A small deterministic generator (xorshift64*), uniform in [0, 1).
