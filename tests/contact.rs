@@ -131,9 +131,14 @@ fn assert_same(
             ("axis", &x.axis, &y.axis),
             ("velocity", &x.velocity, &y.velocity),
             ("angular_velocity", &x.angular_velocity, &y.angular_velocity),
+            ("contact_force", &x.contact_force, &y.contact_force),
         ] {
             assert!(bits(p) == bits(q), "{what}: step {k} {name} differs");
         }
+        assert!(
+            x.contact_segment == y.contact_segment && x.contacts == y.contacts,
+            "{what}: step {k} contact segments differ"
+        );
     }
 }
 
@@ -172,6 +177,25 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
         touched > 0.01,
         "fibres hardly touched: {touched} contacts per fibre"
     );
+    // the states carry each step's contact load: segments that touched, and forces that
+    // sum to zero over the group (every pair is inside it), to round-off
+    let mut listed = 0;
+    for (step, s) in &a {
+        listed += s.contact_segment.len();
+        let (mut sum, mut largest) = ([0.0_f64; 3], 0.0_f64);
+        for f in s.contact_force.chunks_exact(3) {
+            for c in 0..3 {
+                sum[c] += f[c];
+                largest = largest.max(f[c].abs());
+            }
+        }
+        let n = s.contact_segment.len() as f64;
+        assert!(
+            sum.iter().all(|x| x.abs() <= 1e-12 * largest * n.max(1.0)),
+            "step {step}: contact forces sum to {sum:?}"
+        );
+    }
+    assert!(listed > 0, "no state lists a segment in contact");
     for transport in ["zenoh", "iceoryx2"] {
         let out = dir.join(transport);
         run(&file, &out, transport);

@@ -10,6 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 path = sys.argv[1]
 counts = {}
 last_step = {}
+touched_total = 0
 with open(path, "rb") as f:
     reader = make_reader(f, decoder_factories=[DecoderFactory()])
     for schema, channel, message, decoded in reader.iter_decoded_messages():
@@ -17,9 +18,15 @@ with open(path, "rb") as f:
         if schema.name == "fiberflow_msgs/msg/FiberGroupState":
             n = sum(decoded.segments_per_fiber)
             assert len(decoded.centre) == 3 * n, "centre length"
-            assert decoded.schema_version == 3
+            assert decoded.schema_version == 4
             # one force per segment in two-way runs, none one-way
             assert len(decoded.hydro_force) in (0, 3 * n), "hydro_force length"
+            # contact: the touched segments, ascending, each with a force and a count
+            touched = list(decoded.contact_segment)
+            assert touched == sorted(set(touched)) and all(i < n for i in touched)
+            assert len(decoded.contact_force) == 3 * len(touched), "contact_force length"
+            assert len(decoded.contacts) == len(touched), "contacts length"
+            touched_total += len(touched)
             last_step[decoded.group] = decoded.step
         if schema.name == "fiberflow_msgs/msg/FlowStatus":
             assert len(decoded.fibre_force_plus) in (0, 3), "fibre_force_plus length"
@@ -31,4 +38,13 @@ with open(path, "rb") as f:
         if schema.name == "fiberflow_msgs/msg/FlowSlice":
             assert len(decoded.values) == len(decoded.u_plus) * len(decoded.v_plus)
     summary = reader.get_summary()
-print(json.dumps({"counts": counts, "last_step": last_step, "channels": len(summary.channels)}))
+print(
+    json.dumps(
+        {
+            "counts": counts,
+            "last_step": last_step,
+            "channels": len(summary.channels),
+            "contact_segments": touched_total,
+        }
+    )
+)

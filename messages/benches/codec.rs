@@ -50,6 +50,9 @@ fn state() -> FiberGroupState {
         velocity: numbers(3 * points, 0.5),
         angular_velocity: numbers(3 * points, 0.6),
         hydro_force: vec![],
+        contact_segment: vec![],
+        contact_force: vec![],
+        contacts: vec![],
     }
 }
 

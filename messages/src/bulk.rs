@@ -493,7 +493,7 @@ impl<'a> SamplesView<'a> {
         let header = r.group_header().map_err(malformed)?;
         let velocity = r.seq_bytes(8).map_err(malformed)?;
         let velocity_gradient = r.seq_bytes(8).map_err(malformed)?;
-        if header.schema_version != crate::SCHEMA_VERSION {
+        if !crate::readable_schema(header.schema_version) {
             return Err(crate::DecodeError::Version {
                 got: header.schema_version,
                 expected: crate::SCHEMA_VERSION,
@@ -603,6 +603,12 @@ impl Bulk for FiberGroupState {
         w.seq_f64(&m.velocity);
         w.seq_f64(&m.angular_velocity);
         w.seq_f64(&m.hydro_force);
+        // schema 3 had no contact arrays: a state read from it is written back as it was
+        if m.schema_version >= 4 {
+            w.seq_u32(&m.contact_segment);
+            w.seq_f64(&m.contact_force);
+            w.seq_u32(&m.contacts);
+        }
         w.finish()
     }
 }
@@ -634,6 +640,15 @@ pub(crate) fn read_state_into(out: &mut FiberGroupState, bytes: &[u8]) -> Result
     r.seq_f64_into(&mut out.velocity)?;
     r.seq_f64_into(&mut out.angular_velocity)?;
     r.seq_f64_into(&mut out.hydro_force)?;
+    if h.schema_version >= 4 {
+        r.seq_u32_into(&mut out.contact_segment)?;
+        r.seq_f64_into(&mut out.contact_force)?;
+        r.seq_u32_into(&mut out.contacts)?;
+    } else {
+        out.contact_segment.clear();
+        out.contact_force.clear();
+        out.contacts.clear();
+    }
     Ok(())
 }
 
@@ -782,6 +797,34 @@ mod tests {
     /// A state decoded into one used before (its arrays holding another state's values)
     /// gives what `decode` gives: the same state, bit for bit, or the same error — for
     /// 20,000 random, truncated and corrupted payloads.
+    #[test]
+    fn a_schema_3_state_reads_without_contact_and_writes_back_unchanged() {
+        // a complete two-way state of 50 case-1 fibres, recorded by a build of schema 3
+        let old: &[u8] = include_bytes!("../testdata/state-schema3.cdr");
+        let s: FiberGroupState = crate::decode(old).expect("schema 3 reads");
+        assert_eq!(s.schema_version, 3);
+        assert_eq!((s.segments_per_fiber.len(), s.centre.len()), (50, 1050));
+        assert_eq!(s.hydro_force.len(), 1050);
+        assert!(
+            s.contact_segment.is_empty() && s.contact_force.is_empty() && s.contacts.is_empty()
+        );
+        assert_eq!(crate::sanity::Sane::check(&s), Ok(()));
+        // written back, the same bytes; as schema 4, the three empty arrays follow
+        assert_eq!(crate::encode(&s), old);
+        let mut now = s.clone();
+        now.schema_version = crate::SCHEMA_VERSION;
+        let bytes = crate::encode(&now);
+        assert_eq!(bytes.len(), old.len() + 12);
+        assert_eq!(crate::decode::<FiberGroupState>(&bytes), Ok(now));
+        // a state from before schema 3 is refused by its version
+        let mut older = old.to_vec();
+        older[4..8].copy_from_slice(&2u32.to_le_bytes());
+        assert!(matches!(
+            crate::decode::<FiberGroupState>(&older),
+            Err(crate::DecodeError::Version { got: 2, .. })
+        ));
+    }
+
     #[test]
     fn state_decoded_into_a_used_one_is_decode() {
         let mut r = Rng::new(17);

@@ -12,7 +12,7 @@ use std::mem::MaybeUninit;
 pub enum DecodeError {
     #[error("undecodable payload ({len} bytes): {reason}")]
     Malformed { len: usize, reason: String },
-    #[error("schema version {got}, this build understands {expected}")]
+    #[error("schema version {got}, this build understands 3 to {expected}")]
     Version { got: u32, expected: u32 },
 }
 
@@ -155,7 +155,7 @@ pub fn serde_decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
 /// Decodes and checks the schema version.
 pub fn decode<M: Message>(bytes: &[u8]) -> Result<M, DecodeError> {
     let m = M::read_cdr(bytes)?;
-    if m.schema_version() != SCHEMA_VERSION {
+    if !crate::readable_schema(m.schema_version()) {
         return Err(DecodeError::Version {
             got: m.schema_version(),
             expected: SCHEMA_VERSION,
@@ -176,7 +176,7 @@ pub fn decode_state_into(
         len: bytes.len(),
         reason,
     })?;
-    if out.schema_version != SCHEMA_VERSION {
+    if !crate::readable_schema(out.schema_version) {
         return Err(DecodeError::Version {
             got: out.schema_version,
             expected: SCHEMA_VERSION,
@@ -195,7 +195,7 @@ pub fn peek_group_header(bytes: &[u8]) -> Result<GroupHeader, DecodeError> {
             len: bytes.len(),
             reason: e.to_string(),
         })?;
-    if h.schema_version != SCHEMA_VERSION {
+    if !crate::readable_schema(h.schema_version) {
         return Err(DecodeError::Version {
             got: h.schema_version,
             expected: SCHEMA_VERSION,
@@ -227,6 +227,9 @@ mod tests {
             velocity: vec![0.5; 6],
             angular_velocity: vec![0.0; 6],
             hydro_force: vec![],
+            contact_segment: vec![],
+            contact_force: vec![],
+            contacts: vec![],
         }
     }
 

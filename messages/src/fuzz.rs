@@ -127,6 +127,24 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
     );
     // two-way forces: absent (one-way) half the time
     let e = if r.chance(2) { 0 } else { r.len_near(3 * nseg) };
+    // contact's forces and counts: absent (no contact) half the time
+    let touched = if r.chance(2) {
+        0
+    } else {
+        r.below(nseg as u64 + 1) as usize
+    };
+    let mut contact_segment: Vec<u32> = (0..r.len_near(touched))
+        .map(|_| r.below(nseg as u64 + 1) as u32)
+        .collect();
+    if r.tidy {
+        contact_segment.sort_unstable();
+        contact_segment.dedup();
+        contact_segment.retain(|&i| (i as usize) < nseg);
+    }
+    let (g, h) = (
+        r.len_near(3 * contact_segment.len()),
+        r.len_near(contact_segment.len()),
+    );
     let (first_fiber, group_fibers) = r.piece(nf);
     FiberGroupState {
         schema_version: SCHEMA_VERSION,
@@ -154,6 +172,9 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
         velocity: r.floats(c),
         angular_velocity: r.floats(d),
         hydro_force: r.floats(e),
+        contact_segment,
+        contact_force: r.floats(g),
+        contacts: (0..h).map(|_| 1 + r.below(9) as u32).collect(),
     }
 }
 

@@ -24,4 +24,14 @@ pub use codec::{
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.
-pub const SCHEMA_VERSION: u32 = 3;
+pub const SCHEMA_VERSION: u32 = 4;
+
+/// The oldest version this build still reads: schema 3 differs from 4 only in
+/// `FiberGroupState`, which then has no contact arrays (read as empty, and written back
+/// without them, so a version-3 message keeps its layout).
+pub const OLDEST_READABLE_SCHEMA: u32 = 3;
+
+/// Whether this build reads messages of schema `version`.
+pub fn readable_schema(version: u32) -> bool {
+    (OLDEST_READABLE_SCHEMA..=SCHEMA_VERSION).contains(&version)
+}

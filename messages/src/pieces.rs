@@ -181,7 +181,19 @@ pub fn merge_states(mut pieces: Vec<FiberGroupState>) -> Option<FiberGroupState>
     }
     let mut it = pieces.into_iter();
     let mut s = it.next()?;
+    let segments = |p: &FiberGroupState| {
+        p.segments_per_fiber
+            .iter()
+            .fold(0u32, |a, &n| a.saturating_add(n))
+    };
+    let mut segments_before = segments(&s);
     for p in it {
+        s.contact_segment.extend(
+            p.contact_segment
+                .iter()
+                .map(|&i| i.saturating_add(segments_before)),
+        );
+        segments_before = segments_before.saturating_add(segments(&p));
         s.segments_per_fiber.extend(p.segments_per_fiber);
         s.segment_length.extend(p.segment_length);
         s.diameter.extend(p.diameter);
@@ -192,6 +204,8 @@ pub fn merge_states(mut pieces: Vec<FiberGroupState>) -> Option<FiberGroupState>
         s.velocity.extend(p.velocity);
         s.angular_velocity.extend(p.angular_velocity);
         s.hydro_force.extend(p.hydro_force);
+        s.contact_force.extend(p.contact_force);
+        s.contacts.extend(p.contacts);
     }
     s.first_fiber = 0;
     Some(s)
@@ -253,6 +267,43 @@ mod tests {
         // a slice of another group size starts over
         assert_eq!(t.add("g", 3, 0, 3, 9, "p"), None);
         assert_eq!(t.add("g", 3, 3, 6, 9, "q"), Some(vec!["p", "q"]));
+    }
+
+    /// The contact arrays of a group's slices merge with each slice's segment indices
+    /// moved past the segments of the slices before it.
+    #[test]
+    fn merged_states_number_contact_segments_over_the_whole_group() {
+        let piece = |first: u32, spf: Vec<u32>, touched: Vec<u32>| {
+            let n: u32 = spf.iter().sum();
+            FiberGroupState {
+                schema_version: crate::SCHEMA_VERSION,
+                group: "g".into(),
+                first_fiber: first,
+                group_fibers: 3,
+                centre: vec![0.0; 3 * n as usize],
+                contact_force: touched.iter().flat_map(|&i| [i as f64, 0.0, 0.0]).collect(),
+                contacts: vec![1; touched.len()],
+                contact_segment: touched,
+                segments_per_fiber: spf,
+                ..Default::default()
+            }
+        };
+        let whole = merge_states(vec![
+            piece(0, vec![7], vec![2, 6]),
+            piece(1, vec![5, 7], vec![0, 11]),
+        ])
+        .expect("merged");
+        assert_eq!(whole.contact_segment, vec![2, 6, 7, 18]);
+        assert_eq!(
+            whole
+                .contact_force
+                .iter()
+                .step_by(3)
+                .copied()
+                .collect::<Vec<_>>(),
+            vec![2.0, 6.0, 0.0, 11.0]
+        );
+        assert_eq!(whole.contacts, vec![1; 4]);
     }
 
     /// Two slices of a 3-fibre group, in either arrival order, merge into the whole

@@ -239,6 +239,24 @@ impl Sane for FiberGroupState {
             len("hydro_force", self.hydro_force.len(), want)?;
             finite("hydro_force", &self.hydro_force)?;
         }
+        // contact: the segments that touched, ascending, each with a force and a count
+        let touched = self.contact_segment.len();
+        len("contact_force", self.contact_force.len(), 3 * touched)?;
+        len("contacts", self.contacts.len(), touched)?;
+        finite("contact_force", &self.contact_force)?;
+        if let Some(i) = self.contact_segment.windows(2).position(|w| w[0] >= w[1]) {
+            return Err(format!("contact_segment[{}] is not ascending", i + 1));
+        }
+        if let Some(&last) = self.contact_segment.last() {
+            if u64::from(last) >= nseg {
+                return Err(format!(
+                    "contact_segment {last} is past the message's {nseg} segments"
+                ));
+            }
+        }
+        if self.contacts.contains(&0) {
+            return Err("a listed contact segment with 0 contacts".into());
+        }
         finite("segment_length", &self.segment_length)?;
         finite("diameter", &self.diameter)?;
         finite("density_ratio", &self.density_ratio)
@@ -387,6 +405,9 @@ mod tests {
             velocity: vec![0.0; 6],
             angular_velocity: vec![0.0; 6],
             hydro_force: vec![],
+            contact_segment: vec![],
+            contact_force: vec![],
+            contacts: vec![],
         }
     }
 
@@ -408,5 +429,31 @@ mod tests {
         let mut no_centres = lean.clone();
         no_centres.centre.pop();
         assert!(no_centres.check().unwrap_err().contains("centre"));
+    }
+
+    /// The contact arrays list touched segments ascending, inside the message, each with
+    /// three force values and at least one contact; anything else is refused by name.
+    #[test]
+    fn contact_arrays_list_touched_segments_with_a_force_and_a_count() {
+        let mut s = state();
+        s.contact_segment = vec![0, 1];
+        s.contact_force = vec![0.5, -1.0, 0.0, -0.5, 1.0, 0.0];
+        s.contacts = vec![1, 2];
+        assert_eq!(s.check(), Ok(()));
+        let refused = |f: &dyn Fn(&mut FiberGroupState), name: &str| {
+            let mut t = s.clone();
+            f(&mut t);
+            let e = t.check().unwrap_err();
+            assert!(e.contains(name), "{e}");
+        };
+        refused(
+            &|t| t.contact_force.pop().map(|_| ()).unwrap_or(()),
+            "contact_force",
+        );
+        refused(&|t| t.contacts.push(1), "contacts");
+        refused(&|t| t.contact_force[4] = f64::NAN, "contact_force");
+        refused(&|t| t.contact_segment = vec![1, 1], "ascending");
+        refused(&|t| t.contact_segment = vec![1, 2], "past");
+        refused(&|t| t.contacts = vec![1, 0], "0 contacts");
     }
 }

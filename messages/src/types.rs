@@ -133,6 +133,18 @@ pub struct FiberGroupState {
     /// (wall units, ρ_f u_τ² (ν/u_τ)²). The flow node adds −F^h to the fluid's next step.
     /// Carried by lean states too.
     pub hydro_force: Vec<f64>,
+    /// Fibre–fibre contact (schema 4; empty without contact or when nothing touched):
+    /// the segments that touched in the step that ended at `step`, as indices into this
+    /// message's segments (fibre-major, from 0), ascending. Few of a suspension's segments
+    /// touch in a step, so the contact arrays list only those. Carried by lean states too.
+    pub contact_segment: Vec<u32>,
+    /// 3 per listed segment: the contact force the segments of other fibres (and the
+    /// fibre's own non-adjacent ones) exerted on it over the step, the sum of its pairs'
+    /// impulses over Δt (wall units, as `hydro_force`). Internal to the suspension: the
+    /// fluid does not receive it.
+    pub contact_force: Vec<f64>,
+    /// Per listed segment: how many pairs it was in that touched in the step (≥ 1).
+    pub contacts: Vec<u32>,
 }
 
 impl FiberGroupState {

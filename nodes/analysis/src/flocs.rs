@@ -304,6 +304,11 @@ pub fn merged(states: &[&FiberGroupState]) -> Option<FiberGroupState> {
             return None;
         }
         m.group_fibers += s.group_fibers;
+        let before: u32 = m.segments_per_fiber.iter().sum();
+        m.contact_segment
+            .extend(s.contact_segment.iter().map(|&i| i + before));
+        m.contact_force.extend(&s.contact_force);
+        m.contacts.extend(&s.contacts);
         m.segments_per_fiber.extend(&s.segments_per_fiber);
         m.segment_length.extend(&s.segment_length);
         m.diameter.extend(&s.diameter);

@@ -7,16 +7,21 @@
 //! these five arrays and the step number are the whole integrator state. Two-way coupling
 //! adds a sixth: each segment's hydrodynamic force of the last step, which the state of the
 //! checkpoint's step returns to the fluid (a resumed run sends the same bits). They are
-//! stored structure-of-arrays, 3 f64 per segment each, little-endian, after a header, and
-//! closed by an FNV-1a checksum; files are written atomically (temp file, fsync, rename).
-//! Files of the first format (five arrays, `FFGRPCK1`) are read with zero forces.
+//! stored structure-of-arrays, 3 f64 per segment each, little-endian, after a header.
+//! Contact adds the last step's contact load (the segments that touched, their forces and
+//! pair counts: the state of the checkpoint's step carries them again) as a count and three
+//! arrays after the six. An FNV-1a checksum closes the file; files are written atomically
+//! (temp file, fsync, rename). Files of the earlier formats are read: `FFGRPCK1` (five
+//! arrays) with zero forces, `FFGRPCK2` (six) with no contact load.
 
 use crate::fibre::Segment;
 use crate::group::FibreGroup;
 use nalgebra::Vector3;
 use std::path::Path;
 
-const MAGIC: &[u8; 8] = b"FFGRPCK2";
+const MAGIC: &[u8; 8] = b"FFGRPCK3";
+/// The format before contact's load: six arrays.
+const MAGIC_V2: &[u8; 8] = b"FFGRPCK2";
 /// The format before two-way coupling: no force array.
 const MAGIC_V1: &[u8; 8] = b"FFGRPCK1";
 
@@ -48,6 +53,8 @@ pub struct GroupSnapshot {
     pub normal: Vec<f64>,
     /// Hydrodynamic force of the last step ([`Segment::f`]).
     pub force: Vec<f64>,
+    /// Contact load of the last step ([`FibreGroup::contact_load`]).
+    pub contact: crate::contact::SegmentLoad,
 }
 
 impl GroupSnapshot {
@@ -65,6 +72,7 @@ impl GroupSnapshot {
             angular_velocity: Vec::with_capacity(3 * n),
             normal: Vec::with_capacity(3 * n),
             force: Vec::with_capacity(3 * n),
+            contact: group.contact_load().clone(),
         };
         for seg in (0..group.len()).flat_map(|k| group.segments(k)) {
             s.centre.extend_from_slice(seg.r.as_slice());
@@ -110,6 +118,7 @@ impl GroupSnapshot {
                 i += 1;
             }
         }
+        group.restore_contact_load(self.contact.clone());
         Ok(())
     }
 
@@ -141,6 +150,14 @@ impl GroupSnapshot {
                 out.extend_from_slice(&x.to_le_bytes());
             }
         }
+        let c = &self.contact;
+        out.extend_from_slice(&(c.segment.len() as u64).to_le_bytes());
+        for i in c.segment.iter().chain(&c.count) {
+            out.extend_from_slice(&i.to_le_bytes());
+        }
+        for x in &c.force {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
         let sum = fnv1a(&out);
         out.extend_from_slice(&sum.to_le_bytes());
         out
@@ -151,9 +168,10 @@ impl GroupSnapshot {
         if b.len() < 40 {
             return Err("too short".into());
         }
-        let arrays_in_file = match &b[..8] {
-            m if m == MAGIC => ARRAYS,
-            m if m == MAGIC_V1 => ARRAYS - 1,
+        let (arrays_in_file, with_load) = match &b[..8] {
+            m if m == MAGIC => (ARRAYS, true),
+            m if m == MAGIC_V2 => (ARRAYS, false),
+            m if m == MAGIC_V1 => (ARRAYS - 1, false),
             _ => return Err("wrong magic".into()),
         };
         let (body, tail) = b.split_at(b.len() - 8);
@@ -177,6 +195,23 @@ impl GroupSnapshot {
             })
             .and_then(|x| x.checked_add(32))
             .ok_or("sizes overflow")?;
+        // the contact load: a count, then per listed segment its index, pair count and force
+        let touched = if with_load {
+            if body.len() < expect + 8 {
+                return Err("no contact load".into());
+            }
+            usize::try_from(word(expect)).map_err(|_| "contact count overflows")?
+        } else {
+            0
+        };
+        let expect = if with_load {
+            touched
+                .checked_mul(32)
+                .and_then(|x| x.checked_add(expect + 8))
+                .ok_or("sizes overflow")?
+        } else {
+            expect
+        };
         if body.len() != expect {
             return Err(format!(
                 "{} bytes for {nfib} fibres and {nseg} segments, expected {expect}",
@@ -207,6 +242,25 @@ impl GroupSnapshot {
             o += 24 * nseg;
             arrays.push(a);
         }
+        let mut contact = crate::contact::SegmentLoad::default();
+        if with_load {
+            o += 8;
+            let u32_at = |o: usize| {
+                let mut w = [0u8; 4];
+                w.copy_from_slice(&body[o..o + 4]);
+                u32::from_le_bytes(w)
+            };
+            contact.segment = (0..touched).map(|i| u32_at(o + 4 * i)).collect();
+            o += 4 * touched;
+            contact.count = (0..touched).map(|i| u32_at(o + 4 * i)).collect();
+            o += 4 * touched;
+            contact.force = (0..3 * touched)
+                .map(|i| f64::from_bits(word(o + 8 * i)))
+                .collect();
+            if contact.segment.iter().any(|&s| s as usize >= nseg) {
+                return Err("a contact segment past the group's segments".into());
+            }
+        }
         let mut it = arrays.into_iter();
         let mut next = || it.next().unwrap_or_default();
         Ok(Self {
@@ -222,6 +276,7 @@ impl GroupSnapshot {
             } else {
                 vec![0.0; 3 * nseg]
             },
+            contact,
         })
     }
 
@@ -345,6 +400,67 @@ mod tests {
         let f0 = shear(&b)[..7].to_vec();
         let mut one = b.fibre(0);
         step(b.params(), &mut one, &f0, dt).unwrap();
+    }
+
+    /// The last step's contact load goes through a checkpoint and back into the group
+    /// unchanged (a resumed node sends the checkpoint's state again, bit for bit); a file
+    /// of the format before it (`FFGRPCK2`) reads with no load, and one whose load names a
+    /// segment past the group is refused.
+    #[test]
+    fn the_contact_load_survives_a_checkpoint_and_older_files_read_without_it() {
+        let mut g = group();
+        let load = crate::contact::SegmentLoad {
+            segment: vec![3, 9, 20],
+            force: vec![
+                0.5,
+                -1.25,
+                3.0,
+                1e-300,
+                0.0,
+                -0.0,
+                f64::MAX,
+                -7.0,
+                1.0 / 3.0,
+            ],
+            count: vec![1, 2, 1],
+        };
+        g.restore_contact_load(load.clone());
+        let snap = GroupSnapshot::capture(&g, 5);
+        let bytes = snap.to_bytes();
+        let back = GroupSnapshot::from_bytes(&bytes).unwrap();
+        assert_eq!(back, snap);
+        let mut h = group();
+        back.restore(&mut h).unwrap();
+        let bits = |l: &crate::contact::SegmentLoad| {
+            (
+                l.segment.clone(),
+                l.count.clone(),
+                l.force.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            )
+        };
+        assert_eq!(bits(h.contact_load()), bits(&load));
+        // the same file without its load, as the format before wrote it
+        let empty = GroupSnapshot {
+            contact: Default::default(),
+            ..snap.clone()
+        };
+        let b = empty.to_bytes();
+        let mut v2 = b[..b.len() - 16].to_vec();
+        v2[..8].copy_from_slice(MAGIC_V2);
+        let sum = fnv1a(&v2);
+        v2.extend_from_slice(&sum.to_le_bytes());
+        assert_eq!(GroupSnapshot::from_bytes(&v2).unwrap(), empty);
+        // a load past the group's 21 segments
+        let past = GroupSnapshot {
+            contact: crate::contact::SegmentLoad {
+                segment: vec![21],
+                force: vec![0.0; 3],
+                count: vec![1],
+            },
+            ..snap
+        };
+        let e = GroupSnapshot::from_bytes(&past.to_bytes()).unwrap_err();
+        assert!(e.contains("past"), "{e}");
     }
 
     #[test]

@@ -72,6 +72,9 @@ pub struct FibreGroup {
     contact: Option<ContactParams>,
     /// What contact did in the last step.
     last_contact: ContactOutcome,
+    /// The last step's contact load on this group's segments (or the one a checkpoint
+    /// restored).
+    last_load: contact::SegmentLoad,
     /// With contact on: every segment's centre, axis and normal at the start of the step,
     /// fibre-major (kept between steps for its allocation).
     start: Vec<[Vector3<f64>; 3]>,
@@ -151,6 +154,7 @@ impl FibreGroup {
             work: Work::default(),
             contact: None,
             last_contact: ContactOutcome::default(),
+            last_load: contact::SegmentLoad::default(),
             start: Vec::new(),
             search: contact::Search::default(),
         }
@@ -169,6 +173,18 @@ impl FibreGroup {
     /// What contact did in the last step (empty when contact is off).
     pub fn last_contact(&self) -> &ContactOutcome {
         &self.last_contact
+    }
+
+    /// The last step's contact load on this group's segments (empty when contact is off
+    /// or nothing touched): what its state message carries.
+    pub fn contact_load(&self) -> &contact::SegmentLoad {
+        &self.last_load
+    }
+
+    /// Sets the contact load of the step a checkpoint holds (it reports that step's
+    /// state again, bit for bit).
+    pub fn restore_contact_load(&mut self, load: contact::SegmentLoad) {
+        self.last_load = load;
     }
 
     /// Keeps every segment's centre, axis and normal before a step with contact, read in
@@ -229,6 +245,8 @@ impl FibreGroup {
                 self.set_segment(k, i, *s);
             }
         }
+        self.last_load =
+            contact::SegmentLoad::of(&outcome.contacts, 0..self.len(), &self.offsets, dt);
         self.last_contact = outcome;
     }
 
@@ -522,6 +540,7 @@ impl FibreGroup {
         outcome.moved.retain(|k| mine.contains(k));
         outcome.locked.retain(|k| mine.contains(k));
         outcome.frozen.retain(|k| mine.contains(k));
+        self.last_load = contact::SegmentLoad::of(&outcome.contacts, mine, &self.offsets, dt);
         self.last_contact = outcome;
     }
 

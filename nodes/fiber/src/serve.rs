@@ -407,6 +407,9 @@ impl Served {
             velocity: Vec::new(),
             angular_velocity: Vec::new(),
             hydro_force: Vec::new(),
+            contact_segment: Vec::new(),
+            contact_force: Vec::new(),
+            contacts: Vec::new(),
         });
         let metrics_msg = Encode(FiberGroupMetrics {
             schema_version: SCHEMA_VERSION,
@@ -548,6 +551,10 @@ impl Served {
         if self.two_way {
             self.group.extend_forces(&mut st.hydro_force);
         }
+        let load = self.group.contact_load();
+        st.contact_segment.clone_from(&load.segment);
+        st.contact_force.clone_from(&load.force);
+        st.contacts.clone_from(&load.count);
         self.bus.publish_message(&self.state_topic, &self.state_msg)
     }
 

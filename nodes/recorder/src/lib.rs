@@ -1082,6 +1082,9 @@ mod tests {
             velocity: vec![0.0; 6],
             angular_velocity: vec![0.0; 6],
             hydro_force: vec![],
+            contact_segment: vec![],
+            contact_force: vec![],
+            contacts: vec![],
         }
     }
 

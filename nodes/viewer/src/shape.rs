@@ -128,6 +128,9 @@ mod tests {
             velocity: vec![0.0; 3 * n],
             angular_velocity: vec![0.0; 3 * n],
             hydro_force: vec![],
+            contact_segment: vec![],
+            contact_force: vec![],
+            contacts: vec![],
         }
     }
 

@@ -102,6 +102,54 @@ pub struct Contact {
     pub impulse: Vector3<f64>,
 }
 
+/// The contact load of one step on the segments of one piece of a suspension (what its
+/// state message carries: `FiberGroupState.contact_segment`, `contact_force`,
+/// `contacts`): the segments that touched, as fibre-major indices from the piece's first
+/// segment, ascending; the force on each, the sum of its pairs' impulses (in the order of
+/// [`Outcome::contacts`]) over Δt, 3 values; and how many pairs it was in.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SegmentLoad {
+    pub segment: Vec<u32>,
+    pub force: Vec<f64>,
+    pub count: Vec<u32>,
+}
+
+impl SegmentLoad {
+    /// The load of `contacts` on the fibres `own` of the solve's numbering (the piece's
+    /// fibre k is the solve's `own.start + k`), whose segments start at `offsets[k]`
+    /// (plus the total), over a step of `dt`. Every shard holds the same contacts in the
+    /// same order, so a segment's sum has the same bits whatever the shards.
+    pub fn of(contacts: &[Contact], own: Range<usize>, offsets: &[usize], dt: f64) -> Self {
+        let flat = |(k, i): (usize, usize)| -> Option<usize> {
+            own.contains(&k).then(|| offsets[k - own.start] + i)
+        };
+        // (segment, impulse on it): the first segment gets the impulse, the second its
+        // opposite; a stable sort keeps the contacts' order within a segment
+        let mut parts: Vec<(usize, Vector3<f64>)> = Vec::new();
+        for c in contacts {
+            parts.extend(flat(c.a).map(|s| (s, c.impulse)));
+            parts.extend(flat(c.b).map(|s| (s, -c.impulse)));
+        }
+        parts.sort_by_key(|p| p.0);
+        let mut load = Self::default();
+        let mut i = 0;
+        while i < parts.len() {
+            let seg = parts[i].0;
+            let mut sum = Vector3::zeros();
+            let mut n = 0u32;
+            while i < parts.len() && parts[i].0 == seg {
+                sum += parts[i].1;
+                n += 1;
+                i += 1;
+            }
+            load.segment.push(seg as u32);
+            load.force.extend_from_slice((sum / dt).as_slice());
+            load.count.push(n);
+        }
+        load
+    }
+}
+
 /// What [`resolve`] did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Outcome {
@@ -1856,11 +1904,49 @@ pub(crate) mod tests {
         assert!(contacts > 50, "only {contacts} contacts in 25 steps");
     }
 
+    /// The per-segment contact load of a step (what the state message carries): its
+    /// forces sum to zero (to round-off against the largest), its counts to two per
+    /// contact, and a group cut into two pieces gives each piece the whole's values, bit
+    /// for bit, renumbered from the piece's first segment.
+    fn assert_loads_are_the_contacts(out: &Outcome, fibres: &[Fibre]) {
+        let n = fibres.len();
+        let offsets = offsets(fibres);
+        let whole = SegmentLoad::of(&out.contacts, 0..n, &offsets, DT);
+        let mut sum = Vector3::zeros();
+        let mut largest: f64 = 0.0;
+        for f in whole.force.chunks_exact(3) {
+            let f = Vector3::new(f[0], f[1], f[2]);
+            sum += f;
+            largest = largest.max(f.norm());
+        }
+        assert!(sum.norm() <= 1e-12 * largest.max(1e-300) * whole.segment.len() as f64);
+        assert_eq!(
+            whole.count.iter().map(|&c| c as usize).sum::<usize>(),
+            2 * out.contacts.len()
+        );
+        assert!(whole.segment.windows(2).all(|w| w[0] < w[1]));
+        let half = n / 2;
+        let first = SegmentLoad::of(&out.contacts, 0..half, &offsets[..=half], DT);
+        let rest: Vec<usize> = offsets[half..].iter().map(|o| o - offsets[half]).collect();
+        let second = SegmentLoad::of(&out.contacts, half..n, &rest, DT);
+        let mut joined = first.clone();
+        joined
+            .segment
+            .extend(second.segment.iter().map(|&i| i + offsets[half] as u32));
+        joined.force.extend(&second.force);
+        joined.count.extend(&second.count);
+        assert_eq!(joined.segment, whole.segment);
+        assert_eq!(joined.count, whole.count);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&joined.force), bits(&whole.force));
+    }
+
     /// At scale: 10⁴ case-1 fibres at random in a band 24 wall units thick across the
     /// paper's box (crowding N ≈ 4.6 in the band), in shear with random velocities added,
     /// μ = 0.5, 10 steps: every step the contact forces sum to zero and so do their
-    /// torques (to round-off), momentum is what the free step left, fibres touch, and no
-    /// centre-lines end closer than 0.99 d.
+    /// torques (to round-off), momentum is what the free step left, fibres touch, no
+    /// centre-lines end closer than 0.99 d, and the per-segment loads are the contacts'
+    /// (`assert_loads_are_the_contacts`).
     #[test]
     fn contact_forces_of_ten_thousand_fibres_sum_to_zero_every_step() {
         let (lx, lz) = (942.48, 471.24);
@@ -1916,6 +2002,7 @@ pub(crate) mod tests {
             let out = resolve(&mut fibres, &before, &[], &c, DT);
             contacts += out.contacts.len();
             assert_balanced(&out, &fibres, free, lx);
+            assert_loads_are_the_contacts(&out, &fibres);
             let m = touching(&fibres, &period, -0.01);
             assert!(
                 m.is_empty(),
