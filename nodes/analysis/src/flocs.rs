@@ -61,6 +61,12 @@ pub struct FlocRow {
     pub self_closest_over_d: f64,
     /// The same by where the fibres are ([`BAND_NAMES`]).
     pub bands: [BandRow; 3],
+    /// The solve's own account of the step that ended at this state (the state's contact
+    /// arrays, schema 4; 0 and NaN when it has none): the pairs of segments that touched
+    /// (each pair counted once, a fibre's own included), and the mean magnitude of the
+    /// contact force on the segments that touched (wall units).
+    pub solve_pairs: usize,
+    pub mean_contact_force_plus: f64,
 }
 
 /// The fibres of a full state (centres and axes) as the model's fibres.
@@ -261,6 +267,13 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         self_contacts: own.len(),
         self_closest_over_d: own_closest / mean_d,
         bands,
+        solve_pairs: s.contacts.iter().map(|&c| c as usize).sum::<usize>() / 2,
+        mean_contact_force_plus: s
+            .contact_force
+            .chunks_exact(3)
+            .map(|f| (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt())
+            .sum::<f64>()
+            / s.contact_segment.len() as f64,
     }
 }
 
@@ -333,7 +346,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
             ",fibres_{name},contacts_per_fibre_{name},share_in_flocs_{name}"
         );
     }
-    out.push_str(",self_contacts,self_closest_over_d\n");
+    out.push_str(",self_contacts,self_closest_over_d,solve_pairs,mean_contact_force_plus\n");
     for r in rows {
         let _ = write!(
             out,
@@ -356,7 +369,11 @@ pub fn csv(rows: &[FlocRow]) -> String {
                 b.fibres, b.contacts_per_fibre, b.in_flocs
             );
         }
-        let _ = writeln!(out, ",{},{:.5}", r.self_contacts, r.self_closest_over_d);
+        let _ = writeln!(
+            out,
+            ",{},{:.5},{},{:.6e}",
+            r.self_contacts, r.self_closest_over_d, r.solve_pairs, r.mean_contact_force_plus
+        );
     }
     out
 }
@@ -523,7 +540,9 @@ mod tests {
     /// A suspension's groups are analysed as one: two groups of two fibres each, where
     /// each group's fibres are apart but touch a fibre of the other group, have no floc
     /// alone and one of four fibres merged; the merged state lists both groups' fibres in
-    /// order. `suspensions_of_run` reads `[[suspensions]]` from a run folder's launch.toml.
+    /// order, and their contact arrays (the solve's pairs and mean contact force) with the
+    /// second group's segments renumbered. `suspensions_of_run` reads `[[suspensions]]`
+    /// from a run folder's launch.toml.
     #[test]
     fn a_suspension_s_groups_make_flocs_together() {
         let box_plus = [942.0, 300.0, 471.0];
@@ -541,6 +560,23 @@ mod tests {
         assert_eq!(&m.centre[..a.centre.len()], &a.centre[..]);
         let r = of_state(&m, box_plus);
         assert_eq!((r.fibres, r.flocs, r.largest), (4, 1, 4));
+        // the solve's account rides along: b's listed segments renumbered past a's 14
+        let mut a2 = a.clone();
+        (a2.contact_segment, a2.contact_force, a2.contacts) =
+            (vec![3], vec![3.0, 0.0, 4.0], vec![1]);
+        let mut b2 = b.clone();
+        (b2.contact_segment, b2.contact_force, b2.contacts) = (
+            vec![3, 10],
+            vec![-3.0, 0.0, -4.0, 0.0, 1.0, 0.0],
+            vec![1, 2],
+        );
+        let m2 = merged(&[&a2, &b2]).unwrap();
+        assert_eq!(m2.contact_segment, vec![3, 17, 24]);
+        let r2 = of_state(&m2, box_plus);
+        // counts 1 + 1 + 2 = 4: two pairs; |F| 5, 5, 1
+        assert_eq!(r2.solve_pairs, 2);
+        assert!((r2.mean_contact_force_plus - 11.0 / 3.0).abs() < 1e-12);
+        assert!(r.mean_contact_force_plus.is_nan() && r.solve_pairs == 0);
         let dir = std::env::temp_dir().join(format!("ff-susp-run-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         assert!(suspensions_of_run(&dir).is_empty());
@@ -612,13 +648,13 @@ mod tests {
         assert!((centre.in_flocs - 1.0).abs() < 1e-12);
         let csv = csv(&[r]);
         assert!(csv.lines().next().unwrap().ends_with(
-            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre,self_contacts,self_closest_over_d"
+            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre,self_contacts,self_closest_over_d,solve_pairs,mean_contact_force_plus"
         ));
         assert!(csv
             .lines()
             .nth(1)
             .unwrap()
-            .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000,0,inf"));
+            .ends_with(",2,1.00000,1.00000,1,0.00000,0.00000,3,1.33333,1.00000,0,inf,0,NaN"));
     }
 
     /// Floc members are named by their floc's lowest fibre; a lone fibre is in none.

@@ -111,8 +111,10 @@ struct CellList {
     /// Offsets to the cells around a cell (itself and its 26 neighbours, each cell once)
     /// and the difference of their ids away from any edge.
     around: Vec<([i64; 3], i64)>,
-    /// Each point's cell, and the points by plane of cells (the sort's first level).
+    /// Each point's cell and plane of cells across x, and the points by plane (the sort's
+    /// first level).
     ids: Vec<u32>,
+    planes: Vec<u32>,
     by_plane: Vec<u32>,
 }
 
@@ -171,20 +173,28 @@ impl CellList {
                 (o, d)
             })
             .collect();
-        let mut ids = std::mem::take(&mut self.ids);
+        let (mut ids, mut planes) = (
+            std::mem::take(&mut self.ids),
+            std::mem::take(&mut self.planes),
+        );
+        // the plane is kept beside the id: taking it from the id is an integer division
+        // per point, twice, in the serial first level
         (0..n)
             .into_par_iter()
             .with_min_len(4096)
-            .map(|i| self.id(&self.coords(&point(i))) as u32)
-            .collect_into_vec(&mut ids);
+            .map(|i| {
+                let c = self.coords(&point(i));
+                (self.id(&c) as u32, c[0] as u32)
+            })
+            .unzip_into_vecs(&mut ids, &mut planes);
         // counting sort in two levels: the points by plane of cells across x (few
         // counters), then each plane's points by cell, planes in parallel (each plane's
         // counters and slots its own)
         let plane = dims[1] * dims[2];
         let cells = dims[0] * plane;
         let mut first = vec![0usize; dims[0] + 1];
-        for &c in &ids {
-            first[c as usize / plane + 1] += 1;
+        for &x in &planes {
+            first[x as usize + 1] += 1;
         }
         for x in 0..dims[0] {
             first[x + 1] += first[x];
@@ -193,8 +203,8 @@ impl CellList {
         by_plane.clear();
         by_plane.resize(n, 0);
         let mut next = first.clone();
-        for (i, &c) in ids.iter().enumerate() {
-            let x = c as usize / plane;
+        for (i, &x) in planes.iter().enumerate() {
+            let x = x as usize;
             by_plane[next[x]] = i as u32;
             next[x] += 1;
         }
@@ -237,6 +247,7 @@ impl CellList {
         });
         self.by_plane = by_plane;
         self.ids = ids;
+        self.planes = planes;
     }
 
     /// The cell coordinates of `r`, clamped to the grid (clamping keeps points within a
@@ -596,8 +607,12 @@ impl Search {
             fibre: 0,
             segment: 0,
         };
-        self.entries.clear();
-        self.entries.resize(total, placeholder);
+        // every entry is written below (the runs cover every fibre): the memory of the
+        // last step is only cleared when the count changed
+        if self.entries.len() != total {
+            self.entries.clear();
+            self.entries.resize(total, placeholder);
+        }
         // runs of fibres, each writing its own contiguous share
         const RUN: usize = 512;
         let mut runs = Vec::with_capacity(fibres.div_ceil(RUN));
@@ -609,28 +624,9 @@ impl Search {
             runs.push((first, last, head));
             rest = tail;
         }
-        runs.into_par_iter().for_each(|(first, last, out)| {
-            let base = offsets[first];
-            for k in first..last {
-                for i in 0..offsets[k + 1] - offsets[k] {
-                    let (r0, z0) = s.start(k, i);
-                    let (r1, z1) = s.end(k, i);
-                    let p = s.props(k, i);
-                    let shift = r1 - r0;
-                    let half = 0.5 * p.shape.length;
-                    out[offsets[k] + i - base] = Entry {
-                        start: r0,
-                        axis: z0,
-                        shift,
-                        turn: half * (z1 - z0).norm() + pad,
-                        half,
-                        radius: 0.5 * p.shape.diameter,
-                        fibre: k as u32,
-                        segment: i as u32,
-                    };
-                }
-            }
-        });
+        // the segments' extents (what the cells' size and the grid's bounds are taken
+        // from) in the same pass: min and max are exact, so the threads' order does not
+        // change them
         #[derive(Clone, Copy)]
         struct Extent {
             lo: Vector3<f64>,
@@ -650,39 +646,61 @@ impl Search {
             radius: 0.0,
             turn: 0.0,
         };
-        let ext = self
-            .entries
-            .par_iter()
-            .with_min_len(4096)
-            // a segment gone non-finite has no extent (it makes no pairs)
-            .map(|e| {
-                let finite = e.start.iter().chain(e.shift.iter()).all(|x| x.is_finite())
-                    && e.turn.is_finite();
-                if !finite {
-                    return none;
+        let join = |a: Extent, b: Extent| Extent {
+            lo: a.lo.inf(&b.lo),
+            hi: a.hi.sup(&b.hi),
+            mid_lo: a.mid_lo.inf(&b.mid_lo),
+            mid_hi: a.mid_hi.sup(&b.mid_hi),
+            half: a.half.max(b.half),
+            radius: a.radius.max(b.radius),
+            turn: a.turn.max(b.turn),
+        };
+        let ext = runs
+            .into_par_iter()
+            .map(|(first, last, out)| {
+                let base = offsets[first];
+                let mut ext = none;
+                for k in first..last {
+                    for i in 0..offsets[k + 1] - offsets[k] {
+                        let (r0, z0) = s.start(k, i);
+                        let (r1, z1) = s.end(k, i);
+                        let p = s.props(k, i);
+                        let shift = r1 - r0;
+                        let half = 0.5 * p.shape.length;
+                        let e = Entry {
+                            start: r0,
+                            axis: z0,
+                            shift,
+                            turn: half * (z1 - z0).norm() + pad,
+                            half,
+                            radius: 0.5 * p.shape.diameter,
+                            fibre: k as u32,
+                            segment: i as u32,
+                        };
+                        out[offsets[k] + i - base] = e;
+                        // a segment gone non-finite has no extent (it makes no pairs)
+                        let finite = e.start.iter().chain(e.shift.iter()).all(|x| x.is_finite())
+                            && e.turn.is_finite();
+                        if finite {
+                            let m = e.mid();
+                            ext = join(
+                                ext,
+                                Extent {
+                                    lo: e.shift,
+                                    hi: e.shift,
+                                    mid_lo: m,
+                                    mid_hi: m,
+                                    half: e.half,
+                                    radius: e.radius,
+                                    turn: e.turn,
+                                },
+                            );
+                        }
+                    }
                 }
-                Extent {
-                    lo: e.shift,
-                    hi: e.shift,
-                    mid_lo: e.mid(),
-                    mid_hi: e.mid(),
-                    half: e.half,
-                    radius: e.radius,
-                    turn: e.turn,
-                }
+                ext
             })
-            .reduce(
-                || none,
-                |a, b| Extent {
-                    lo: a.lo.inf(&b.lo),
-                    hi: a.hi.sup(&b.hi),
-                    mid_lo: a.mid_lo.inf(&b.mid_lo),
-                    mid_hi: a.mid_hi.sup(&b.mid_hi),
-                    half: a.half.max(b.half),
-                    radius: a.radius.max(b.radius),
-                    turn: a.turn.max(b.turn),
-                },
-            );
+            .reduce(|| none, join);
         (self.centre_shift, self.spread) = if total == 0 {
             (Vector3::zeros(), 0.0)
         } else {
@@ -723,8 +741,18 @@ impl Search {
         let cells = &self.cells;
         let sorted = &self.sorted;
         let period = &self.period;
+        // nine pairs in ten fail on their mid-step distance: that test comes first, in
+        // whatever order the scan meets the two (ordering them is a branch the processor
+        // cannot predict), against a bound a little wider than `first` so that rounding
+        // in the other order never drops a pair; [`pair`] then tests it as before
+        let wider = first * (1.0 + 1e-6);
+        let wider2 = wider * wider;
         let test = |ea: &Entry, eb: &Entry, out: &mut Vec<Candidate>| {
-            out.extend(pair(ea, eb, first, period));
+            let (ma, mb) = (ea.mid(), eb.mid());
+            let between = mb + image_shift(&ma, &mb, period) - ma;
+            if between.dot(&between) < wider2 {
+                out.extend(pair(ea, eb, first, period));
+            }
         };
         let [nx, ny, nz] = cells.dims;
         let start = &cells.start;
