@@ -157,8 +157,9 @@ enum Cmd {
         /// σ² thresholds of the coiling events, comma separated.
         #[arg(long, value_delimiter = ',', default_values_t = fiberflow_analysis::coiling::DEFAULT_THRESHOLDS)]
         coil_thresholds: Vec<f64>,
-        /// Show where fibres touch (red points) in every shown state; a contact search
-        /// over each group's fibres per state (docs/contact.md).
+        /// Show where fibres touch (red points), the recorded contact forces (orange
+        /// arrows) and the flocs in every shown state; a contact search over each group's
+        /// fibres per state (docs/contact.md).
         #[arg(long)]
         contacts: bool,
     },

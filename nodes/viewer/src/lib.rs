@@ -58,7 +58,8 @@ pub struct ViewOptions {
     /// σ² thresholds of the coiling events.
     pub coil_thresholds: Vec<f64>,
     /// Show where fibres touch (`world/contacts/<group>`, red points at the midpoints of
-    /// touching centre-lines) and the fibres of every floc, each floc in its own colour
+    /// touching centre-lines), the contact forces the states carry (`world/contact_forces/
+    /// <group>`, orange arrows) and the fibres of every floc, each floc in its own colour
     /// (`world/flocs/<group>`), in every state whose shapes are shown: computed over all
     /// the group's fibres, so it costs a contact search per such state (docs/contact.md).
     pub contacts: bool,
@@ -383,8 +384,43 @@ fn log_flocs(
     Ok(members.len())
 }
 
+/// Longest contact-force arrow, wall units.
+const FORCE_ARROW_PLUS: f64 = 6.0;
+
+/// The contact forces a state carries (schema 4), as arrows: from each touched segment's
+/// centre (moved into the box along the periodic directions) along its force, the largest
+/// of the state [`FORCE_ARROW_PLUS`] long. Origins and vectors.
+fn contact_arrows(
+    s: &fiberflow_messages::FiberGroupState,
+    box_plus: [f64; 3],
+) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let largest = s
+        .contact_force
+        .chunks_exact(3)
+        .map(|f| (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt())
+        .fold(0.0_f64, f64::max);
+    if largest <= 0.0 || !largest.is_finite() {
+        return (Vec::new(), Vec::new());
+    }
+    let scale = FORCE_ARROW_PLUS / largest;
+    s.contact_segment
+        .iter()
+        .zip(s.contact_force.chunks_exact(3))
+        .filter_map(|(&i, f)| {
+            let c = s.centre.get(3 * i as usize..3 * i as usize + 3)?;
+            let origin = [
+                c[0].rem_euclid(box_plus[0]) as f32,
+                c[1] as f32,
+                c[2].rem_euclid(box_plus[2]) as f32,
+            ];
+            Some((origin, [0, 1, 2].map(|a| (f[a] * scale) as f32)))
+        })
+        .unzip()
+}
+
 /// Logs where the fibres of one state touch, at `world/contacts/<group>` (red points of
-/// about four diameters, so they show at the channel's scale).
+/// about four diameters, so they show at the channel's scale), and the contact forces the
+/// state carries at `world/contact_forces/<group>` (orange arrows, [`contact_arrows`]).
 fn log_contacts(
     rec: &rerun::RecordingStream,
     s: &fiberflow_messages::FiberGroupState,
@@ -401,6 +437,15 @@ fn log_contacts(
         &rerun::Points3D::new(points)
             .with_radii([0.5])
             .with_colors([rerun::Color::from_rgb(230, 40, 40)]),
+    )
+    .map_err(err)?;
+    let (origins, vectors) = contact_arrows(s, box_plus);
+    rec.log(
+        format!("world/contact_forces/{}", s.group),
+        &rerun::Arrows3D::from_vectors(vectors)
+            .with_origins(origins)
+            .with_radii([0.25])
+            .with_colors([rerun::Color::from_rgb(255, 150, 20)]),
     )
     .map_err(err)
 }
@@ -580,7 +625,8 @@ fn log_static(
          ±4 u_tau. In two-way runs, beyond the channel (at lower x3): the fibres' \
          streamwise force on the fluid in the same plane, red pushing it forward, blue \
          holding it back (the strongest 1% saturate). With `--contacts`: red points where \
-         fibres touch, and the fibres of every floc (fibres joined by contacts) drawn in \
+         fibres touch, orange arrows along the contact forces the solve recorded (the \
+         largest of a state 6 wall units long), and the fibres of every floc (fibres joined by contacts) drawn in \
          their floc's colour, one colour per floc, from all of the group's fibres.\n\n\
          **Plots** (right): one tab per series (σ², |z1|, end-to-end distance, wall distance \
          x2+), in each one plot per case with every shown fibre of that case, coloured by \
@@ -808,6 +854,29 @@ mod floc_tests {
             vec![[0.0, 10.0, 5.0], [3.0, 10.0, 5.0], [6.0, 10.0, 5.0]]
         );
         assert_ne!(floc_colour(3), floc_colour(4));
+    }
+
+    /// The recorded contact forces become arrows from the touched segments' centres,
+    /// moved into the box, the largest `FORCE_ARROW_PLUS` long and each along its force;
+    /// a state without contact arrays has none.
+    #[test]
+    fn contact_forces_are_arrows_from_the_touched_segments() {
+        let mut s = fiberflow_messages::FiberGroupState {
+            segments_per_fiber: vec![2, 2],
+            segment_length: vec![3.0, 3.0],
+            centre: vec![
+                -1.0, 10.0, 5.0, 2.0, 10.0, 5.0, 2.0, 10.2, 405.0, 5.0, 10.2, 5.0,
+            ],
+            ..Default::default()
+        };
+        assert_eq!(contact_arrows(&s, [1000.0, 300.0, 400.0]), (vec![], vec![]));
+        s.contact_segment = vec![0, 2];
+        s.contact_force = vec![0.0, -2.0, 0.0, 0.0, 1.0, 0.0];
+        s.contacts = vec![1, 1];
+        let (origins, vectors) = contact_arrows(&s, [1000.0, 300.0, 400.0]);
+        assert_eq!(origins, vec![[999.0, 10.0, 5.0], [2.0, 10.2, 5.0]]);
+        let l = FORCE_ARROW_PLUS as f32;
+        assert_eq!(vectors, vec![[0.0, -l, 0.0], [0.0, 0.5 * l, 0.0]]);
     }
 }
 
