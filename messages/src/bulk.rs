@@ -819,10 +819,15 @@ mod tests {
         // a state from before schema 3 is refused by its version
         let mut older = old.to_vec();
         older[4..8].copy_from_slice(&2u32.to_le_bytes());
+        let refused = crate::decode::<FiberGroupState>(&older).unwrap_err();
         assert!(matches!(
-            crate::decode::<FiberGroupState>(&older),
-            Err(crate::DecodeError::Version { got: 2, .. })
+            refused,
+            crate::DecodeError::Version { got: 2, .. }
         ));
+        assert_eq!(
+            refused.to_string(),
+            "schema version 2, this build understands 3 to 4"
+        );
     }
 
     #[test]

@@ -12,7 +12,10 @@ use std::mem::MaybeUninit;
 pub enum DecodeError {
     #[error("undecodable payload ({len} bytes): {reason}")]
     Malformed { len: usize, reason: String },
-    #[error("schema version {got}, this build understands 3 to {expected}")]
+    #[error(
+        "schema version {got}, this build understands {} to {expected}",
+        crate::OLDEST_READABLE_SCHEMA
+    )]
     Version { got: u32, expected: u32 },
 }
 
