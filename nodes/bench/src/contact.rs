@@ -24,6 +24,8 @@ pub struct ContactOptions {
     pub near_wall: bool,
     pub steps: usize,
     pub rounds: usize,
+    /// Steps at the start of each round not counted.
+    pub warmup: usize,
     pub friction: f64,
 }
 
@@ -116,15 +118,15 @@ struct Round {
     closest_over_d: f64,
 }
 
-/// Steps `group` `steps` times.
-fn run(mut group: FibreGroup, steps: usize, near_wall: bool) -> Result<Round> {
+/// Steps `group` `warmup` times, then `steps` times counted.
+fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> Result<Round> {
     let dt = 0.2;
     let mut r = Round {
         closest_over_d: f64::INFINITY,
         ..Default::default()
     };
     let period = [Some(BOX_PLUS[0]), None, Some(BOX_PLUS[2])];
-    for _ in 0..steps {
+    for step in 0..warmup + steps {
         let fluid: Vec<FluidSample> = group
             .segment_centres()
             .iter()
@@ -132,9 +134,11 @@ fn run(mut group: FibreGroup, steps: usize, near_wall: bool) -> Result<Round> {
             .collect();
         let t = Instant::now();
         group.step(&fluid, dt)?;
-        r.wall += t.elapsed().as_secs_f64();
-        r.contacts += group.last_contact().contacts.len() as f64;
-        r.candidates += group.last_contact().candidates as f64;
+        if step >= warmup {
+            r.wall += t.elapsed().as_secs_f64();
+            r.contacts += group.last_contact().contacts.len() as f64;
+            r.candidates += group.last_contact().candidates as f64;
+        }
         if group.contact().is_some() {
             let fibres = group.fibres();
             for (a, i, _, _, distance) in contact::overlaps(&fibres, &period) {
@@ -164,10 +168,11 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
         ("at random in the fine-grid box", crowding(o.fibres))
     };
     println!(
-        "{} case-1 fibres {where_} (crowding N = {n:.2} there), placed in {:.1} s; {} steps per round",
+        "{} case-1 fibres {where_} (crowding N = {n:.2} there), placed in {:.1} s; {} steps per round after {} not counted",
         o.fibres,
         t.elapsed().as_secs_f64(),
-        o.steps
+        o.steps,
+        o.warmup
     );
     let mut ratios = Vec::new();
     println!(
@@ -183,6 +188,7 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
         for c in order {
             got[usize::from(c)] = run(
                 if c { on.clone() } else { off.clone() },
+                o.warmup,
                 o.steps,
                 o.near_wall,
             )?;

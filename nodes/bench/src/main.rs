@@ -88,6 +88,10 @@ enum Cmd {
         /// Rounds (each: off and on, the order alternating).
         #[arg(long, default_value_t = 6)]
         rounds: usize,
+        /// Steps at the start of each round left out of its figures: the first step of a
+        /// group allocates the contact search's memory, which a run pays once.
+        #[arg(long, default_value_t = 1)]
+        warmup: usize,
         /// Friction coefficient of the runs with contact.
         #[arg(long, default_value_t = 0.5)]
         friction: f64,
@@ -139,6 +143,7 @@ fn main() -> Result<()> {
             fibers,
             steps,
             rounds,
+            warmup,
             friction,
             near_wall,
         } => contact::run_contact(&contact::ContactOptions {
@@ -146,6 +151,7 @@ fn main() -> Result<()> {
             near_wall,
             steps,
             rounds,
+            warmup,
             friction,
         }),
     }

@@ -399,7 +399,7 @@ pub fn touching(
         .fold(0.0, f64::max);
     let segments = Slices::new(fibres, fibres);
     Search::new(&segments, period, 0.5 * tolerance * widest)
-        .pairs()
+        .pairs(&segments)
         .iter()
         .filter(|c| c.a.0 != c.b.0)
         .filter_map(|c| {
@@ -1199,7 +1199,7 @@ pub(crate) fn resolve_segments<S: Segments>(
 ) -> (Outcome, Vec<Fibre>) {
     let n = s.offsets().len().saturating_sub(1);
     search.rebuild(s, &params.period, 0.0);
-    let mut cands = search.pairs();
+    let mut cands = search.pairs(s);
     // the fibres the solve reads, copied out as pairs name them
     let empty = Fibre {
         segments: Vec::new(),
@@ -2047,7 +2047,7 @@ pub(crate) mod tests {
         let view = Slices::new(&before, &free);
         let mut search = Search::default();
         search.rebuild(&view, &period, 0.0);
-        let mut cands = search.pairs();
+        let mut cands = search.pairs(&view);
         let overlapping = |fs: &[Fibre], cands: &[Candidate]| {
             cands
                 .iter()
@@ -2086,7 +2086,7 @@ pub(crate) mod tests {
         // pairs on the wrong side (as a pair found after a round can be, when corrections
         // pushed it through): once both fibres are kept at the start, each is judged on
         // the side it is on there
-        let mut cands = search.pairs();
+        let mut cands = search.pairs(&view);
         let mut turned = 0;
         for c in cands
             .iter_mut()

@@ -87,6 +87,24 @@ struct Entry {
 }
 
 impl Entry {
+    /// Segment `i` of fibre `k` of `s`, `pad` added to its turn.
+    fn of<S: Segments>(s: &S, k: usize, i: usize, pad: f64) -> Self {
+        let (r0, z0) = s.start(k, i);
+        let (r1, z1) = s.end(k, i);
+        let p = s.props(k, i);
+        let half = 0.5 * p.shape.length;
+        Entry {
+            start: r0,
+            axis: z0,
+            shift: r1 - r0,
+            turn: half * (z1 - z0).norm() + pad,
+            half,
+            radius: 0.5 * p.shape.diameter,
+            fibre: k as u32,
+            segment: i as u32,
+        }
+    }
+
     /// Centre at the middle of the step (start + half the displacement).
     fn mid(&self) -> Vector3<f64> {
         self.start + self.shift * 0.5
@@ -94,6 +112,97 @@ impl Entry {
 
     fn key(&self) -> (usize, usize) {
         (self.fibre as usize, self.segment as usize)
+    }
+}
+
+/// What the pair scan's first tests read of a segment, 48 bytes in the order of the cells
+/// beside the 104 of its [`Entry`]: its mid-step centre (folded into the box along the
+/// periodic directions), its displacement over the step, its axis at the start, its half
+/// length, `rho`, its radius plus its turn, and its fibre. In single precision, `rho` rounded out by a
+/// margin for the rounding of the coordinates, so that every pair [`pair`] may keep
+/// passes [`Point::near`].
+#[derive(Debug, Clone, Copy, Default)]
+#[repr(C, align(16))]
+struct Point {
+    mid: [f32; 3],
+    half: f32,
+    shift: [f32; 3],
+    rho: f32,
+    axis: [f32; 3],
+    fibre: u32,
+}
+
+impl Point {
+    /// The point of entry `e` (its `rho` without the margin of the whole step's
+    /// coordinates, which [`Point::near`] adds).
+    fn of(e: &Entry, period: &[Option<f64>; 3]) -> Self {
+        let m = e.mid();
+        Point {
+            mid: std::array::from_fn(|k| match period[k] {
+                Some(p) => fold(m[k], p) as f32,
+                None => m[k] as f32,
+            }),
+            half: e.half as f32,
+            shift: std::array::from_fn(|k| e.shift[k] as f32),
+            rho: ((e.radius + e.turn) * (1.0 + 1e-4) + 1e-4 * (e.half + e.shift.norm())) as f32,
+            axis: std::array::from_fn(|k| e.axis[k] as f32),
+            fibre: e.fibre,
+        }
+    }
+
+    /// Whether segments `self` and `other` may come within reach in the step, by
+    /// necessary conditions on what [`pair`] tests exactly: their mid-step centres within
+    /// `first` (nine pairs in ten fail here), then their start segments — each widened by
+    /// its radius, its turn and half of (an upper bound on) their relative displacement —
+    /// by the projections of the line between their centres onto itself, onto each axis
+    /// and onto the normal of both axes (left out for axes within about half a degree of
+    /// parallel, where it would be rounding). Nearest image along the directions whose
+    /// `period` is not zero. Written so that a non-finite point passes nothing.
+    #[inline(always)]
+    fn near(&self, other: &Point, first2: f32, margin2: f32, period: &[f32; 3]) -> bool {
+        let mut d = [0.0_f32; 3];
+        for k in 0..3 {
+            let mut x = other.mid[k] - self.mid[k];
+            let p = period[k];
+            // folded coordinates are within one period of each other: one wrap at most
+            if x > 0.5 * p && p > 0.0 {
+                x -= p;
+            } else if x < -0.5 * p {
+                x += p;
+            }
+            d[k] = x;
+        }
+        let dot = |u: &[f32; 3], v: &[f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        if !(dot(&d, &d) < first2) {
+            return false;
+        }
+        // the start centres: mid-step centre less half the displacement
+        let ds: [f32; 3] = std::array::from_fn(|k| other.shift[k] - self.shift[k]);
+        let d: [f32; 3] = std::array::from_fn(|k| d[k] - 0.5 * ds[k]);
+        let rho = self.rho + other.rho + margin2 + dot(&ds, &ds).sqrt();
+        let reach = self.half + other.half + rho;
+        if !(dot(&d, &d) < reach * reach) {
+            return false;
+        }
+        let (za, zb) = (&self.axis, &other.axis);
+        let cos = dot(za, zb).abs();
+        if !(dot(&d, za).abs() < self.half + other.half * cos + rho) {
+            return false;
+        }
+        if !(dot(&d, zb).abs() < other.half + self.half * cos + rho) {
+            return false;
+        }
+        let n = [
+            za[1] * zb[2] - za[2] * zb[1],
+            za[2] * zb[0] - za[0] * zb[2],
+            za[0] * zb[1] - za[1] * zb[0],
+        ];
+        let nn = dot(&n, &n);
+        if nn > 1e-4 {
+            let across = dot(&d, &n);
+            return across * across < rho * rho * nn;
+        }
+        true
     }
 }
 
@@ -562,10 +671,18 @@ fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option
 #[derive(Debug, Default)]
 pub(crate) struct Search {
     cells: CellList,
-    /// Every segment, fibre-major, then in the order of the cells.
-    entries: Vec<Entry>,
-    sorted: Vec<Entry>,
+    /// The `pad` of the last rebuild (the entries are made again from the segments where
+    /// the exact tests need them).
+    pad: f64,
+    /// Every segment's [`Point`], fibre-major, then in the order of the cells.
+    points: Vec<Point>,
+    sorted: Vec<Point>,
+    /// The entries in the order of the cells.
     order: Vec<u32>,
+    /// What [`Point`]s fold by along each direction (0: not periodic), and the margin
+    /// for their rounding.
+    period32: [f32; 3],
+    margin: f64,
     /// Centre of the box of all the step's displacements: |Δr − this| ≤ `spread` for
     /// every segment.
     centre_shift: Vector3<f64>,
@@ -597,26 +714,17 @@ impl Search {
         let offsets = s.offsets();
         let fibres = offsets.len().saturating_sub(1);
         let total = offsets.last().copied().unwrap_or(0);
-        let placeholder = Entry {
-            start: Vector3::zeros(),
-            axis: Vector3::zeros(),
-            shift: Vector3::zeros(),
-            turn: 0.0,
-            half: 0.0,
-            radius: 0.0,
-            fibre: 0,
-            segment: 0,
-        };
-        // every entry is written below (the runs cover every fibre): the memory of the
+        // every point is written below (the runs cover every fibre): the memory of the
         // last step is only cleared when the count changed
-        if self.entries.len() != total {
-            self.entries.clear();
-            self.entries.resize(total, placeholder);
+        if self.points.len() != total {
+            self.points.clear();
+            self.points.resize(total, Point::default());
         }
+        self.pad = pad;
         // runs of fibres, each writing its own contiguous share
         const RUN: usize = 512;
         let mut runs = Vec::with_capacity(fibres.div_ceil(RUN));
-        let mut rest = self.entries.as_mut_slice();
+        let mut rest = self.points.as_mut_slice();
         for first in (0..fibres).step_by(RUN) {
             let last = (first + RUN).min(fibres);
             let (head, tail) =
@@ -662,22 +770,8 @@ impl Search {
                 let mut ext = none;
                 for k in first..last {
                     for i in 0..offsets[k + 1] - offsets[k] {
-                        let (r0, z0) = s.start(k, i);
-                        let (r1, z1) = s.end(k, i);
-                        let p = s.props(k, i);
-                        let shift = r1 - r0;
-                        let half = 0.5 * p.shape.length;
-                        let e = Entry {
-                            start: r0,
-                            axis: z0,
-                            shift,
-                            turn: half * (z1 - z0).norm() + pad,
-                            half,
-                            radius: 0.5 * p.shape.diameter,
-                            fibre: k as u32,
-                            segment: i as u32,
-                        };
-                        out[offsets[k] + i - base] = e;
+                        let e = Entry::of(s, k, i, pad);
+                        out[offsets[k] + i - base] = Point::of(&e, period);
                         // a segment gone non-finite has no extent (it makes no pairs)
                         let finite = e.start.iter().chain(e.shift.iter()).all(|x| x.is_finite())
                             && e.turn.is_finite();
@@ -713,21 +807,44 @@ impl Search {
         // at most half their relative displacement away from the middle of the step), and
         // |Δr_a − Δr_b|/2 ≤ spread
         let side = self.longest + self.widest + self.spread + 2.0 * self.most_turn;
-        let entries = &self.entries;
+        // single precision rounds each coordinate by at most 2⁻²⁴ of its size, each axis
+        // component by 2⁻²⁴: a margin of 4 × 10⁻⁶ of the largest coordinate (on the cells,
+        // on `first` and on the sum of two `rho`s), with the points' own (10⁻⁴ of `rho`, of
+        // the half length and of the displacement: the distance of the lines is only
+        // tested where their normal is longer than 0.01), keeps every pair [`pair`] keeps,
+        // the tests' own rounding included (test
+        // `the_cell_list_finds_every_pair_the_exact_test_keeps`)
+        let largest = (0..3)
+            .map(|k| match period[k] {
+                Some(p) => p.abs(),
+                None => {
+                    ext.mid_lo[k].abs().max(ext.mid_hi[k].abs())
+                        + self.spread
+                        + self.centre_shift.norm()
+                }
+            })
+            .fold(0.0_f64, f64::max);
+        self.margin = if largest.is_finite() {
+            4e-6 * largest + 1e-9
+        } else {
+            0.0
+        };
+        self.period32 = std::array::from_fn(|k| period[k].map_or(0.0, |p| p as f32));
+        let points = &self.points;
         let bounds = std::array::from_fn(|k| (ext.mid_lo[k], ext.mid_hi[k]));
         self.cells.rebuild(
             total,
-            |i| entries[i].mid(),
+            |i| Vector3::from(points[i].mid.map(f64::from)),
             bounds,
-            slack(side),
+            slack(side) + 2.0 * self.margin,
             period,
             &mut self.order,
         );
-        let (sorted, order) = (&mut self.sorted, &self.order);
+        let (sorted, order, points) = (&mut self.sorted, &self.order, &self.points);
         order
             .par_iter()
             .with_min_len(4096)
-            .map(|&g| entries[g as usize])
+            .map(|&g| points[g as usize])
             .collect_into_vec(sorted);
     }
 
@@ -736,22 +853,36 @@ impl Search {
     /// start. Cells are at least as wide as the largest mid-step distance of a pair, so
     /// a pair's cells are neighbours (test
     /// `the_cell_list_finds_every_pair_the_exact_test_keeps`).
-    pub(crate) fn pairs(&self) -> Vec<Candidate> {
+    pub(crate) fn pairs<S: Segments>(&self, s: &S) -> Vec<Candidate> {
         let first = slack(self.longest + self.widest + self.spread + 2.0 * self.most_turn);
         let cells = &self.cells;
-        let sorted = &self.sorted;
         let period = &self.period;
-        // nine pairs in ten fail on their mid-step distance: that test comes first, in
-        // whatever order the scan meets the two (ordering them is a branch the processor
-        // cannot predict), against a bound a little wider than `first` so that rounding
-        // in the other order never drops a pair; [`pair`] then tests it as before
-        let wider = first * (1.0 + 1e-6);
-        let wider2 = wider * wider;
-        let test = |ea: &Entry, eb: &Entry, out: &mut Vec<Candidate>| {
-            let (ma, mb) = (ea.mid(), eb.mid());
-            let between = mb + image_shift(&ma, &mb, period) - ma;
-            if between.dot(&between) < wider2 {
-                out.extend(pair(ea, eb, first, period));
+        // nine pairs in ten fail on their mid-step distance: that test comes first, on
+        // the sorted points alone (a sixth of the memory of their entries), in whatever
+        // order the scan meets the two; [`pair`] then tests it exactly
+        let (sorted, order, period32, pad) = (&self.sorted, &self.order, &self.period32, self.pad);
+        let offsets = s.offsets();
+        let entry = |slot: usize| {
+            let k = sorted[slot].fibre as usize;
+            Entry::of(s, k, order[slot] as usize - offsets[k], pad)
+        };
+        // the exact tests, for the tenth of the pairs whose points are near
+        let exact = |a: usize, b: usize, out: &mut Vec<Candidate>| {
+            out.extend(pair(&entry(a), &entry(b), first, period));
+        };
+        // `first` in single precision, rounded out as the points' margins are
+        let first32 = (first * (1.0 + 1e-4) + 2.0 * self.margin) as f32;
+        let first2 = first32 * first32;
+        let margin2 = (2.0 * self.margin) as f32;
+        let test = |a: usize, b: usize, out: &mut Vec<Candidate>| {
+            let (pa, pb) = (&sorted[a], &sorted[b]);
+            // neighbours along one fibre (a fifth of the pairs the scan meets) share a joint,
+            // not a contact: their entries are next to each other in fibre-major order
+            if pa.fibre == pb.fibre && order[a].abs_diff(order[b]) < 2 {
+                return;
+            }
+            if pa.near(pb, first2, margin2, period32) {
+                exact(a, b, out);
             }
         };
         let [nx, ny, nz] = cells.dims;
@@ -776,7 +907,7 @@ impl Search {
                         let next = start[id + 2] as usize;
                         for a in here.clone() {
                             for b in a + 1..next {
-                                test(&sorted[a], &sorted[b], &mut out);
+                                test(a, b, &mut out);
                             }
                         }
                         for (cx, cy) in [(x, y + 1), (x + 1, y - 1), (x + 1, y), (x + 1, y + 1)] {
@@ -784,7 +915,7 @@ impl Search {
                             let range = start[column - 1] as usize..start[column + 2] as usize;
                             for a in here.clone() {
                                 for b in range.clone() {
-                                    test(&sorted[a], &sorted[b], &mut out);
+                                    test(a, b, &mut out);
                                 }
                             }
                         }
@@ -797,7 +928,7 @@ impl Search {
                             for a in here.clone() {
                                 let from = if n == id { a + 1 } else { start[n] as usize };
                                 for b in from..start[n + 1] as usize {
-                                    test(&sorted[a], &sorted[b], &mut out);
+                                    test(a, b, &mut out);
                                 }
                             }
                         });
@@ -897,7 +1028,14 @@ impl Search {
                             + self.most_turn,
                     );
                     self.cells.cells_within(&mid_q, radius, |n| {
-                        for e in &self.sorted[self.cells.slots(n)] {
+                        for slot in self.cells.slots(n) {
+                            let k = self.sorted[slot].fibre as usize;
+                            let e = &Entry::of(
+                                s,
+                                k,
+                                self.order[slot] as usize - s.offsets()[k],
+                                self.pad,
+                            );
                             let kb = e.fibre as usize;
                             if kb == q || corrected[kb] {
                                 continue;
@@ -1067,8 +1205,12 @@ mod tests {
 
     /// Every pair of segments of different fibres, and of non-adjacent segments of one
     /// fibre, by [`pair`] alone (no cell list).
-    fn all_pairs(search: &Search) -> Vec<Candidate> {
-        let e = &search.entries;
+    fn all_pairs<S: Segments>(s: &S, search: &Search) -> Vec<Candidate> {
+        let offsets = s.offsets();
+        let e: Vec<Entry> = (0..offsets.len() - 1)
+            .flat_map(|k| (0..offsets[k + 1] - offsets[k]).map(move |i| (k, i)))
+            .map(|(k, i)| Entry::of(s, k, i, search.pad))
+            .collect();
         let mut out = Vec::new();
         for (n, ea) in e.iter().enumerate() {
             for eb in &e[n + 1..] {
@@ -1179,8 +1321,8 @@ mod tests {
             let (before, after) = start_and_end(seed);
             let s = Slices::new(&before, &after);
             let search = Search::new(&s, &PERIOD, 0.0);
-            let found = search.pairs();
-            let expected = all_pairs(&search);
+            let found = search.pairs(&s);
+            let expected = all_pairs(&s, &search);
             // the case is a real one: many pairs, some across a periodic boundary, and
             // displacements spread far wider than a diameter
             assert!(expected.len() > 100, "{} pairs", expected.len());
@@ -1321,9 +1463,11 @@ mod tests {
     #[test]
     fn a_fibre_gone_non_finite_makes_no_pairs() {
         let (before, mut after) = start_and_end(1);
-        let clean = Search::new(&Slices::new(&before, &after), &PERIOD, 0.0).pairs();
+        let s = Slices::new(&before, &after);
+        let clean = Search::new(&s, &PERIOD, 0.0).pairs(&s);
         after[3].segments[2].r.x = f64::NAN;
-        let found = Search::new(&Slices::new(&before, &after), &PERIOD, 0.0).pairs();
+        let s = Slices::new(&before, &after);
+        let found = Search::new(&s, &PERIOD, 0.0).pairs(&s);
         let without: Vec<Candidate> = clean
             .into_iter()
             .filter(|c| c.a != (3, 2) && c.b != (3, 2))
