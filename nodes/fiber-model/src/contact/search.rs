@@ -1214,7 +1214,7 @@ mod tests {
         let mut out = Vec::new();
         for (n, ea) in e.iter().enumerate() {
             for eb in &e[n + 1..] {
-                out.extend(pair(ea, eb, f64::INFINITY, &PERIOD));
+                out.extend(pair(ea, eb, f64::INFINITY, &search.period));
             }
         }
         out
@@ -1313,6 +1313,77 @@ mod tests {
         )
         .unwrap();
         assert!(c.normal0.y > 0.99, "took the far side: {:?}", c.normal0);
+    }
+
+    /// Pairs placed just within reach (centre-lines 10⁻⁶ of a contact distance closer than
+    /// it) in the fine-grid box, where single precision rounds a coordinate by up to
+    /// 3 × 10⁻⁵ (a third of them by its far x face, a third by its far z face), crossing,
+    /// skew and parallel, at rest and moving together by up to 3 wall units: the scan's
+    /// single-precision tests keep every one, as the exact test does.
+    #[test]
+    fn single_precision_tests_keep_pairs_just_within_reach() {
+        let period = [Some(942.48), None, Some(471.24)];
+        let (half, d) = (1.5, 0.232);
+        let mut rng = Rng(7);
+        let (mut before, mut after) = (Vec::new(), Vec::new());
+        let trials = 400;
+        for k in 0..trials {
+            let ca = Vector3::new(
+                if k % 3 == 0 {
+                    942.47
+                } else {
+                    942.48 * rng.next()
+                },
+                290.0 * (rng.next() - 0.5),
+                if k % 3 == 1 {
+                    471.235
+                } else {
+                    471.24 * rng.next()
+                },
+            );
+            let za = rng.vector(1.0).normalize();
+            let p = ca + za * (0.9 * half * (2.0 * rng.next() - 1.0));
+            // the common normal, and b's axis across it: parallel to a's every fourth time
+            let across = za.cross(&rng.vector(1.0)).normalize();
+            let angle = std::f64::consts::PI * rng.next();
+            let zb = if k % 4 == 0 {
+                za
+            } else {
+                (za * angle.cos() + across.cross(&za) * angle.sin()).normalize()
+            };
+            let q = p + across * (d * (1.0 - 1e-6));
+            let cb = q - zb * (0.9 * half * (2.0 * rng.next() - 1.0));
+            let shift = if k % 2 == 0 {
+                Vector3::zeros()
+            } else {
+                rng.vector(3.0)
+            };
+            for (c, z) in [(ca, za), (cb, zb)] {
+                let f = Fibre::straight(c, z, &[2.0 * half], &[d], 1000.0).unwrap();
+                let mut g = f.clone();
+                g.segments[0].r += shift;
+                before.push(f);
+                after.push(g);
+            }
+        }
+        let s = Slices::new(&before, &after);
+        let search = Search::new(&s, &period, 0.0);
+        let found = search.pairs(&s);
+        let expected = all_pairs(&s, &search);
+        for k in 0..trials {
+            assert!(
+                expected
+                    .iter()
+                    .any(|c| c.a == (2 * k, 0) && c.b == (2 * k + 1, 0)),
+                "the exact test dropped trial {k}"
+            );
+        }
+        assert!(
+            same(&found, &expected),
+            "{} found, {} expected",
+            found.len(),
+            expected.len()
+        );
     }
 
     #[test]
