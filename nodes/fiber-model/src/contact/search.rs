@@ -116,10 +116,10 @@ impl Entry {
 }
 
 /// What the pair scan's first tests read of a segment, 48 bytes in the order of the cells
-/// beside the 104 of its [`Entry`]: its mid-step centre (folded into the box along the
-/// periodic directions), its displacement over the step, its axis at the start, its half
-/// length, `rho`, its radius plus its turn, and its fibre. In single precision, `rho` rounded out by a
-/// margin for the rounding of the coordinates, so that every pair [`pair`] may keep
+/// (the 104-byte [`Entry`] is made again only for the pairs that pass): its mid-step
+/// centre (folded into the box along the periodic directions), its displacement over the
+/// step, its axis at the start, its half length, `rho` (its radius plus its turn) and its
+/// fibre. In single precision, `rho` rounded out so that every pair [`pair`] may keep
 /// passes [`Point::near`].
 #[derive(Debug, Clone, Copy, Default)]
 #[repr(C, align(16))]
@@ -152,11 +152,11 @@ impl Point {
 
     /// Whether segments `self` and `other` may come within reach in the step, by
     /// necessary conditions on what [`pair`] tests exactly: their mid-step centres within
-    /// `first` (nine pairs in ten fail here), then their start segments — each widened by
-    /// its radius, its turn and half of (an upper bound on) their relative displacement —
-    /// by the projections of the line between their centres onto itself, onto each axis
-    /// and onto the normal of both axes (left out for axes within about half a degree of
-    /// parallel, where it would be rounding). Nearest image along the directions whose
+    /// `first` (nine pairs in ten fail here), then their start segments — widened by their
+    /// radii, their turns, their relative displacement and `margin2` — by the projections
+    /// of the line between their centres onto itself, onto each axis and onto the normal
+    /// of both axes (left out for axes within about half a degree of parallel, where it
+    /// would be rounding). Nearest image along the directions whose
     /// `period` is not zero. Written so that a non-finite point passes nothing.
     #[inline(always)]
     fn near(&self, other: &Point, first2: f32, margin2: f32, period: &[f32; 3]) -> bool {
@@ -677,7 +677,7 @@ pub(crate) struct Search {
     /// Every segment's [`Point`], fibre-major, then in the order of the cells.
     points: Vec<Point>,
     sorted: Vec<Point>,
-    /// The entries in the order of the cells.
+    /// The segments' fibre-major indices in the order of the cells.
     order: Vec<u32>,
     /// What [`Point`]s fold by along each direction (0: not periodic), and the margin
     /// for their rounding.
@@ -813,7 +813,7 @@ impl Search {
         // the half length and of the displacement: the distance of the lines is only
         // tested where their normal is longer than 0.01), keeps every pair [`pair`] keeps,
         // the tests' own rounding included (test
-        // `the_cell_list_finds_every_pair_the_exact_test_keeps`)
+        // `single_precision_tests_keep_pairs_just_within_reach`)
         let largest = (0..3)
             .map(|k| match period[k] {
                 Some(p) => p.abs(),
@@ -857,16 +857,16 @@ impl Search {
         let first = slack(self.longest + self.widest + self.spread + 2.0 * self.most_turn);
         let cells = &self.cells;
         let period = &self.period;
-        // nine pairs in ten fail on their mid-step distance: that test comes first, on
-        // the sorted points alone (a sixth of the memory of their entries), in whatever
-        // order the scan meets the two; [`pair`] then tests it exactly
+        // the scan's tests read the sorted points alone (less than half the memory of
+        // their entries), in whatever order the scan meets the two; [`pair`] then tests
+        // the few that pass exactly, on entries made from the segments
         let (sorted, order, period32, pad) = (&self.sorted, &self.order, &self.period32, self.pad);
         let offsets = s.offsets();
         let entry = |slot: usize| {
             let k = sorted[slot].fibre as usize;
             Entry::of(s, k, order[slot] as usize - offsets[k], pad)
         };
-        // the exact tests, for the tenth of the pairs whose points are near
+        // the exact tests (at 10⁵ fibres ≈ 4 × 10³ of the 2.5 × 10⁶ pairs the scan meets)
         let exact = |a: usize, b: usize, out: &mut Vec<Candidate>| {
             out.extend(pair(&entry(a), &entry(b), first, period));
         };
@@ -876,8 +876,8 @@ impl Search {
         let margin2 = (2.0 * self.margin) as f32;
         let test = |a: usize, b: usize, out: &mut Vec<Candidate>| {
             let (pa, pb) = (&sorted[a], &sorted[b]);
-            // neighbours along one fibre (a fifth of the pairs the scan meets) share a joint,
-            // not a contact: their entries are next to each other in fibre-major order
+            // neighbours along one fibre (a quarter of the pairs the scan meets) share a
+            // joint, not a contact: their indices are next to each other in fibre-major order
             if pa.fibre == pb.fibre && order[a].abs_diff(order[b]) < 2 {
                 return;
             }
