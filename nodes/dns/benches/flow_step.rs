@@ -138,6 +138,29 @@ fn bench_body_force(c: &mut Criterion) {
     group.bench_function("spread_300_fibres", |b| {
         b.iter(|| laden.set_body_force(&points, &forces))
     });
+    // 10⁵ seven-segment fibres on the fine grid, listed fibre by fibre as the flow node
+    // lists them (segments 3 wall units apart along a random direction)
+    let mut rng = fiberflow_dns::init::SplitMix64::new(0xf1b);
+    let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
+    let mut points = Vec::with_capacity(700_000);
+    for _ in 0..100_000 {
+        let start = [2.0 * pi * rnd(), 1.8 * rnd() - 0.9, pi * rnd()];
+        let dir = [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5];
+        let norm = dir.iter().map(|x| x * x).sum::<f64>().sqrt().max(1e-9);
+        for i in 0..7 {
+            let at = i as f64 * 3.0 / 150.0 / norm;
+            let y = (start[1] + at * dir[1]).clamp(-0.99, 0.99);
+            points.push([start[0] + at * dir[0], y, start[2] + at * dir[2]]);
+        }
+    }
+    let forces: Vec<[f64; 3]> = (0..points.len())
+        .map(|_| [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5].map(|f| 1e-6 * f))
+        .collect();
+    let mut fine = solver(192);
+    group.sample_size(10);
+    group.bench_function("spread_1e5_fibres_fine", |b| {
+        b.iter(|| fine.set_body_force(&points, &forces))
+    });
     group.finish();
 }
 

@@ -15,10 +15,13 @@
 //! `V_n` the node's control volume (the one the discrete momentum Σ u V uses), so
 //! Σ_n a_n V_n = F_c to round-off, for every point (test `every_point_spreads_its_whole_force`).
 //!
-//! Determinism: every k-plane of the result is written by one thread, which adds the points'
-//! shares in the order of the list it is given; the flow node passes the points in a fixed
-//! global order (group, fibre, segment), so the bits depend neither on the shard count nor
-//! on the thread count (test `spreading_is_independent_of_the_thread_count`).
+//! Determinism: every k-plane of the result is written by one thread, which adds the shares
+//! of the points whose stencil starts at that plane, then one plane before, then two, each
+//! run in the order of the list it is given (the points are sorted by their first plane
+//! with a stable counting sort, so that a plane reads its points one after another); the
+//! flow node passes the points in a fixed global order (group, fibre, segment), so the bits
+//! depend neither on the shard count nor on the thread count (test
+//! `spreading_is_independent_of_the_thread_count`).
 
 use crate::field::Velocity;
 use crate::grid::Grid;
@@ -116,35 +119,60 @@ fn wall_normal(y: f64, pos: &[f64], lo: usize, hi: usize) -> Stencil {
     }
 }
 
-/// Where a point force lands for each component: x, y and z stencils of u, v and w.
-#[derive(Debug, Clone, Copy)]
-struct PointStencils {
-    x: [Stencil; 3],
-    y: [Stencil; 3],
-    z: [Stencil; 3],
+/// A point's x, y and z stencils for component `c` (0 u, 1 v, 2 w): u sits on x faces,
+/// y and z centres; v on x centres, y faces, z centres; w on x and y centres, z faces.
+fn component_stencils(g: &Grid, p: &[f64; 3], c: usize) -> [Stencil; 3] {
+    let y = p[1].clamp(-1.0, 1.0);
+    let x = periodic(p[0], g.dx, g.nx, if c == 0 { 0.0 } else { -0.5 });
+    let y = if c == 1 {
+        wall_normal(y, &g.yf, 1, g.ny - 1)
+    } else {
+        wall_normal(y, &g.yc, 1, g.ny)
+    };
+    [x, y, z_stencil(g, p, c)]
 }
 
-fn stencils(g: &Grid, p: [f64; 3]) -> PointStencils {
-    let y = p[1].clamp(-1.0, 1.0);
-    // u: x faces, y centres, z centres; v: x centres, y faces, z centres; w: x centres,
-    // y centres, z faces
-    // six stencils serve the nine: faces and centres per direction
-    let (x_face, x_centre) = (
-        periodic(p[0], g.dx, g.nx, 0.0),
-        periodic(p[0], g.dx, g.nx, -0.5),
-    );
-    let (y_centre, y_face) = (
-        wall_normal(y, &g.yc, 1, g.ny),
-        wall_normal(y, &g.yf, 1, g.ny - 1),
-    );
-    let (z_centre, z_face) = (
-        periodic(p[2], g.dz, g.nz, -0.5),
-        periodic(p[2], g.dz, g.nz, 0.0),
-    );
-    PointStencils {
-        x: [x_face, x_centre, x_centre],
-        y: [y_centre, y_face, y_centre],
-        z: [z_centre, z_centre, z_face],
+/// The z stencil of component `c` (w on faces, u and v on centres).
+fn z_stencil(g: &Grid, p: &[f64; 3], c: usize) -> Stencil {
+    periodic(p[2], g.dz, g.nz, if c == 2 { 0.0 } else { -0.5 })
+}
+
+/// What the spreading of one component reads of a point, together (88 bytes; a plane's
+/// points lie next to each other, [`spread`]): its x and y stencils, the force times each
+/// z weight (the first factor of every node's share `f w_z w_y w_x / V`) and which z
+/// offsets get a share (force and weight both non-zero).
+#[derive(Debug, Clone, Copy, Default)]
+struct Share {
+    x_first: i32,
+    y_first: i32,
+    wx: [f64; 3],
+    wy: [f64; 3],
+    /// Bit `oz`: the plane at z offset `oz` from the first gets a share.
+    z_mask: u8,
+    fz: [f64; 3],
+}
+
+impl Share {
+    fn of(g: &Grid, p: &[f64; 3], force: &[f64; 3], c: usize) -> Self {
+        let [sx, sy, sz] = component_stencils(g, p, c);
+        let f = force[c];
+        let mut z_mask = 0u8;
+        if f != 0.0 {
+            for (oz, &w) in sz.w.iter().enumerate() {
+                if w != 0.0 {
+                    z_mask |= 1 << oz;
+                }
+            }
+        }
+        // stencil indices are within one node of the padded grid (far below 2³¹)
+        Share {
+            x_first: sx.first as i32,
+            y_first: sy.first as i32,
+            wx: sx.w,
+            wy: sy.w,
+            z_mask,
+            fz: sz.w.map(|w| f * w),
+        }
     }
 }
 
@@ -185,9 +213,13 @@ pub struct BodyForce {
     pub field: Velocity,
     entries: [Vec<Vec<(u32, f64)>>; 3],
     /// Kept from one spreading to the next so that a step allocates nothing: each point's
-    /// stencils, each plane's (point, z offset) list and its bits of the nodes written.
-    stencils: Vec<PointStencils>,
-    by_plane: [Vec<Vec<(u32, u8)>>; 3],
+    /// first z plane (padded, wrapped), the points in the order of those planes and where
+    /// each plane's run starts (of u and v, which share them, and of w), the shares of
+    /// each component in that order, and per plane the bits of the nodes written.
+    first_plane: [Vec<u32>; 2],
+    order: [Vec<u32>; 2],
+    run_start: [Vec<usize>; 2],
+    shares: [Vec<Share>; 3],
     written: Vec<Vec<u64>>,
 }
 
@@ -197,8 +229,10 @@ impl BodyForce {
         Self {
             field: Velocity::zeros(g),
             entries: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
-            stencils: Vec::new(),
-            by_plane: std::array::from_fn(|_| vec![Vec::new(); g.nz + 2]),
+            first_plane: [Vec::new(), Vec::new()],
+            order: [Vec::new(), Vec::new()],
+            run_start: [Vec::new(), Vec::new()],
+            shares: std::array::from_fn(|_| Vec::new()),
             written: vec![vec![0; g.plane().div_ceil(64)]; g.nz + 2],
         }
     }
@@ -213,20 +247,81 @@ impl BodyForce {
 
 /// Spreads point forces onto `out` (overwritten; halos left zero). `points[i]` is a
 /// position in outer units (x, z any real, y within the walls) and `forces[i]` the force
-/// *on the fluid* there, in outer units (ρ = 1): node accelerations are added in the
-/// order of the list.
+/// *on the fluid* there, in outer units (ρ = 1). A node adds its shares in a fixed order:
+/// the points whose stencil starts at its own z plane, then those starting one plane
+/// before, then two; each of these in the order of the list.
 pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut BodyForce) {
     let BodyForce {
         field,
         entries,
-        stencils,
-        by_plane,
+        first_plane,
+        order,
+        run_start,
+        shares,
         written,
     } = out;
-    stencils.clear();
-    stencils.par_extend(points.par_iter().map(|&p| self::stencils(g, p)));
-    let stencils = &stencils[..];
     let (plane, nz) = (g.plane(), g.nz);
+    // each point's first z plane: of u and v (z centres), of w (z faces)
+    {
+        let [fuv, fw] = &mut *first_plane;
+        points
+            .par_iter()
+            .map(|p| {
+                let first = |c| wrap(z_stencil(g, p, c).first, nz) as u32;
+                (first(0), first(2))
+            })
+            .unzip_into_vecs(fuv, fw);
+    }
+    // the points by first plane (a stable counting sort, so each plane's points keep the
+    // list's order; u and v share theirs), then their shares in that order, so that a
+    // plane's points are read one after another
+    let sort = |first: &[u32], order: &mut Vec<u32>, run_start: &mut Vec<usize>| {
+        run_start.clear();
+        run_start.resize(nz + 3, 0);
+        for &k in first {
+            run_start[k as usize + 1] += 1;
+        }
+        for k in 0..nz + 2 {
+            run_start[k + 1] += run_start[k];
+        }
+        let mut next = run_start.clone();
+        order.clear();
+        order.resize(first.len(), 0);
+        for (n, &k) in first.iter().enumerate() {
+            order[next[k as usize]] = n as u32;
+            next[k as usize] += 1;
+        }
+    };
+    {
+        let [ouv, ow] = &mut *order;
+        let [ruv, rw] = &mut *run_start;
+        rayon::join(
+            || sort(&first_plane[0], ouv, ruv),
+            || sort(&first_plane[1], ow, rw),
+        );
+    }
+    let [su, sv, sw] = &mut *shares;
+    rayon::join(
+        || {
+            // one visit of each point serves u and v
+            order[0]
+                .par_iter()
+                .with_min_len(1024)
+                .map(|&n| {
+                    let (p, f) = (&points[n as usize], &forces[n as usize]);
+                    (Share::of(g, p, f, 0), Share::of(g, p, f, 1))
+                })
+                .unzip_into_vecs(su, sv)
+        },
+        || {
+            order[1]
+                .par_iter()
+                .with_min_len(1024)
+                .map(|&n| Share::of(g, &points[n as usize], &forces[n as usize], 2))
+                .collect_into_vec(sw)
+        },
+    );
+    let run_start = [&run_start[0], &run_start[0], &run_start[1]];
     // 1 / the control volume of each row and component (a division per node took as long
     // as the rest)
     let per_volume: [Vec<f64>; 3] = std::array::from_fn(|c| {
@@ -241,26 +336,9 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
             })
             .collect()
     });
-    // each plane's points per component, in the list's order (so the sums are those of
-    // one pass)
-    for (c, by_plane) in by_plane.iter_mut().enumerate() {
-        by_plane.iter_mut().for_each(Vec::clear);
-        for (n, (st, f)) in stencils.iter().zip(forces).enumerate() {
-            if f[c] == 0.0 {
-                continue;
-            }
-            let sz = &st.z[c];
-            for oz in 0..3 {
-                if sz.w[oz] != 0.0 {
-                    by_plane[wrap(sz.first + oz as isize, nz)].push((n as u32, oz as u8));
-                }
-            }
-        }
-    }
     // one pass over the planes, the three components of each plane together
     let Velocity { u, v, w } = field;
     let [eu, ev, ew] = entries;
-    let [bu, bv, bw] = &*by_plane;
     u.par_chunks_mut(plane)
         .zip(v.par_chunks_mut(plane))
         .zip(w.par_chunks_mut(plane))
@@ -269,43 +347,33 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
                 .zip(ev.par_iter_mut())
                 .zip(ew.par_iter_mut()),
         )
-        .zip(bu.par_iter().zip(bv.par_iter()).zip(bw.par_iter()))
         .zip(written.par_iter_mut())
-        .for_each(
-            |(((((pu, pv), pw), ((nu, nv), nw)), ((lu, lv), lw)), written)| {
-                for (c, (pl, nodes, points)) in [(pu, nu, lu), (pv, nv, lv), (pw, nw, lw)]
-                    .into_iter()
-                    .enumerate()
-                {
-                    spread_plane(
-                        g,
-                        c,
-                        stencils,
-                        forces,
-                        &per_volume[c],
-                        pl,
-                        nodes,
-                        points,
-                        written,
-                    );
-                }
-            },
-        );
+        .enumerate()
+        .for_each(|(k, ((((pu, pv), pw), ((nu, nv), nw)), written))| {
+            for (c, (pl, nodes)) in [(pu, nu), (pv, nv), (pw, nw)].into_iter().enumerate() {
+                // the points whose stencil reaches plane k (halo planes: none)
+                let runs: [&[Share]; 3] = std::array::from_fn(|oz| {
+                    if k < 1 || k > nz {
+                        return &[][..];
+                    }
+                    let first = wrap(k as isize - oz as isize, nz);
+                    &shares[c][run_start[c][first]..run_start[c][first + 1]]
+                });
+                spread_plane(g, runs, &per_volume[c], pl, nodes, written);
+            }
+        });
 }
 
-/// One component `c` of one plane `pl` of [`spread`]: clears the nodes the last spreading
-/// wrote (`nodes`), adds the shares of the plane's `points` (point, z offset), and lists
-/// the nodes written, each once (`written`: a bit per node, left zero).
-#[allow(clippy::too_many_arguments)]
+/// One component of one plane `pl` of [`spread`]: clears the nodes the last spreading
+/// wrote (`nodes`), adds the shares of the points whose stencil starts `oz` planes before
+/// (`runs[oz]`), and lists the nodes written, each once (`written`: a bit per node, left
+/// zero).
 fn spread_plane(
     g: &Grid,
-    c: usize,
-    stencils: &[PointStencils],
-    forces: &[[f64; 3]],
+    runs: [&[Share]; 3],
     per_volume: &[f64],
     pl: &mut [f64],
     nodes: &mut Vec<(u32, f64)>,
-    points: &[(u32, u8)],
     written: &mut [u64],
 ) {
     // the nodes the last spreading wrote go back to zero
@@ -313,25 +381,27 @@ fn spread_plane(
         pl[at as usize] = 0.0;
     }
     nodes.clear();
-    for &(n, oz) in points {
-        let st = &stencils[n as usize];
-        let fc = forces[n as usize][c];
-        let wz = st.z[c].w[oz as usize];
-        let (sx, sy) = (&st.x[c], &st.y[c]);
-        for (oy, &wy) in sy.w.iter().enumerate() {
-            if wy == 0.0 {
+    for (oz, run) in runs.iter().enumerate() {
+        for sh in run.iter() {
+            if sh.z_mask & (1 << oz) == 0 {
                 continue;
             }
-            let j = (sy.first + oy as isize) as usize;
-            let scale = fc * wz * wy * per_volume[j];
-            for (ox, &wx) in sx.w.iter().enumerate() {
-                let at = wrap(sx.first + ox as isize, g.nx) + g.px * j;
-                pl[at] += scale * wx;
-                // listed once, the first time it is written
-                let (word, bit) = (at / 64, 1u64 << (at % 64));
-                if written[word] & bit == 0 {
-                    written[word] |= bit;
-                    nodes.push((at as u32, 0.0));
+            let fz = sh.fz[oz];
+            for (oy, &wy) in sh.wy.iter().enumerate() {
+                if wy == 0.0 {
+                    continue;
+                }
+                let j = (sh.y_first as isize + oy as isize) as usize;
+                let scale = fz * wy * per_volume[j];
+                for (ox, &wx) in sh.wx.iter().enumerate() {
+                    let at = wrap(sh.x_first as isize + ox as isize, g.nx) + g.px * j;
+                    pl[at] += scale * wx;
+                    // listed once, the first time it is written
+                    let (word, bit) = (at / 64, 1u64 << (at % 64));
+                    if written[word] & bit == 0 {
+                        written[word] |= bit;
+                        nodes.push((at as u32, 0.0));
+                    }
                 }
             }
         }
