@@ -407,11 +407,12 @@ fn fibre(
             .skip(w.active.start)
         {
             for a in 0..3 {
-                du[a] += share[i * LANES + 3 * k + a] as f64 / n as f64 * mk[a];
+                du[a] += share[i * LANES + 3 * k + a] as f64 * mk[a];
             }
         }
+        // each segment gets 1/n of the fibre's force: one division per component
         for a in 0..3 {
-            velocity[3 * seg + a] += du[a];
+            velocity[3 * seg + a] += du[a] / n as f64;
             fluid[a] += velocity[3 * seg + a] / n as f64;
         }
     }
