@@ -74,6 +74,20 @@ fn spectrum(theta: f64) -> f64 {
     roma_peskin_spectrum(theta) * sinc * sinc
 }
 
+/// Intervals of the tabulated [`spectrum`] over θ in [0, π].
+const SPECTRUM_TABLE_N: usize = 512;
+
+/// [`spectrum`] at θ = π i / [`SPECTRUM_TABLE_N`]: it depends on θ alone, not on the grid,
+/// so every row's weights read one table, made once per process.
+fn spectrum_table() -> &'static [f64] {
+    static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        (0..=SPECTRUM_TABLE_N)
+            .map(|i| spectrum(std::f64::consts::PI * i as f64 / SPECTRUM_TABLE_N as f64))
+            .collect()
+    })
+}
+
 /// The memories' weights w_ka for grid spacings `d` (wall units): the integral of the
 /// module's documentation over the wavenumbers the grid holds, in spherical coordinates
 /// (log-spaced radii, a Fibonacci sphere of 800 directions, 100 at the long waves where every
@@ -85,14 +99,11 @@ pub fn mode_weights(d: [f64; 3]) -> Modes {
 /// [`mode_weights`] with the coarse set of directions where every |k_b Δ_b| ≤
 /// `coarse_below` (0: the fine set everywhere).
 fn weights_by_quadrature(d: [f64; 3], coarse_below: f64) -> Modes {
-    // one spectrum table per direction: θ in [0, π]
-    let table_n = 512;
-    let table: Vec<f64> = (0..=table_n)
-        .map(|i| spectrum(std::f64::consts::PI * i as f64 / table_n as f64))
-        .collect();
+    // one spectrum table per direction: θ in [0, π], the same for every grid row
+    let table = spectrum_table();
     let spec = |theta: f64| -> f64 {
-        let x = theta.abs() / std::f64::consts::PI * table_n as f64;
-        let i = (x as usize).min(table_n - 1);
+        let x = theta.abs() / std::f64::consts::PI * SPECTRUM_TABLE_N as f64;
+        let i = (x as usize).min(SPECTRUM_TABLE_N - 1);
         let t = x - i as f64;
         table[i] * (1.0 - t) + table[i + 1] * t
     };
@@ -122,6 +133,7 @@ fn weights_by_quadrature(d: [f64; 3], coarse_below: f64) -> Modes {
     let mut w = [[0.0; 3]; MODES];
     // per mode: Σ c and Σ c n nᵀ (xx, yy, zz, xy, xz, yz) over its wavenumbers
     let mut dir_sum = [[[0.0; 4]; 3]; MODES];
+    let lambdas: [f64; MODES] = std::array::from_fn(lambda);
     for ir in 0..nr {
         let k = (k_min.ln() + (ir as f64 + 0.5) * hr).exp();
         let (dirs, d_omega) = if k * d_max <= coarse_below {
@@ -148,7 +160,7 @@ fn weights_by_quadrature(d: [f64; 3], coarse_below: f64) -> Modes {
                 (MODES - 2, 1.0)
             } else {
                 let m = x as usize;
-                let (lo, hi) = (lambda(m), lambda(m + 1));
+                let (lo, hi) = (lambdas[m], lambdas[m + 1]);
                 (m, (1.0 / lo - 1.0 / lam) / (1.0 / lo - 1.0 / hi))
             };
             let mut c = [0.0; 3];
