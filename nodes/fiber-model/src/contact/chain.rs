@@ -1,7 +1,8 @@
 //! A fibre touching itself answers the contact sweeps as a chain: its segments, each a
 //! rigid body, hinged at ball joints (docs/contact.md, "A fibre touching itself").
 
-use super::{cross_matrix, rigid_motion, At, Candidate, Rigid};
+use super::sweep::{cross_matrix, rigid_motion, At, Rigid};
+use super::Candidate;
 use crate::fibre::Fibre;
 use nalgebra::{Matrix3, Vector3};
 use std::ops::Range;

@@ -6,7 +6,8 @@
 //! and with the pairs near each other, not with the fibres a step's contacts touch: the
 //! solve copies out only the fibres of its candidate pairs ([`super::resolve_segments`]).
 
-use super::{closest_points, image_shift, Candidate};
+use super::geometry::{closest_points, image_shift};
+use super::Candidate;
 use crate::fibre::{Fibre, SegmentProps};
 use nalgebra::Vector3;
 use rayon::prelude::*;
