@@ -41,7 +41,17 @@ pub fn diverging(x: f64, range: f64) -> [u8; 3] {
     } else {
         0.0
     };
-    let lerp = |a: f64, b: f64, f: f64| (a + (b - a) * f).round() as u8;
+    // a channel lies in [24, 247]: rounded half up by its integer part and fraction (the
+    // same bits as `round`, without a call into the C library for every pixel)
+    let lerp = |a: f64, b: f64, f: f64| {
+        let x = a + (b - a) * f;
+        let whole = x as u8;
+        if x - f64::from(whole) >= 0.5 {
+            whole + 1
+        } else {
+            whole
+        }
+    };
     if t < 0.0 {
         let f = -t;
         [
@@ -74,6 +84,52 @@ mod tests {
         assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &v), 99.0);
         assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[0.0; 5]), 1.0);
         assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[]), 1.0);
+    }
+
+    #[test]
+    fn diverging_rounds_as_round_does() {
+        let reference = |x: f64, range: f64| {
+            let t = if range > 0.0 && x.is_finite() {
+                (x / range).clamp(-1.0, 1.0)
+            } else {
+                0.0
+            };
+            let lerp = |a: f64, b: f64, f: f64| (a + (b - a) * f).round() as u8;
+            if t < 0.0 {
+                [
+                    lerp(247.0, 33.0, -t),
+                    lerp(247.0, 102.0, -t),
+                    lerp(247.0, 172.0, -t),
+                ]
+            } else {
+                [
+                    lerp(247.0, 178.0, t),
+                    lerp(247.0, 24.0, t),
+                    lerp(247.0, 43.0, t),
+                ]
+            }
+        };
+        // a dense sweep of [−range, range]
+        for i in -200_000..=200_000 {
+            let x = i as f64 * 1e-5;
+            assert_eq!(diverging(x, 2.0), reference(x, 2.0), "at {x}");
+        }
+        // and the values where a channel is an integer and a half: a + (b − a) f with
+        // f = (k + ½) / |b − a|, on both sides
+        for (end, sign) in [
+            (33.0, -1.0),
+            (102.0, -1.0),
+            (172.0, -1.0),
+            (178.0, 1.0),
+            (24.0, 1.0),
+            (43.0, 1.0),
+        ] {
+            let span: f64 = (247.0_f64 - end).abs();
+            for k in 0..span as i64 {
+                let x = sign * 2.0 * (k as f64 + 0.5) / span;
+                assert_eq!(diverging(x, 2.0), reference(x, 2.0), "at {x}");
+            }
+        }
     }
 
     #[test]

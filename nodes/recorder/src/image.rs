@@ -65,11 +65,10 @@ fn pixels(coords: &[f64], px: f64) -> Vec<f64> {
     (0..n).map(|i| lo + i as f64 * step).collect()
 }
 
-/// The slice value at (u, v), bilinear between its samples.
-fn value_at(s: &FlowSlice, u: f64, v: f64) -> f64 {
+/// The slice value at the pixel whose column and row lie at `(i, fu)` and `(j, fv)`
+/// among the samples ([`bracket`]), bilinear between them.
+fn value_at(s: &FlowSlice, (i, fu): (usize, f64), (j, fv): (usize, f64)) -> f64 {
     let nu = s.u_plus.len();
-    let (i, fu) = bracket(&s.u_plus, u);
-    let (j, fv) = bracket(&s.v_plus, v);
     let at = |i: usize, j: usize| {
         let i = i.min(nu - 1);
         let j = j.min(s.v_plus.len() - 1);
@@ -97,9 +96,12 @@ pub fn from_slice(s: &FlowSlice) -> Image {
     let (width, height) = (us.len(), vs.len());
     let mut data = Vec::with_capacity(3 * width * height);
     let range = range_for(&s.quantity, &s.values);
-    for &v in &vs {
-        for &u in &us {
-            data.extend_from_slice(&diverging(value_at(s, u, v), range));
+    // each column's and row's place among the samples, found once (not per pixel)
+    let columns: Vec<(usize, f64)> = us.iter().map(|&u| bracket(&s.u_plus, u)).collect();
+    let rows: Vec<(usize, f64)> = vs.iter().map(|&v| bracket(&s.v_plus, v)).collect();
+    for &row in &rows {
+        for &column in &columns {
+            data.extend_from_slice(&diverging(value_at(s, column, row), range));
         }
     }
     Image {
