@@ -177,7 +177,11 @@ fn spawn_launch(file: &std::path::Path, out: &std::path::Path) -> (std::process:
         .arg("--transport")
         .arg("zenoh")
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(
+            std::fs::File::create(out.with_extension("stderr"))
+                .map(Stdio::from)
+                .expect("launcher stderr file"),
+        )
         .spawn()
         .expect("launch");
     let endpoint = wait_for(&out.join("endpoint.txt"), 20);
@@ -433,7 +437,8 @@ fn killed_recorder_is_recoverable() {
     );
 }
 
-/// Ctrl-C on the launcher: every child is gone within 5 s and the MCAP is finished.
+/// Ctrl-C on the launcher: every child is gone within 5 s, the MCAP is finished, and the
+/// launcher says how to resume the run.
 #[test]
 fn ctrl_c_stops_everything_cleanly() {
     let _one = one_run_at_a_time();
@@ -460,6 +465,12 @@ fn ctrl_c_stops_everything_cleanly() {
     assert!(
         md.contains_key("fiberflow.run"),
         "recording not finished properly"
+    );
+    let said = std::fs::read_to_string(out.with_extension("stderr")).expect("launcher stderr");
+    let resume = format!("--resume {}", out.display());
+    assert!(
+        said.contains("interrupted") && said.contains(&resume),
+        "the launcher did not say how to resume ({resume}): {said}"
     );
 }
 

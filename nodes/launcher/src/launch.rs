@@ -181,6 +181,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         println!("{line}");
     }
     let watcher = checkpoint_watcher(&base, role, pieces.clone(), digest.clone());
+    let interrupted = stop.clone();
     let result = match transport.as_str() {
         "inproc" => run_inproc(&base, &nodes, stop),
         "zenoh" | "iceoryx2" => supervise_restarts(&mut base, role, &nodes, &pieces, &digest, stop),
@@ -189,6 +190,17 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         )),
     };
     watcher.stop();
+    if result.is_err() && interrupted.load(Ordering::SeqCst) && transport != "inproc" {
+        // what was recorded is finished and the checkpoints are kept: say how to go on
+        let on_host = host.map(|h| format!(" --host {h}")).unwrap_or_default();
+        bail!(
+            "interrupted; {} keeps the recording and its checkpoints: continue the run with \
+             `fiberflow launch {}{on_host} --resume {}` (and the same --set options)",
+            out_dir.display(),
+            file.display(),
+            out_dir.display()
+        );
+    }
     result?;
     let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.clone());
     if let Some(m) = &mcap {
