@@ -166,6 +166,19 @@ pub(super) fn geometry(fibres: &[Fibre], c: &Candidate) -> (Vector3<f64>, Vector
     (point, normal, gap)
 }
 
+/// Sets the side the pair keeps (`normal0`, from b to a) to the side its segments are on
+/// in `fibres`; left as it was when their centre-lines meet.
+pub(super) fn take_side(fibres: &[Fibre], c: &mut Candidate) {
+    let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
+    let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+    let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
+    let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
+    let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
+    if v.norm() > 1e-12 * c.reach {
+        c.normal0 = v.normalize();
+    }
+}
+
 pub(super) fn closest(
     fibres: &[Fibre],
     c: &Candidate,

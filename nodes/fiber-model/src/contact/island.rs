@@ -118,14 +118,7 @@ pub(super) fn solve_island(
         // may point the other way)
         for c in pairs.iter_mut() {
             c.impulse = Vector3::zeros();
-            let (pa0, pa1) = ends(&mine[c.a.0], c.a.1);
-            let (qb0, qb1) = ends(&mine[c.b.0], c.b.1);
-            let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
-            let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
-            let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
-            if v.norm() > 1e-12 * c.reach {
-                c.normal0 = v.normalize();
-            }
+            take_side(&mine, c);
         }
     }
     for c in pairs.iter_mut() {

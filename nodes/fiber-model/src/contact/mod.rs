@@ -279,14 +279,7 @@ fn freeze_what_still_overlaps<S: Segments>(
         // (one found after a round took the side it had then, which corrections that
         // pushed it through may have turned)
         for c in cands.iter_mut().filter(|c| frozen[c.a.0] && frozen[c.b.0]) {
-            let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
-            let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
-            let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
-            let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
-            let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
-            if v.norm() > 1e-12 * c.reach {
-                c.normal0 = v.normalize();
-            }
+            take_side(fibres, c);
         }
         let fresh: Vec<Candidate> = search
             .around(s, fibres, &start, moved, &newly)
