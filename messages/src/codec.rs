@@ -108,6 +108,7 @@ message!(FiberGroupState, bulk, crate::bulk::read_state);
 message!(FiberGroupMetrics, bulk, crate::bulk::read_metrics);
 message!(Heartbeat);
 message!(FiberFreeStep);
+message!(FiberContactSolved);
 
 /// Encodes as CDR little-endian with encapsulation header.
 pub fn encode<M: Message>(m: &M) -> Vec<u8> {

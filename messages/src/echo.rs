@@ -26,6 +26,7 @@ pub fn echo_text(topic: &str, bytes: &[u8], max_items: usize) -> Result<String, 
         "fiberflow_msgs/msg/FiberGroupState" => fields::<FiberGroupState>(bytes)?,
         "fiberflow_msgs/msg/FiberGroupMetrics" => fields::<FiberGroupMetrics>(bytes)?,
         "fiberflow_msgs/msg/FiberFreeStep" => fields::<FiberFreeStep>(bytes)?,
+        "fiberflow_msgs/msg/FiberContactSolved" => fields::<FiberContactSolved>(bytes)?,
         other => return Err(malformed(format!("no decoder for {other}"))),
     };
     let mut out = String::new();

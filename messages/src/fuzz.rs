@@ -95,7 +95,7 @@ impl Rng {
 }
 
 /// The message type names a payload can be made for.
-pub const TYPES: [&str; 9] = [
+pub const TYPES: [&str; 10] = [
     "fiberflow_msgs/msg/RunAnnouncement",
     "fiberflow_msgs/msg/FlowSlice",
     "fiberflow_msgs/msg/FlowStatus",
@@ -105,6 +105,7 @@ pub const TYPES: [&str; 9] = [
     "fiberflow_msgs/msg/FiberGroupMetrics",
     "fiberflow_msgs/msg/Heartbeat",
     "fiberflow_msgs/msg/FiberFreeStep",
+    "fiberflow_msgs/msg/FiberContactSolved",
 ];
 
 fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
@@ -314,6 +315,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 schema_version: SCHEMA_VERSION,
                 start_centre: arr(),
                 start_axis: arr(),
+                start_normal: arr(),
                 centre: arr(),
                 axis: arr(),
                 normal: arr(),
@@ -325,6 +327,57 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 first_fiber: st.first_fiber,
                 group_fibers: st.group_fibers,
                 segments_per_fiber: st.segments_per_fiber,
+            })
+        }
+        "fiberflow_msgs/msg/FiberContactSolved" => {
+            let st = state(r, groups);
+            let nf = st.segments_per_fiber.len();
+            // moved fibres: a random ascending subset, now and then out of order or range
+            let mut moved: Vec<u32> = Vec::new();
+            for k in 0..nf as u32 {
+                if r.chance(2) {
+                    moved.push(if r.chance(30) { k + 7 } else { k });
+                }
+            }
+            let moved_segments: Vec<u32> = moved
+                .iter()
+                .map(|&k| st.segments_per_fiber.get(k as usize).copied().unwrap_or(1))
+                .collect();
+            let nseg: usize = moved_segments.iter().map(|&n| n as usize).sum();
+            let mut arr = || {
+                let n = r.len_near(3 * nseg);
+                r.floats(n)
+            };
+            let (centre, axis, normal, velocity, angular_velocity) =
+                (arr(), arr(), arr(), arr(), arr());
+            let nc = r.below(4) as usize;
+            let contact_segment: Vec<u32> = (0..nc as u32).collect();
+            let nforce = r.len_near(3 * nc);
+            let ncount = r.len_near(nc);
+            encode(&FiberContactSolved {
+                schema_version: SCHEMA_VERSION,
+                group: st.group,
+                step: st.step,
+                t_plus: st.t_plus,
+                first_fiber: st.first_fiber,
+                group_fibers: st.group_fibers,
+                fibers: nf as u32,
+                moved,
+                moved_segments,
+                centre,
+                axis,
+                normal,
+                velocity,
+                angular_velocity,
+                contact_segment,
+                contact_force: r.floats(nforce),
+                contacts: vec![1; ncount],
+                worst_gap: r.float(),
+                sweeps: r.below(10) as u32,
+                pairs: r.below(10) as u32,
+                candidates: r.below(10) as u32,
+                locked: Vec::new(),
+                frozen: Vec::new(),
             })
         }
         _ => encode(&Heartbeat {

@@ -279,6 +279,7 @@ impl Sane for FiberFreeStep {
         for (name, v) in [
             ("start_centre", &self.start_centre),
             ("start_axis", &self.start_axis),
+            ("start_normal", &self.start_normal),
             ("centre", &self.centre),
             ("axis", &self.axis),
             ("normal", &self.normal),
@@ -289,6 +290,64 @@ impl Sane for FiberFreeStep {
             finite(name, v)?;
         }
         Ok(())
+    }
+}
+
+impl Sane for FiberContactSolved {
+    fn check(&self) -> Result<(), String> {
+        time(self.t_plus)?;
+        if self.group.is_empty() {
+            return Err("empty group name".into());
+        }
+        let nf = self.fibers as usize;
+        piece(self.first_fiber, nf, self.group_fibers)?;
+        len(
+            "moved_segments",
+            self.moved_segments.len(),
+            self.moved.len(),
+        )?;
+        ascending_below("moved", &self.moved, nf)?;
+        ascending_below("locked", &self.locked, nf)?;
+        ascending_below("frozen", &self.frozen, nf)?;
+        if self.moved_segments.contains(&0) {
+            return Err("a moved fibre with 0 segments".into());
+        }
+        let nseg: u64 = self.moved_segments.iter().map(|&n| n as u64).sum();
+        let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
+        for (name, v) in [
+            ("centre", &self.centre),
+            ("axis", &self.axis),
+            ("normal", &self.normal),
+            ("velocity", &self.velocity),
+            ("angular_velocity", &self.angular_velocity),
+        ] {
+            len(name, v.len(), want)?;
+            finite(name, v)?;
+        }
+        let nc = self.contact_segment.len();
+        len("contacts", self.contacts.len(), nc)?;
+        len("contact_force", self.contact_force.len(), 3 * nc)?;
+        finite("contact_force", &self.contact_force)?;
+        if self.contact_segment.windows(2).any(|w| w[0] >= w[1]) {
+            return Err("contact_segment is not ascending".into());
+        }
+        // the segments of a piece are at most 2^32: a listed segment is checked against
+        // the piece by the receiver, which knows its segment count
+        if self.worst_gap.is_nan() {
+            return Err("worst_gap is not a number".into());
+        }
+        Ok(())
+    }
+}
+
+/// `xs` ascending, each below `n`.
+fn ascending_below(name: &str, xs: &[u32], n: usize) -> Result<(), String> {
+    if xs.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(format!("{name} is not ascending"));
+    }
+    match xs.last() {
+        Some(&last) if last as usize >= n => Err(format!("{name} names fibre {last} of {n}")),
+        _ => Ok(()),
     }
 }
 
@@ -378,6 +437,9 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         }
         "fiberflow_msgs/msg/FiberFreeStep" => {
             go::<FiberFreeStep>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
+        }
+        "fiberflow_msgs/msg/FiberContactSolved" => {
+            go::<FiberContactSolved>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
         other => Err(format!("unknown message type {other}")),
     }

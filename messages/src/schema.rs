@@ -8,6 +8,7 @@ pub const FLOW_SAMPLES: &str = include_str!("../msg/FlowSamples.msg");
 pub const FIBER_GROUP_STATE: &str = include_str!("../msg/FiberGroupState.msg");
 pub const FIBER_GROUP_METRICS: &str = include_str!("../msg/FiberGroupMetrics.msg");
 pub const FIBER_FREE_STEP: &str = include_str!("../msg/FiberFreeStep.msg");
+pub const FIBER_CONTACT_SOLVED: &str = include_str!("../msg/FiberContactSolved.msg");
 pub const HEARTBEAT: &str = include_str!("../msg/Heartbeat.msg");
 /// `sensor_msgs/msg/PointCloud2` with its dependencies, in MCAP ros2msg form.
 pub const POINT_CLOUD2: &str = include_str!("../msg/PointCloud2.msg");
@@ -27,6 +28,7 @@ pub fn text(type_name: &str) -> &'static str {
         "fiberflow_msgs/msg/FiberGroupState" => FIBER_GROUP_STATE,
         "fiberflow_msgs/msg/FiberGroupMetrics" => FIBER_GROUP_METRICS,
         "fiberflow_msgs/msg/FiberFreeStep" => FIBER_FREE_STEP,
+        "fiberflow_msgs/msg/FiberContactSolved" => FIBER_CONTACT_SOLVED,
         "fiberflow_msgs/msg/Heartbeat" => HEARTBEAT,
         POINT_CLOUD2_NAME => POINT_CLOUD2,
         IMAGE_NAME => IMAGE,
@@ -47,6 +49,7 @@ pub fn validate(type_name: &str, bytes: &[u8]) -> Result<(), crate::DecodeError>
         "fiberflow_msgs/msg/FiberGroupState" => decode::<FiberGroupState>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FiberGroupMetrics" => decode::<FiberGroupMetrics>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/FiberFreeStep" => decode::<FiberFreeStep>(bytes).map(|_| ()),
+        "fiberflow_msgs/msg/FiberContactSolved" => decode::<FiberContactSolved>(bytes).map(|_| ()),
         "fiberflow_msgs/msg/Heartbeat" => decode::<Heartbeat>(bytes).map(|_| ()),
         _ => Err(crate::DecodeError::Malformed {
             len: bytes.len(),

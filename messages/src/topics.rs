@@ -57,6 +57,14 @@ impl Topics {
     pub fn contact_free_step(&self, group: &str, first_fiber: u32) -> String {
         format!("fiberflow/{}/contact/{group}/{first_fiber}", self.run)
     }
+    /// What the contact solve did to one piece ([`crate::FiberContactSolved`], from the
+    /// suspension's first piece; not recorded, as [`Self::contact_free_step`]).
+    pub fn contact_solved(&self, group: &str, first_fiber: u32) -> String {
+        format!(
+            "fiberflow/{}/contact/{group}/{first_fiber}/solved",
+            self.run
+        )
+    }
     /// PointCloud2 channel the recorder derives for viewers (not published on the bus).
     pub fn fiber_points(&self, group: &str) -> String {
         format!("fiberflow/{}/fibers/{group}/points", self.run)
@@ -80,6 +88,7 @@ pub fn type_of(topic: &str) -> Option<&'static str> {
         ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
         ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),
         ("contact", 5) => Some("fiberflow_msgs/msg/FiberFreeStep"),
+        ("contact", 6) if parts[5] == "solved" => Some("fiberflow_msgs/msg/FiberContactSolved"),
         _ => None,
     }
 }

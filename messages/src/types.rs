@@ -156,9 +156,9 @@ impl FiberGroupState {
 
 /// One piece of a fibre group after its free step of `step` → `step` + 1, before contact:
 /// what the group's other pieces (shards in other processes) read of its fibres for the
-/// contact solve each of them runs over the whole group (docs/contact.md). Per segment, 3
-/// values each: the centre and axis at the start of the step, and after the free step the
-/// centre, axis, material normal, velocity and angular velocity. Not recorded.
+/// contact solve (docs/contact.md). Per segment, 3 values each: the centre, axis and
+/// material normal at the start of the step, and after the free step the centre, axis,
+/// material normal, velocity and angular velocity. Not recorded.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct FiberFreeStep {
     pub schema_version: u32,
@@ -171,11 +171,50 @@ pub struct FiberFreeStep {
     pub segments_per_fiber: Vec<u32>,
     pub start_centre: Vec<f64>,
     pub start_axis: Vec<f64>,
+    pub start_normal: Vec<f64>,
     pub centre: Vec<f64>,
     pub axis: Vec<f64>,
     pub normal: Vec<f64>,
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
+}
+
+/// What the contact solve of step `step` did to one piece of a group (the suspension's
+/// first piece solves over every piece's free step and sends each other piece its part;
+/// docs/contact.md). Per moved fibre its segments after the solve, 3 values each; the
+/// piece's contact load; the solve's summary. Not recorded.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FiberContactSolved {
+    pub schema_version: u32,
+    pub group: String,
+    pub step: u64,
+    pub t_plus: f64,
+    pub first_fiber: u32,
+    pub group_fibers: u32,
+    /// Fibres in the piece.
+    pub fibers: u32,
+    /// The piece's fibres the solve moved (indices within the piece, ascending).
+    pub moved: Vec<u32>,
+    /// Per moved fibre: its number of segments.
+    pub moved_segments: Vec<u32>,
+    pub centre: Vec<f64>,
+    pub axis: Vec<f64>,
+    pub normal: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub angular_velocity: Vec<f64>,
+    /// Contact load: segments (within the piece, ascending), 3 force values each, pairs.
+    pub contact_segment: Vec<u32>,
+    pub contact_force: Vec<f64>,
+    pub contacts: Vec<u32>,
+    /// Smallest centre-line gap minus contact distance after the whole solve.
+    pub worst_gap: f64,
+    pub sweeps: u32,
+    /// Pairs that touched in the whole solve.
+    pub pairs: u32,
+    pub candidates: u32,
+    /// The piece's fibres locked into one body, and kept where they started.
+    pub locked: Vec<u32>,
+    pub frozen: Vec<u32>,
 }
 
 /// Per-fibre metrics of a group at `step` (paper §4.3).

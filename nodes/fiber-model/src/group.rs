@@ -72,6 +72,9 @@ pub struct FibreGroup {
     contact: Option<ContactParams>,
     /// What contact did in the last step.
     last_contact: ContactOutcome,
+    /// Pairs that touched in the last step's solve (of all pieces, when another piece
+    /// solved: its [`ContactOutcome::contacts`] are then not here).
+    last_pairs: usize,
     /// The last step's contact load on this group's segments (or the one a checkpoint
     /// restored).
     last_load: contact::SegmentLoad,
@@ -154,6 +157,7 @@ impl FibreGroup {
             work: Work::default(),
             contact: None,
             last_contact: ContactOutcome::default(),
+            last_pairs: 0,
             last_load: contact::SegmentLoad::default(),
             start: Vec::new(),
             search: contact::Search::default(),
@@ -175,10 +179,22 @@ impl FibreGroup {
         &self.last_contact
     }
 
+    /// Pairs that touched in the last step's contact solve (the whole solve's, also on a
+    /// piece that took its part from another piece's solve).
+    pub fn contact_pairs(&self) -> usize {
+        self.last_pairs
+    }
+
     /// The last step's contact load on this group's segments (empty when contact is off
     /// or nothing touched): what its state message carries.
     pub fn contact_load(&self) -> &contact::SegmentLoad {
         &self.last_load
+    }
+
+    /// Each fibre's first segment in the group's segment order, plus the total.
+    #[cfg(test)]
+    pub(crate) fn offsets_for_tests(&self) -> Vec<usize> {
+        self.offsets.clone()
     }
 
     /// Sets the contact load of the step a checkpoint holds (it reports that step's
@@ -247,6 +263,7 @@ impl FibreGroup {
         }
         self.last_load =
             contact::SegmentLoad::of(&outcome.contacts, 0..self.len(), &self.offsets, dt);
+        self.last_pairs = outcome.contacts.len();
         self.last_contact = outcome;
     }
 
@@ -455,8 +472,9 @@ impl FibreGroup {
     }
 
     /// [`Self::step`] without the contact solve (the start kept for it when contact is
-    /// on): a shard of a group whose shards touch sends this free step to the others,
-    /// then solves with theirs ([`Self::resolve_contact_with`]).
+    /// on): a piece of a suspension sends this free step to its first piece, which solves
+    /// contact for all ([`Self::resolve_contact_for`]) and sends each piece its part
+    /// ([`Self::apply_contact_solved`]).
     pub fn step_free<'f>(
         &mut self,
         fluid: impl Into<Fluid<'f>>,
@@ -482,6 +500,7 @@ impl FibreGroup {
         for a in [
             &mut msg.start_centre,
             &mut msg.start_axis,
+            &mut msg.start_normal,
             &mut msg.centre,
             &mut msg.axis,
             &mut msg.normal,
@@ -493,6 +512,7 @@ impl FibreGroup {
         for s in &self.start {
             msg.start_centre.extend_from_slice(s[0].as_slice());
             msg.start_axis.extend_from_slice(s[1].as_slice());
+            msg.start_normal.extend_from_slice(s[2].as_slice());
         }
         for k in 0..self.len() {
             let (segs, l) = self.lanes_of(k);
@@ -506,17 +526,21 @@ impl FibreGroup {
         }
     }
 
-    /// After [`Self::step_free`]: contact over all the fibres that touch, this piece's
-    /// (its first fibre at `order` in the solve: its index in the group, or in the
-    /// suspension's groups one after the other) with the other pieces' free steps
-    /// (`others`, each read for this step), keeping the corrections of this piece's
-    /// fibres. The pairs are solved in that order, so this piece's fibres get the bits
-    /// [`Self::step`] of one unsharded group of all of them gives them.
-    pub fn resolve_contact_with(
+    /// After [`Self::step_free`], on a suspension's first piece: contact over all the
+    /// fibres that touch, this piece's (its first fibre at `order` in the solve: its index
+    /// in the group, or in the suspension's groups one after the other) with the other
+    /// pieces' free steps (`others`, each read for this step). Keeps the corrections of
+    /// this piece's fibres and writes what the solve did to each other piece into
+    /// `solved[p]` (arrays refilled; the header is the caller's), for
+    /// [`Self::apply_contact_solved`] there. The pairs are solved in that order, so every
+    /// piece's fibres get the bits [`Self::step`] of one unsharded group of all of them
+    /// gives them.
+    pub fn resolve_contact_for(
         &mut self,
         order: usize,
-        others: &[contact::exchange::OtherPiece],
+        others: &[OtherPiece],
         dt: f64,
+        solved: &mut [fiberflow_messages::FiberContactSolved],
     ) {
         let Some(mut c) = self.contact else {
             return;
@@ -524,24 +548,104 @@ impl FibreGroup {
         c.wall_half_height = self.params.wall_half_height;
         let mut search = std::mem::take(&mut self.search);
         let view = Joined::new(self, order, others);
-        let own = view.own_start;
-        let (mut outcome, mut solved) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
+        let (own, starts) = (view.own_start, view.starts.clone());
+        let (mut outcome, mut fibres) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
         self.search = search;
+        let hh = self.params.wall_half_height;
+        for ((o, &start), m) in others.iter().zip(&starts).zip(solved.iter_mut()) {
+            fill_solved(m, &outcome, &mut fibres, start, o, hh, dt);
+        }
         let mine = own..own + self.len();
         for &k in outcome.moved.iter().filter(|k| mine.contains(k)) {
-            if let Some(hh) = self.params.wall_half_height {
-                crate::step::wall_contact(&mut solved[k], hh);
+            if let Some(hh) = hh {
+                crate::step::wall_contact(&mut fibres[k], hh);
             }
-            for (i, s) in solved[k].segments.iter().enumerate() {
+            for (i, s) in fibres[k].segments.iter().enumerate() {
                 self.set_segment(k - own, i, *s);
             }
         }
-        // what the log reports is this shard's: its fibres moved and locked
+        // what the log reports is this piece's: its fibres moved and locked
         outcome.moved.retain(|k| mine.contains(k));
         outcome.locked.retain(|k| mine.contains(k));
         outcome.frozen.retain(|k| mine.contains(k));
         self.last_load = contact::SegmentLoad::of(&outcome.contacts, mine, &self.offsets, dt);
+        self.last_pairs = outcome.contacts.len();
         self.last_contact = outcome;
+    }
+
+    /// After [`Self::step_free`], on a piece other than its suspension's first: takes what
+    /// that piece's solve ([`Self::resolve_contact_for`]) did to this one (`order`: this
+    /// piece's first fibre in the solve). Checked against the piece first (its fibre
+    /// count, the moved fibres' segment counts, the loaded segments, every value finite);
+    /// on an error the piece is left as it was. Each moved segment keeps its own
+    /// hydrodynamic force (the solve neither reads nor changes it).
+    pub fn apply_contact_solved(
+        &mut self,
+        order: usize,
+        m: &fiberflow_messages::FiberContactSolved,
+    ) -> Result<(), contact::exchange::ExchangeError> {
+        use contact::exchange::ExchangeError;
+        use fiberflow_messages::sanity::Sane;
+        m.check().map_err(ExchangeError::Insane)?;
+        if m.fibers as usize != self.len() {
+            return Err(ExchangeError::Insane(format!(
+                "the solve's part names {} fibres, this piece holds {}",
+                m.fibers,
+                self.len()
+            )));
+        }
+        for (&k, &n) in m.moved.iter().zip(&m.moved_segments) {
+            if n as usize != self.fibre_len(k as usize) {
+                return Err(ExchangeError::Segments {
+                    fibre: k as usize,
+                    got: n,
+                    want: self.fibre_len(k as usize),
+                });
+            }
+        }
+        if let Some(&last) = m.contact_segment.last() {
+            if last as usize >= self.segment_count() {
+                return Err(ExchangeError::Insane(format!(
+                    "contact load on segment {last} of {}",
+                    self.segment_count()
+                )));
+            }
+        }
+        let v = |a: &[f64], j: usize| Vector3::new(a[3 * j], a[3 * j + 1], a[3 * j + 2]);
+        let mut j = 0;
+        for &k in &m.moved {
+            let k = k as usize;
+            for i in 0..self.fibre_len(k) {
+                let f = self.segments(k).nth(i).map_or(Vector3::zeros(), |s| s.f);
+                let s = Segment {
+                    r: v(&m.centre, j),
+                    z: v(&m.axis, j),
+                    v: v(&m.velocity, j),
+                    w: v(&m.angular_velocity, j),
+                    n: v(&m.normal, j),
+                    f,
+                };
+                self.set_segment(k, i, s);
+                j += 1;
+            }
+        }
+        self.last_load = contact::SegmentLoad {
+            segment: m.contact_segment.clone(),
+            force: m.contact_force.clone(),
+            count: m.contacts.clone(),
+        };
+        let at = |ks: &[u32]| -> Vec<usize> { ks.iter().map(|&k| order + k as usize).collect() };
+        self.last_pairs = m.pairs as usize;
+        self.last_contact = ContactOutcome {
+            contacts: Vec::new(),
+            candidates: m.candidates as usize,
+            sweeps: m.sweeps,
+            worst_gap: m.worst_gap,
+            moved: at(&m.moved),
+            locked: at(&m.locked),
+            frozen: at(&m.frozen),
+        };
+        Ok(())
     }
 
     /// [`Self::step`] split over the thread pool whatever the group's size.
@@ -687,6 +791,8 @@ struct Joined<'a> {
     others: &'a [OtherPiece],
     /// Index of this shard's first fibre among the joined fibres.
     own_start: usize,
+    /// Index of each other piece's first fibre among the joined fibres.
+    starts: Vec<usize>,
     offsets: Vec<usize>,
     /// Per joined fibre: its piece (`OWN`, or an index into `others`) and its index there.
     at: Vec<(usize, usize)>,
@@ -706,9 +812,12 @@ impl<'a> Joined<'a> {
         let mut at = Vec::new();
         let mut offsets = vec![0];
         let mut own_start = 0;
+        let mut starts = vec![0; others.len()];
         for (_, p, n) in pieces {
             if p == OWN {
                 own_start = at.len();
+            } else {
+                starts[p] = at.len();
             }
             for l in 0..n {
                 at.push((p, l));
@@ -724,6 +833,7 @@ impl<'a> Joined<'a> {
             own: Kept { group },
             others,
             own_start,
+            starts,
             offsets,
             at,
         }
@@ -770,6 +880,64 @@ impl contact::Segments for Joined<'_> {
             (p, l) => self.others[p].after[l].clone(),
         }
     }
+}
+
+/// What the solve did to the piece `o` whose first fibre is `start` among the solve's
+/// fibres, into `m` ([`FibreGroup::resolve_contact_for`]): its moved fibres (brought
+/// within the walls, as the piece itself would), its contact load, its locked and frozen
+/// fibres, and the solve's summary.
+fn fill_solved(
+    m: &mut fiberflow_messages::FiberContactSolved,
+    outcome: &ContactOutcome,
+    fibres: &mut [Fibre],
+    start: usize,
+    o: &OtherPiece,
+    wall_half_height: Option<f64>,
+    dt: f64,
+) {
+    let piece = start..start + o.after.len();
+    let local = |ks: &[usize]| -> Vec<u32> {
+        ks.iter()
+            .filter(|k| piece.contains(k))
+            .map(|&k| (k - start) as u32)
+            .collect()
+    };
+    m.fibers = o.after.len() as u32;
+    m.moved = local(&outcome.moved);
+    m.moved_segments.clear();
+    for a in [
+        &mut m.centre,
+        &mut m.axis,
+        &mut m.normal,
+        &mut m.velocity,
+        &mut m.angular_velocity,
+    ] {
+        a.clear();
+    }
+    for &k in &m.moved {
+        let f = &mut fibres[start + k as usize];
+        if let Some(hh) = wall_half_height {
+            crate::step::wall_contact(f, hh);
+        }
+        m.moved_segments.push(f.len() as u32);
+        for s in &f.segments {
+            m.centre.extend_from_slice(s.r.as_slice());
+            m.axis.extend_from_slice(s.z.as_slice());
+            m.normal.extend_from_slice(s.n.as_slice());
+            m.velocity.extend_from_slice(s.v.as_slice());
+            m.angular_velocity.extend_from_slice(s.w.as_slice());
+        }
+    }
+    let load = contact::SegmentLoad::of(&outcome.contacts, piece.clone(), &o.offsets, dt);
+    m.contact_segment = load.segment;
+    m.contact_force = load.force;
+    m.contacts = load.count;
+    m.worst_gap = outcome.worst_gap;
+    m.sweeps = outcome.sweeps;
+    m.pairs = outcome.contacts.len() as u32;
+    m.candidates = outcome.candidates as u32;
+    m.locked = local(&outcome.locked);
+    m.frozen = local(&outcome.frozen);
 }
 
 /// Whether two segments have the same properties, bit for bit.

@@ -1,6 +1,10 @@
 //! A piece's side of contact across the shards of its group and the groups of its
-//! suspension (`fiber-model`'s `contact::exchange`): after its free step it sends it to
-//! the other pieces and waits for theirs, then solves contact over all of them.
+//! suspension (`fiber-model`'s `contact::exchange`). The suspension's first piece (the
+//! first shard of its first group) reads every other piece's free step, solves contact
+//! over all of them and sends each piece what the solve did to it; every other piece sends
+//! its free step to it and takes its part. So the solve runs once per step, not once per
+//! piece, and a piece other than the first sends and receives only its own fibres
+//! (docs/contact.md, "Across shards").
 
 use crate::config::{build_suspension, BuiltGroup, FiberNodeConfig};
 use crate::serve::FiberNodeError;
@@ -10,11 +14,13 @@ use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
-use fiberflow_messages::{decode, FiberFreeStep, SCHEMA_VERSION};
+use fiberflow_messages::{decode, FiberContactSolved, FiberFreeStep, SCHEMA_VERSION};
 use std::time::{Duration, Instant};
 
-/// How long a shard waits for the others' free steps before it sends its own again (one
-/// of them may have lost it; they drop copies of a step they hold).
+/// How long a piece waits for its part of the solve before it sends its free step again
+/// (one of the two messages may have been lost; the first piece answers a copy of a step
+/// it solved with that step's part again), and how long the first piece waits for the
+/// others' free steps before it sends its last parts again.
 const RESEND_AFTER: Duration = Duration::from_secs(2);
 
 /// Where a piece's group and the pieces it touches come from.
@@ -70,93 +76,221 @@ pub(crate) fn touching(
     })
 }
 
-/// The free steps a piece sends and receives.
+/// A piece's side of the exchange: the suspension's first piece solves, the others send
+/// their free steps to it and take their parts.
 pub(crate) struct Exchange {
-    /// The other pieces, each with its group and first fibre (what their messages name).
-    others: Vec<OtherPiece>,
-    names: Vec<(String, u32)>,
+    role: Role,
     inbox: Inbox,
-    msg: Encode<FiberFreeStep>,
-    topic: String,
-    /// Whether `msg` holds a free step already sent (sent again while this shard waits for
-    /// its samples: a shard still waiting for it may have lost it).
+    /// Whether the piece holds a free step or parts already sent (sent again while it
+    /// waits for its samples: a piece still waiting for them may have lost them).
     sent: bool,
+    /// Wall seconds spent sending and waiting (not solving).
+    exchange_s: f64,
+}
+
+enum Role {
+    /// The suspension's first piece.
+    Solver {
+        /// The other pieces, each with its group and first fibre (what their messages
+        /// name), and the part of the last solve for each, with its topic.
+        others: Vec<OtherPiece>,
+        names: Vec<(String, u32)>,
+        parts: Vec<Encode<FiberContactSolved>>,
+        part_topics: Vec<String>,
+        /// The step the parts are of.
+        solved: Option<u64>,
+    },
+    /// Any other piece.
+    Member {
+        free: Encode<FiberFreeStep>,
+        free_topic: String,
+        /// The first piece, for messages.
+        solver: String,
+    },
 }
 
 impl Exchange {
-    /// The exchange of `own` with the `others` it touches ([`touching`]).
+    /// The exchange of `own` with the `others` it touches ([`touching`]): `own` solves
+    /// when it comes first in the solve's order (`order` below every other piece's).
     pub(crate) fn new(
         bus: &BusHandle,
         t: &Topics,
         own: &Piece,
+        order: usize,
         others: Vec<(Piece, OtherPiece)>,
     ) -> Result<Self, BusError> {
-        let topics: Vec<String> = others
-            .iter()
-            .map(|(p, _)| t.contact_free_step(&p.group, p.first_fiber))
-            .collect();
-        let inbox = Inbox::new(fiberflow_bus::subscribe_any(bus.as_ref(), &topics)?);
-        let names = others
-            .iter()
-            .map(|(p, _)| (p.group.clone(), p.first_fiber))
-            .collect();
-        Ok(Self {
-            others: others.into_iter().map(|(_, o)| o).collect(),
-            names,
-            inbox,
-            msg: Encode(FiberFreeStep {
-                schema_version: SCHEMA_VERSION,
-                group: own.group.clone(),
-                first_fiber: own.first_fiber,
-                group_fibers: own.group_fibers,
-                ..Default::default()
-            }),
-            topic: t.contact_free_step(&own.group, own.first_fiber),
-            sent: false,
-        })
+        let first = others.iter().min_by_key(|(_, o)| o.order);
+        match first {
+            Some((p, o)) if o.order < order => {
+                let inbox =
+                    Inbox::new(bus.subscribe(&t.contact_solved(&own.group, own.first_fiber))?);
+                Ok(Self {
+                    role: Role::Member {
+                        free: Encode(FiberFreeStep {
+                            schema_version: SCHEMA_VERSION,
+                            group: own.group.clone(),
+                            first_fiber: own.first_fiber,
+                            group_fibers: own.group_fibers,
+                            ..Default::default()
+                        }),
+                        free_topic: t.contact_free_step(&own.group, own.first_fiber),
+                        solver: format!("{} fibres {}..", p.group, p.first_fiber),
+                    },
+                    inbox,
+                    sent: false,
+                    exchange_s: 0.0,
+                })
+            }
+            _ => {
+                let topics: Vec<String> = others
+                    .iter()
+                    .map(|(p, _)| t.contact_free_step(&p.group, p.first_fiber))
+                    .collect();
+                let inbox = Inbox::new(fiberflow_bus::subscribe_any(bus.as_ref(), &topics)?);
+                let names = others
+                    .iter()
+                    .map(|(p, _)| (p.group.clone(), p.first_fiber))
+                    .collect();
+                let parts = others
+                    .iter()
+                    .map(|(p, _)| {
+                        Encode(FiberContactSolved {
+                            schema_version: SCHEMA_VERSION,
+                            group: p.group.clone(),
+                            first_fiber: p.first_fiber,
+                            group_fibers: p.group_fibers,
+                            ..Default::default()
+                        })
+                    })
+                    .collect();
+                let part_topics = others
+                    .iter()
+                    .map(|(p, _)| t.contact_solved(&p.group, p.first_fiber))
+                    .collect();
+                Ok(Self {
+                    role: Role::Solver {
+                        others: others.into_iter().map(|(_, o)| o).collect(),
+                        names,
+                        parts,
+                        part_topics,
+                        solved: None,
+                    },
+                    inbox,
+                    sent: false,
+                    exchange_s: 0.0,
+                })
+            }
+        }
     }
 
-    /// The other pieces as last read.
-    pub(crate) fn others(&self) -> &[OtherPiece] {
-        &self.others
+    /// Wall seconds this piece spent sending its messages and waiting for the others'.
+    pub(crate) fn exchange_s(&self) -> f64 {
+        self.exchange_s
     }
 
-    /// Messages dropped so far (undecodable, inconsistent, another group's, a later step).
+    /// Whether this piece solves contact for the suspension.
+    pub(crate) fn solves(&self) -> bool {
+        matches!(self.role, Role::Solver { .. })
+    }
+
+    /// Messages dropped so far (undecodable, inconsistent, another piece's, a later step).
     pub(crate) fn drops(&self) -> &DropCounter {
         &self.inbox.drops
     }
 
-    /// Sends the free step `group` just made of step `step` (at `t_plus`).
-    pub(crate) fn send(
-        &mut self,
-        bus: &BusHandle,
-        group: &FibreGroup,
-        step: u64,
-        t_plus: f64,
-    ) -> Result<(), BusError> {
-        self.msg.0.step = step;
-        self.msg.0.t_plus = t_plus;
-        group.fill_free_step(&mut self.msg.0);
-        self.sent = true;
-        bus.publish_message(&self.topic, &self.msg)
-    }
-
-    /// Sends the last free step again, if there is one; whether there was.
+    /// Sends what this piece last sent again (its free step, or the first piece's parts),
+    /// if it sent anything yet; whether it did.
     pub(crate) fn resend(&self, bus: &BusHandle) -> Result<bool, BusError> {
-        if self.sent {
-            bus.publish_message(&self.topic, &self.msg)?;
+        if !self.sent {
+            return Ok(false);
         }
-        Ok(self.sent)
+        match &self.role {
+            Role::Member {
+                free, free_topic, ..
+            } => bus.publish_message(free_topic, free)?,
+            Role::Solver {
+                parts, part_topics, ..
+            } => {
+                for (m, topic) in parts.iter().zip(part_topics) {
+                    bus.publish_message(topic, m)?;
+                }
+            }
+        }
+        Ok(true)
     }
 
-    /// Waits until every other piece's free step of `step` has been read, sending this
-    /// piece's again every [`RESEND_AFTER`]; `alive` is asked between waits (it fails
-    /// when the run was restarted). Copies of earlier steps (resends) are let go;
-    /// garbage, other groups' and later steps' messages are dropped and counted.
-    pub(crate) fn gather(
+    /// Contact for step `k` after `group`'s free step (at `t_plus`; `order`: the piece's
+    /// first fibre in the solve). The first piece waits until every other piece's free
+    /// step of `k` has been read, solves and sends the parts; any other piece sends its
+    /// free step and waits for its part, sending the free step again every
+    /// [`RESEND_AFTER`]. `alive` is asked between waits (it fails when the run was
+    /// restarted). Garbage, other pieces' and later steps' messages, and parts that do
+    /// not fit the piece are dropped and counted.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn contact(
         &mut self,
         bus: &BusHandle,
         node: &str,
+        group: &mut FibreGroup,
+        order: usize,
+        step: u64,
+        t_plus: f64,
+        dt: f64,
+        timeout: Duration,
+        alive: &mut dyn FnMut() -> Result<(), FiberNodeError>,
+    ) -> Result<(), FiberNodeError> {
+        let t0 = Instant::now();
+        if let Role::Member {
+            free, free_topic, ..
+        } = &mut self.role
+        {
+            free.0.step = step;
+            free.0.t_plus = t_plus;
+            group.fill_free_step(&mut free.0);
+            self.sent = true;
+            bus.publish_message(free_topic, free)?;
+        }
+        let waited = self.wait(bus, node, group, order, step, timeout, alive);
+        self.exchange_s += t0.elapsed().as_secs_f64();
+        waited?;
+        if let Role::Solver {
+            others,
+            parts,
+            part_topics,
+            solved,
+            ..
+        } = &mut self.role
+        {
+            for m in parts.iter_mut() {
+                m.0.step = step;
+                m.0.t_plus = t_plus;
+            }
+            let mut msgs: Vec<FiberContactSolved> =
+                parts.iter_mut().map(|m| std::mem::take(&mut m.0)).collect();
+            group.resolve_contact_for(order, others, dt, &mut msgs);
+            for (m, filled) in parts.iter_mut().zip(msgs) {
+                m.0 = filled;
+            }
+            *solved = Some(step);
+            self.sent = true;
+            let t1 = Instant::now();
+            for (m, topic) in parts.iter().zip(part_topics.iter()) {
+                bus.publish_message(topic, m)?;
+            }
+            self.exchange_s += t1.elapsed().as_secs_f64();
+        }
+        Ok(())
+    }
+
+    /// The wait of [`Self::contact`]: for every other piece's free step (first piece), or
+    /// for this piece's part, which it takes (any other piece).
+    #[allow(clippy::too_many_arguments)]
+    fn wait(
+        &mut self,
+        bus: &BusHandle,
+        node: &str,
+        group: &mut FibreGroup,
+        order: usize,
         step: u64,
         timeout: Duration,
         alive: &mut dyn FnMut() -> Result<(), FiberNodeError>,
@@ -164,32 +298,39 @@ impl Exchange {
         let from = Instant::now();
         let mut resend_at = from + RESEND_AFTER;
         loop {
-            if self.others.iter().all(|o| o.step == Some(step)) {
-                return Ok(());
+            if let Role::Solver { others, .. } = &self.role {
+                if others.iter().all(|o| o.step == Some(step)) {
+                    return Ok(());
+                }
             }
             alive()?;
             let now = Instant::now();
             let left = timeout.saturating_sub(now - from);
             if left.is_zero() {
-                let missing: Vec<String> = self
-                    .others
-                    .iter()
-                    .filter(|o| o.step != Some(step))
-                    .map(|o| format!("fibres {}..", o.first_fiber))
-                    .collect();
+                let missing = match &self.role {
+                    Role::Solver { others, .. } => {
+                        let m: Vec<String> = others
+                            .iter()
+                            .filter(|o| o.step != Some(step))
+                            .map(|o| format!("fibres {}..", o.first_fiber))
+                            .collect();
+                        format!(
+                            "no free step of step {step} from the pieces of {}",
+                            m.join(", ")
+                        )
+                    }
+                    Role::Member { solver, .. } => {
+                        format!("no contact solve of step {step} from the first piece ({solver})")
+                    }
+                };
                 return Err(FiberNodeError::Protocol(format!(
-                    "node {node}: no free step of step {step} from the shards of {} within {:.0} s",
-                    missing.join(", "),
+                    "node {node}: {missing} within {:.0} s",
                     timeout.as_secs_f64()
                 )));
             }
             if now >= resend_at {
                 self.resend(bus)?;
-                tracing::info!(
-                    node,
-                    step,
-                    "no free step from every shard yet: sending ours again"
-                );
+                tracing::info!(node, step, "contact exchange waiting: sending ours again");
                 resend_at = now + RESEND_AFTER;
             }
             let wait = left
@@ -198,37 +339,65 @@ impl Exchange {
             let Some((topic, bytes)) = self.inbox.recv_raw(wait) else {
                 continue;
             };
-            let m = match decode::<FiberFreeStep>(&bytes) {
-                Ok(m) => m,
-                Err(e) => {
-                    self.inbox.drops.drop_one(&topic, &e.to_string());
-                    continue;
+            let drops = &mut self.inbox.drops;
+            match &mut self.role {
+                Role::Solver {
+                    others,
+                    names,
+                    parts,
+                    part_topics,
+                    solved,
+                } => {
+                    let m = match decode::<FiberFreeStep>(&bytes) {
+                        Ok(m) => m,
+                        Err(e) => {
+                            drops.drop_one(&topic, &e.to_string());
+                            continue;
+                        }
+                    };
+                    let Some(i) = names
+                        .iter()
+                        .position(|(g, first)| *g == m.group && *first == m.first_fiber)
+                    else {
+                        drops.drop_one(&topic, "free step of no piece this one touches");
+                        continue;
+                    };
+                    if m.step < step {
+                        // a piece that lost its part of a step sent that free step again
+                        if *solved == Some(m.step) {
+                            bus.publish_message(&part_topics[i], &parts[i])?;
+                        }
+                        continue;
+                    }
+                    if m.step > step {
+                        drops.drop_one(&topic, "free step of a later step");
+                        continue;
+                    }
+                    if let Err(e) = others[i].read(&m) {
+                        drops.drop_one(&topic, &format!("inconsistent: {e}"));
+                    }
                 }
-            };
-            if m.step < step {
-                // a shard that waited for its samples sent its free step again
-                continue;
-            }
-            if m.step > step {
-                self.inbox
-                    .drops
-                    .drop_one(&topic, "free step of a later step");
-                continue;
-            }
-            let Some(i) = self
-                .names
-                .iter()
-                .position(|(g, first)| *g == m.group && *first == m.first_fiber)
-            else {
-                self.inbox
-                    .drops
-                    .drop_one(&topic, "free step of no piece this one touches");
-                continue;
-            };
-            if let Err(e) = self.others[i].read(&m) {
-                self.inbox
-                    .drops
-                    .drop_one(&topic, &format!("inconsistent: {e}"));
+                Role::Member { .. } => {
+                    let m = match decode::<FiberContactSolved>(&bytes) {
+                        Ok(m) => m,
+                        Err(e) => {
+                            drops.drop_one(&topic, &e.to_string());
+                            continue;
+                        }
+                    };
+                    if m.step < step {
+                        // the first piece answered an earlier copy of our free step
+                        continue;
+                    }
+                    if m.step > step {
+                        drops.drop_one(&topic, "contact solve of a later step");
+                        continue;
+                    }
+                    match group.apply_contact_solved(order, &m) {
+                        Ok(()) => return Ok(()),
+                        Err(e) => drops.drop_one(&topic, &format!("inconsistent: {e}")),
+                    }
+                }
             }
         }
     }

@@ -270,14 +270,12 @@ struct Served {
     ann_in: Inbox,
     /// The flow node's heartbeats, when it lives on another host ([`Checkpointing::flow_elsewhere`]).
     flow_hb: Option<Inbox>,
-    /// Contact across pieces (the group's other shards, its suspension's other groups):
-    /// the free steps this piece sends to them and reads of theirs.
+    /// Contact across pieces (the group's other shards, its suspension's other groups): the
+    /// free step this piece sends to the suspension's first piece and the part of the
+    /// solve it takes back, or (on the first piece) the others' free steps and their parts.
     exchange: Option<Exchange>,
     /// Index of this piece's first fibre in the order of the contact solve.
     order: usize,
-    /// Wall seconds of the exchange (sending the free step, waiting for the others'),
-    /// part of the fibre step's.
-    exchange_s: f64,
     /// Refilled every step: its per-fibre arrays are set once and the segment arrays (MBs
     /// per step at scale) keep their allocations.
     state_msg: Encode<FiberGroupState>,
@@ -345,7 +343,7 @@ impl Served {
         let exchange = if touching.others.is_empty() {
             None
         } else {
-            Some(Exchange::new(&bus, &t, &piece, touching.others)?)
+            Some(Exchange::new(&bus, &t, &piece, order, touching.others)?)
         };
         let built = touching
             .whole
@@ -445,7 +443,6 @@ impl Served {
             flow_hb,
             exchange,
             order,
-            exchange_s: 0.0,
             state_msg,
             full_states_every: ck.full_states_every,
             two_way: ck.two_way,
@@ -477,25 +474,9 @@ impl Served {
         )
     }
 
-    /// Fails when the flow node (on another host) has started the run again: it says READY
-    /// only while it waits for the nodes to join, so a READY read once this node is past
-    /// its first step comes from a restarted flow node (those of the first step are the
-    /// join's, sent before the announcement, and are read and let go at that step).
+    /// Fails when the flow node has started the run again ([`flow_restarted`]).
     fn flow_restarted(&mut self, k: u64) -> Result<(), FiberNodeError> {
-        let Some(inbox) = self.flow_hb.as_mut() else {
-            return Ok(());
-        };
-        while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
-            if hb.state == lifecycle::READY && k > self.start {
-                return Err(FiberNodeError::Protocol(format!(
-                    "node {}: the flow node started the run again from step {} while this \
-                     node was at step {k} (it was restarted): this node is restarted from \
-                     that step too",
-                    self.node, hb.step
-                )));
-            }
-        }
-        Ok(())
+        flow_restarted(self.flow_hb.as_mut(), &self.node, self.start, k)
     }
 
     /// The run's announcement for this node's group, if one arrives within `wait`
@@ -706,8 +687,9 @@ impl Served {
         Ok(())
     }
 
-    /// With contact across pieces, after the free step of step `k`: sends it to the other
-    /// pieces, waits for theirs and solves contact over all of them.
+    /// With contact across pieces, after the free step of step `k`: the suspension's first
+    /// piece gathers the others' free steps, solves and sends them their parts; any other
+    /// piece sends its free step and takes its part ([`Exchange::contact`]).
     fn resolve_with_other_shards(
         &mut self,
         k: u64,
@@ -716,16 +698,18 @@ impl Served {
         let Some(mut x) = self.exchange.take() else {
             return Ok(());
         };
-        let result = (|| {
-            let t0 = Instant::now();
-            x.send(&self.bus, &self.group, k, k as f64 * self.dt)?;
-            let (bus, node) = (self.bus.clone(), self.node.clone());
-            x.gather(&bus, &node, k, step_timeout, &mut || self.flow_restarted(k))?;
-            self.exchange_s += t0.elapsed().as_secs_f64();
-            self.group
-                .resolve_contact_with(self.order, x.others(), self.dt);
-            Ok(())
-        })();
+        let (flow_hb, node, start) = (&mut self.flow_hb, &self.node, self.start);
+        let result = x.contact(
+            &self.bus,
+            node,
+            &mut self.group,
+            self.order,
+            k,
+            k as f64 * self.dt,
+            self.dt,
+            step_timeout,
+            &mut || flow_restarted(flow_hb.as_mut(), node, start, k),
+        );
         self.exchange = Some(x);
         result
     }
@@ -750,7 +734,7 @@ impl Served {
                     worst_gap_over_d = out.worst_gap / d,
                     sweeps = out.sweeps,
                     max_sweeps = c.sweeps,
-                    contacts = out.contacts.len(),
+                    contacts = self.group.contact_pairs(),
                     steps_so_far = self.unresolved_contact_steps + 1,
                     "contact left a pair closer than 0.99 d (raise fibers.contact.sweeps?)"
                 );
@@ -838,7 +822,11 @@ impl Served {
                 steps_left_closer_than_0_99_d = self.unresolved_contact_steps,
                 steps_with_fibres_kept_at_their_start = self.frozen_contact_steps,
                 fibres_kept_at_their_start = self.frozen_fibres,
-                exchanging_free_steps_s = format!("{:.3}", self.exchange_s),
+                solves_for_the_suspension = self.exchange.as_ref().is_some_and(|x| x.solves()),
+                exchanging_s = format!(
+                    "{:.3}",
+                    self.exchange.as_ref().map_or(0.0, |x| x.exchange_s())
+                ),
                 "contact over the run"
             );
         }
@@ -856,4 +844,32 @@ impl Served {
         }
         Ok((self.node, drops))
     }
+}
+
+/// Fails when the flow node (on another host) has started the run again: it says READY
+/// only while it waits for the nodes to join, so a READY read once node `node` (which
+/// started at step `start`) is past its first step comes from a restarted flow node (those
+/// of the first step are the join's, sent before the announcement, and are read and let
+/// go at that step). `flow_hb`: the flow node's heartbeats (None: the flow node runs
+/// beside this node and cannot restart alone).
+fn flow_restarted(
+    flow_hb: Option<&mut Inbox>,
+    node: &str,
+    start: u64,
+    k: u64,
+) -> Result<(), FiberNodeError> {
+    let Some(inbox) = flow_hb else {
+        return Ok(());
+    };
+    while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
+        if hb.state == lifecycle::READY && k > start {
+            return Err(FiberNodeError::Protocol(format!(
+                "node {node}: the flow node started the run again from step {} while this \
+                 node was at step {k} (it was restarted): this node is restarted from \
+                 that step too",
+                hb.step
+            )));
+        }
+    }
+    Ok(())
 }

@@ -1263,4 +1263,57 @@ mod tests {
         std::fs::remove_dir_all(&dir).ok();
         lossy.lost()
     }
+
+    /// Contact across two shards of 3000 fibres on a transport that loses shard 1's free
+    /// step of step 4 and its part of the solve of step 9: the waiting piece sends its free
+    /// step again, the first piece answers it with the part again (or sends its parts
+    /// again while it waits for samples), and the run records the lossless run's states,
+    /// bit for bit, every step of both shards.
+    #[test]
+    fn lost_contact_messages_are_sent_again() {
+        let dir = std::env::temp_dir().join(format!("ff-lossy-contact-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let sets = [
+            "fibers.stiff.contact={ friction = 0.5 }",
+            "fibers.stiff.shards=2",
+            "fibers.stiff.placement={ kind = \"random\", count = 3000, seed = 3, band_plus = [130.0, 170.0] }",
+        ];
+        let by_piece = |bytes: &[u8]| -> BTreeMap<(String, u64, u32), Vec<u8>> {
+            recorded(bytes, "/state")
+                .into_iter()
+                .map(|(topic, b)| {
+                    let s: fiberflow_messages::FiberGroupState =
+                        fiberflow_messages::decode(&b).unwrap();
+                    ((topic, s.step, s.first_fiber), b)
+                })
+                .collect()
+        };
+        let clean = by_piece(&run_launch_with(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            &dir.join("clean"),
+            &sets,
+        ));
+        let lossy = Arc::new(LossyBus::new(
+            Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            &[
+                ("/contact/stiff/1500", 5),
+                ("/contact/stiff/1500/solved", 10),
+            ],
+        ));
+        let repaired = by_piece(&run_launch_with(lossy.clone(), &dir.join("lossy"), &sets));
+        assert_eq!(
+            clean.len(),
+            31 * 3,
+            "case1 and two shards of stiff, steps 0..=30"
+        );
+        assert!(clean == repaired, "states differ after the resends");
+        assert_eq!(
+            lossy.lost(),
+            [
+                "fiberflow/analytic-shear/contact/stiff/1500",
+                "fiberflow/analytic-shear/contact/stiff/1500/solved"
+            ]
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

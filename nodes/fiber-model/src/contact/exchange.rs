@@ -1,11 +1,13 @@
 //! Contact across the shards of a group, and between the groups of a suspension: each
 //! piece (a shard's slice of a group's fibres, in a process of its own) makes its free
-//! step, sends it to the others ([`fiberflow_messages::FiberFreeStep`]), and solves
-//! contact over all of them from its own fibres and theirs, keeping the corrections of
-//! its own ([`crate::group::FibreGroup::resolve_contact_with`]). Every piece solves the
-//! same pairs in the same (fibre, segment) order from the same numbers, so its fibres end
-//! the step with the bits one unsharded group of all the fibres gives them, whatever the
-//! shard count (docs/contact.md, "Across shards").
+//! step and sends it to the suspension's first piece
+//! ([`fiberflow_messages::FiberFreeStep`]), which solves contact over all of them
+//! ([`crate::group::FibreGroup::resolve_contact_for`]) and sends each other piece what the
+//! solve did to its fibres ([`fiberflow_messages::FiberContactSolved`], taken by
+//! [`crate::group::FibreGroup::apply_contact_solved`]). The solve runs over all pieces in
+//! the (fibre, segment) order of one unsharded group, so every piece's fibres end the step
+//! with the bits that group gives them, whatever the shard count (docs/contact.md,
+//! "Across shards").
 
 use crate::fibre::{Fibre, Segment};
 use fiberflow_messages::FiberFreeStep;
@@ -22,11 +24,14 @@ pub struct OtherPiece {
     /// suspension of several groups, the groups' in the suspension's order, one after
     /// the other.
     pub order: usize,
-    /// Its fibres at the start of the step: centres and axes of the start, everything else
-    /// as after the free step (what the solve reads of a start; as for a shard's own).
+    /// Its fibres at the start of the step: centres, axes and normals of the start,
+    /// everything else as after the free step (what the solve reads of a start; as for a
+    /// shard's own).
     pub before: Vec<Fibre>,
     /// Its fibres after the free step.
     pub after: Vec<Fibre>,
+    /// Each fibre's first segment in the piece's segment order (plus the total).
+    pub offsets: Vec<usize>,
     /// The step its segments are of (None: not yet received).
     pub step: Option<u64>,
 }
@@ -46,9 +51,16 @@ impl OtherPiece {
     /// The piece of fibres `first_fiber ..` of its group, at `order` in the solve, with
     /// these fibres' properties (their segments are replaced by [`Self::read`]).
     pub fn new(first_fiber: usize, order: usize, fibres: Vec<Fibre>) -> Self {
+        let offsets = std::iter::once(0)
+            .chain(fibres.iter().scan(0, |o, f| {
+                *o += f.len();
+                Some(*o)
+            }))
+            .collect();
         Self {
             first_fiber,
             order,
+            offsets,
             before: fibres.clone(),
             after: fibres,
             step: None,
@@ -93,6 +105,7 @@ impl OtherPiece {
                 *b = Segment {
                     r: v(&m.start_centre, j),
                     z: v(&m.start_axis, j),
+                    n: v(&m.start_normal, j),
                     ..*a
                 };
                 j += 1;
@@ -109,17 +122,19 @@ mod tests {
     use crate::contact::tests::{
         com, crowded_box, fibre, hairpin, min_distance, params, uniform, D, DT,
     };
-    use crate::contact::ContactParams;
+    use crate::contact::{ContactParams, SegmentLoad};
     use crate::group::FibreGroup;
     use crate::step::{FluidSample, ModelParams};
     use nalgebra::Matrix3;
 
-    /// A group cut into shards at `cuts` (first fibres, then the total), each with the
-    /// other shards' pieces, stepping as shard processes do: every shard steps free and
-    /// sends its free step, every shard reads the others' and solves.
+    /// A group cut into shards at `cuts` (first fibres, then the total), stepping as shard
+    /// processes do: every shard steps free; the first reads the others' free steps (sent
+    /// through the codec), solves for all and sends each other shard its part, which that
+    /// shard takes (again through the codec).
     struct Shards {
         groups: Vec<(usize, FibreGroup)>,
-        others: Vec<Vec<OtherPiece>>,
+        /// The first shard's view of the others.
+        others: Vec<OtherPiece>,
     }
 
     impl Shards {
@@ -128,20 +143,15 @@ mod tests {
                 .windows(2)
                 .map(|w| (w[0], whole.slice(w[0], w[1] - w[0])))
                 .collect();
-            let others = (0..groups.len())
-                .map(|s| {
-                    groups
-                        .iter()
-                        .enumerate()
-                        .filter(|&(t, _)| t != s)
-                        .map(|(_, (first, g))| OtherPiece::new(*first, *first, g.fibres()))
-                        .collect()
-                })
+            let others = groups[1..]
+                .iter()
+                .map(|(first, g)| OtherPiece::new(*first, *first, g.fibres()))
                 .collect();
             Self { groups, others }
         }
 
         fn step(&mut self, fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample, step: u64) {
+            use fiberflow_messages::{decode, encode, FiberContactSolved};
             let total: usize = self.groups.iter().map(|(_, g)| g.len()).sum();
             let mut sent = Vec::new();
             for (first, g) in self.groups.iter_mut() {
@@ -163,18 +173,34 @@ mod tests {
                     ..Default::default()
                 };
                 g.fill_free_step(&mut m);
-                sent.push(m);
+                sent.push(encode(&m));
             }
-            for others in self.others.iter_mut() {
-                for o in others.iter_mut() {
-                    let m = sent
-                        .iter()
-                        .find(|m| m.first_fiber as usize == o.first_fiber);
-                    o.read(m.unwrap()).unwrap();
-                }
+            for (o, bytes) in self.others.iter_mut().zip(&sent[1..]) {
+                o.read(&decode::<FiberFreeStep>(bytes).unwrap()).unwrap();
             }
-            for ((first, g), others) in self.groups.iter_mut().zip(&self.others) {
-                g.resolve_contact_with(*first, others, DT);
+            let mut solved: Vec<FiberContactSolved> = self.groups[1..]
+                .iter()
+                .map(|(first, _)| FiberContactSolved {
+                    schema_version: fiberflow_messages::SCHEMA_VERSION,
+                    group: "g".into(),
+                    step,
+                    t_plus: step as f64 * DT,
+                    first_fiber: *first as u32,
+                    group_fibers: total as u32,
+                    ..Default::default()
+                })
+                .collect();
+            let (first, solver) = &mut self.groups[0];
+            solver.resolve_contact_for(*first, &self.others, DT, &mut solved);
+            let pairs = solver.contact_pairs();
+            for ((first, g), m) in self.groups[1..].iter_mut().zip(&solved) {
+                let m = decode::<FiberContactSolved>(&encode(m)).unwrap();
+                g.apply_contact_solved(*first, &m).unwrap();
+                assert_eq!(
+                    g.contact_pairs(),
+                    pairs,
+                    "every piece reports the solve's pairs"
+                );
             }
         }
 
@@ -212,6 +238,15 @@ mod tests {
             whole.step(&samples, DT).unwrap();
             shards.step(fluid, step);
             assert!(shards.fibres() == whole.fibres(), "step {step}: other bits");
+            for (first, g) in &shards.groups {
+                let load = SegmentLoad::of(
+                    &whole.last_contact().contacts,
+                    *first..*first + g.len(),
+                    &g.offsets_for_tests(),
+                    DT,
+                );
+                assert_eq!(g.contact_load(), &load, "step {step}: another contact load");
+            }
             across += whole
                 .last_contact()
                 .contacts
@@ -442,5 +477,73 @@ mod tests {
         nan.velocity[5] = f64::NAN;
         assert!(matches!(piece.read(&nan), Err(ExchangeError::Insane(_))));
         assert_eq!(piece.after, held);
+    }
+
+    /// The first piece's part for another piece that does not fit it (another fibre
+    /// count, a moved fibre's segment count, a load on a segment it does not hold, a
+    /// non-finite value) is refused, and the piece keeps what it held; the part that fits
+    /// is taken.
+    #[test]
+    fn a_solved_part_that_does_not_fit_is_refused() {
+        use fiberflow_messages::FiberContactSolved;
+        let fibres = vec![
+            fibre(Vector3::zeros(), Vector3::x()),
+            fibre(Vector3::new(0.0, 0.5 * D, 0.0), Vector3::z()),
+        ];
+        let whole = {
+            let mut g = FibreGroup::new(params(Vector3::zeros()), fibres);
+            g.set_contact(Some(ContactParams::default()));
+            g
+        };
+        let mut shards = Shards::cut(&whole, &[0, 1, 2]);
+        let still = |_: usize, _: &Vector3<f64>| uniform(Vector3::zeros());
+        // step as the processes do, keeping the part the first piece sent the second
+        let mut first = shards.groups[0].1.clone();
+        let mut second = shards.groups[1].1.clone();
+        let samples: Vec<FluidSample> = (0..7).map(|_| still(0, &Vector3::zeros())).collect();
+        first.step_free(&samples, DT).unwrap();
+        second.step_free(&samples, DT).unwrap();
+        let mut free = FiberFreeStep::default();
+        second.fill_free_step(&mut free);
+        free.first_fiber = 1;
+        free.group_fibers = 2;
+        free.group = "g".into();
+        shards.others[0].read(&free).unwrap();
+        let mut part = vec![FiberContactSolved {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            group: "g".into(),
+            first_fiber: 1,
+            group_fibers: 2,
+            ..Default::default()
+        }];
+        first.resolve_contact_for(0, &shards.others, DT, &mut part);
+        let m = &part[0];
+        assert_eq!(
+            m.moved,
+            vec![0],
+            "the overlapping pair moved the second fibre"
+        );
+        let held = second.fibres();
+        let refused = |bad: &FiberContactSolved, second: &mut FibreGroup| {
+            assert!(second.apply_contact_solved(1, bad).is_err());
+            assert_eq!(second.fibres(), held, "a refused part changed the piece");
+        };
+        let mut more = m.clone();
+        more.fibers = 2;
+        more.group_fibers = 3;
+        refused(&more, &mut second);
+        let mut short = m.clone();
+        short.moved_segments[0] = 6;
+        refused(&short, &mut second);
+        let mut far = m.clone();
+        far.contact_segment = vec![7];
+        far.contacts = vec![1];
+        far.contact_force = vec![0.0; 3];
+        refused(&far, &mut second);
+        let mut nan = m.clone();
+        nan.centre[4] = f64::NAN;
+        refused(&nan, &mut second);
+        second.apply_contact_solved(1, m).unwrap();
+        assert_ne!(second.fibres(), held, "the part that fits moved the fibre");
     }
 }
