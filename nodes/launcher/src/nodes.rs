@@ -99,8 +99,8 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     for p in lf.pieces().unwrap_or_default() {
         v.push(t.heartbeat(&p.node()));
         v.push(p.samples_topic(&t));
-        // the pieces that touch exchange their free steps: shards of a group with contact,
-        // groups of a suspension
+        // the pieces that touch exchange their free steps and the parts of the contact
+        // solve: shards of a group with contact, groups of a suspension
         let contact = lf
             .fibers
             .iter()
@@ -108,6 +108,7 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
         let in_suspension = lf.suspensions.iter().any(|s| s.groups.contains(&p.group));
         if contact && (p.shards > 1 || in_suspension) {
             v.push(t.contact_free_step(&p.group, p.first_fiber));
+            v.push(t.contact_solved(&p.group, p.first_fiber));
         }
     }
     v
