@@ -29,7 +29,8 @@ pub(crate) struct Touching {
     pub whole: BuiltGroup,
     /// Index of the piece's first fibre in the solve's order.
     pub order: usize,
-    /// The other pieces it touches (none: contact, if on, stays within the piece).
+    /// The other pieces it touches (none: contact, if on, stays within the piece); their
+    /// fibres only on the piece that solves (the first in the solve's order).
     pub others: Vec<(Piece, OtherPiece)>,
 }
 
@@ -49,6 +50,9 @@ pub(crate) fn touching(
     } else {
         (members.to_vec(), build_suspension(members, box_plus)?)
     };
+    // the first piece of the solve's order solves for all and keeps the others' fibres;
+    // any other piece needs only to know the pieces (no copies of their fibres)
+    let solves = groups.first().is_some_and(|g| g.group == own.group) && own.first_fiber == 0;
     let mut others = Vec::new();
     let (mut order, mut offset, mut whole) = (0, 0, None);
     for (g, b) in groups.iter().zip(built) {
@@ -57,7 +61,11 @@ pub(crate) fn touching(
             if p.group == own.group && p.index == own.index {
                 order = offset + first;
             } else if cfg.contact.is_some() {
-                let fibres = b.group.slice(first, p.fibers as usize).fibres();
+                let fibres = if solves {
+                    b.group.slice(first, p.fibers as usize).fibres()
+                } else {
+                    Vec::new()
+                };
                 others.push((p.clone(), OtherPiece::new(first, offset + first, fibres)));
             }
         }
