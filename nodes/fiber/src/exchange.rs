@@ -110,7 +110,8 @@ enum Role {
     },
     /// Any other piece.
     Member {
-        free: Encode<FiberFreeStep>,
+        /// Boxed: the message's arrays make it far larger than the other role.
+        free: Box<Encode<FiberFreeStep>>,
         free_topic: String,
         /// The first piece, for messages.
         solver: String,
@@ -134,13 +135,13 @@ impl Exchange {
                     Inbox::new(bus.subscribe(&t.contact_solved(&own.group, own.first_fiber))?);
                 Ok(Self {
                     role: Role::Member {
-                        free: Encode(FiberFreeStep {
+                        free: Box::new(Encode(FiberFreeStep {
                             schema_version: SCHEMA_VERSION,
                             group: own.group.clone(),
                             first_fiber: own.first_fiber,
                             group_fibers: own.group_fibers,
                             ..Default::default()
-                        }),
+                        })),
                         free_topic: t.contact_free_step(&own.group, own.first_fiber),
                         solver: format!("{} fibres {}..", p.group, p.first_fiber),
                     },
@@ -215,7 +216,7 @@ impl Exchange {
         match &self.role {
             Role::Member {
                 free, free_topic, ..
-            } => bus.publish_message(free_topic, free)?,
+            } => bus.publish_message(free_topic, free.as_ref())?,
             Role::Solver {
                 parts, part_topics, ..
             } => {
@@ -256,7 +257,7 @@ impl Exchange {
             free.0.t_plus = t_plus;
             group.fill_free_step(&mut free.0);
             self.sent = true;
-            bus.publish_message(free_topic, free)?;
+            bus.publish_message(free_topic, free.as_ref())?;
         }
         let waited = self.wait(bus, node, group, order, step, timeout, alive);
         self.exchange_s += t0.elapsed().as_secs_f64();
