@@ -271,26 +271,36 @@ impl Sane for FiberFreeStep {
         }
         let nf = self.segments_per_fiber.len();
         piece(self.first_fiber, nf, self.group_fibers)?;
-        if self.segments_per_fiber.contains(&0) {
-            return Err("a fibre with 0 segments".into());
-        }
-        let nseg: u64 = self.segments_per_fiber.iter().map(|&n| n as u64).sum();
-        let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
-        for (name, v) in [
-            ("start_centre", &self.start_centre),
-            ("start_axis", &self.start_axis),
-            ("start_normal", &self.start_normal),
-            ("centre", &self.centre),
-            ("axis", &self.axis),
-            ("normal", &self.normal),
-            ("velocity", &self.velocity),
-            ("angular_velocity", &self.angular_velocity),
-        ] {
-            len(name, v.len(), want)?;
-            finite(name, v)?;
-        }
-        Ok(())
+        per_segment(
+            "fibre",
+            &self.segments_per_fiber,
+            &[
+                ("start_centre", &self.start_centre),
+                ("start_axis", &self.start_axis),
+                ("start_normal", &self.start_normal),
+                ("centre", &self.centre),
+                ("axis", &self.axis),
+                ("normal", &self.normal),
+                ("velocity", &self.velocity),
+                ("angular_velocity", &self.angular_velocity),
+            ],
+        )
     }
+}
+
+/// Arrays of 3 values per segment of fibres of `counts` segments each (`what` names such a
+/// fibre): no fibre without segments, every array as long as the segments ask and finite.
+fn per_segment(what: &str, counts: &[u32], arrays: &[(&str, &[f64])]) -> Result<(), String> {
+    if counts.contains(&0) {
+        return Err(format!("a {what} with 0 segments"));
+    }
+    let nseg: u64 = counts.iter().map(|&n| n as u64).sum();
+    let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
+    for (name, v) in arrays {
+        len(name, v.len(), want)?;
+        finite(name, v)?;
+    }
+    Ok(())
 }
 
 impl Sane for FiberContactSolved {
@@ -309,21 +319,17 @@ impl Sane for FiberContactSolved {
         ascending_below("moved", &self.moved, nf)?;
         ascending_below("locked", &self.locked, nf)?;
         ascending_below("frozen", &self.frozen, nf)?;
-        if self.moved_segments.contains(&0) {
-            return Err("a moved fibre with 0 segments".into());
-        }
-        let nseg: u64 = self.moved_segments.iter().map(|&n| n as u64).sum();
-        let want = usize::try_from(nseg.saturating_mul(3)).map_err(|_| "too many segments")?;
-        for (name, v) in [
-            ("centre", &self.centre),
-            ("axis", &self.axis),
-            ("normal", &self.normal),
-            ("velocity", &self.velocity),
-            ("angular_velocity", &self.angular_velocity),
-        ] {
-            len(name, v.len(), want)?;
-            finite(name, v)?;
-        }
+        per_segment(
+            "moved fibre",
+            &self.moved_segments,
+            &[
+                ("centre", &self.centre),
+                ("axis", &self.axis),
+                ("normal", &self.normal),
+                ("velocity", &self.velocity),
+                ("angular_velocity", &self.angular_velocity),
+            ],
+        )?;
         let nc = self.contact_segment.len();
         len("contacts", self.contacts.len(), nc)?;
         len("contact_force", self.contact_force.len(), 3 * nc)?;

@@ -14,7 +14,6 @@
 //! (temp file, fsync, rename). Files of the earlier formats are read: `FFGRPCK1` (five
 //! arrays) with zero forces, `FFGRPCK2` (six) with no contact load.
 
-use crate::fibre::Segment;
 use crate::group::FibreGroup;
 use nalgebra::Vector3;
 use std::path::Path;
@@ -51,7 +50,7 @@ pub struct GroupSnapshot {
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
     pub normal: Vec<f64>,
-    /// Hydrodynamic force of the last step ([`Segment::f`]).
+    /// Hydrodynamic force of the last step ([`crate::fibre::Segment::f`]).
     pub force: Vec<f64>,
     /// Contact load of the last step ([`FibreGroup::contact_load`]).
     pub contact: crate::contact::SegmentLoad,
@@ -102,19 +101,24 @@ impl GroupSnapshot {
                 group.segment_count()
             ));
         }
-        let v3 = |a: &[f64], i: usize| Vector3::new(a[3 * i], a[3 * i + 1], a[3 * i + 2]);
+        let flat = crate::fibre::FlatSegments {
+            centre: &self.centre,
+            axis: &self.axis,
+            velocity: &self.velocity,
+            angular_velocity: &self.angular_velocity,
+            normal: &self.normal,
+        };
+        let f = |i: usize| {
+            Vector3::new(
+                self.force[3 * i],
+                self.force[3 * i + 1],
+                self.force[3 * i + 2],
+            )
+        };
         let mut i = 0;
         for k in 0..group.len() {
             for j in 0..group.fibre_len(k) {
-                let seg = Segment {
-                    r: v3(&self.centre, i),
-                    z: v3(&self.axis, i),
-                    v: v3(&self.velocity, i),
-                    w: v3(&self.angular_velocity, i),
-                    n: v3(&self.normal, i),
-                    f: v3(&self.force, i),
-                };
-                group.set_segment(k, j, seg);
+                group.set_segment(k, j, flat.get(i, f(i)));
                 i += 1;
             }
         }

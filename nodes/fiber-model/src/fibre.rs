@@ -34,6 +34,33 @@ pub struct SegmentProps {
     pub inertia_perp: f64,
 }
 
+/// Segments as messages and checkpoints carry them: flat arrays of 3 values per segment,
+/// fibre-major.
+#[derive(Debug, Clone, Copy)]
+pub struct FlatSegments<'a> {
+    pub centre: &'a [f64],
+    pub axis: &'a [f64],
+    pub velocity: &'a [f64],
+    pub angular_velocity: &'a [f64],
+    pub normal: &'a [f64],
+}
+
+impl FlatSegments<'_> {
+    /// Segment `j`, with hydrodynamic force `f` (the arrays' lengths are the caller's to
+    /// check).
+    pub fn get(&self, j: usize, f: Vector3<f64>) -> Segment {
+        let v = |a: &[f64]| Vector3::new(a[3 * j], a[3 * j + 1], a[3 * j + 2]);
+        Segment {
+            r: v(self.centre),
+            z: v(self.axis),
+            v: v(self.velocity),
+            w: v(self.angular_velocity),
+            n: v(self.normal),
+            f,
+        }
+    }
+}
+
 impl SegmentProps {
     pub fn new(length: f64, diameter: f64, density: f64) -> Self {
         let r = 0.5 * diameter;

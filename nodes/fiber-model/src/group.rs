@@ -611,21 +611,19 @@ impl FibreGroup {
                 )));
             }
         }
-        let v = |a: &[f64], j: usize| Vector3::new(a[3 * j], a[3 * j + 1], a[3 * j + 2]);
+        let flat = crate::fibre::FlatSegments {
+            centre: &m.centre,
+            axis: &m.axis,
+            velocity: &m.velocity,
+            angular_velocity: &m.angular_velocity,
+            normal: &m.normal,
+        };
         let mut j = 0;
         for &k in &m.moved {
             let k = k as usize;
             for i in 0..self.fibre_len(k) {
                 let f = self.segments(k).nth(i).map_or(Vector3::zeros(), |s| s.f);
-                let s = Segment {
-                    r: v(&m.centre, j),
-                    z: v(&m.axis, j),
-                    v: v(&m.velocity, j),
-                    w: v(&m.angular_velocity, j),
-                    n: v(&m.normal, j),
-                    f,
-                };
-                self.set_segment(k, i, s);
+                self.set_segment(k, i, flat.get(j, f));
                 j += 1;
             }
         }

@@ -9,7 +9,7 @@
 //! with the bits that group gives them, whatever the shard count (docs/contact.md,
 //! "Across shards").
 
-use crate::fibre::{Fibre, Segment};
+use crate::fibre::{Fibre, FlatSegments};
 use fiberflow_messages::FiberFreeStep;
 use nalgebra::Vector3;
 
@@ -90,24 +90,25 @@ impl OtherPiece {
                 });
             }
         }
-        let v = |a: &[f64], j: usize| Vector3::new(a[3 * j], a[3 * j + 1], a[3 * j + 2]);
+        let after_step = FlatSegments {
+            centre: &m.centre,
+            axis: &m.axis,
+            velocity: &m.velocity,
+            angular_velocity: &m.angular_velocity,
+            normal: &m.normal,
+        };
+        // the start's positions, axes and normals, everything else as after the step
+        let start = FlatSegments {
+            centre: &m.start_centre,
+            axis: &m.start_axis,
+            normal: &m.start_normal,
+            ..after_step
+        };
         let mut j = 0;
         for (before, after) in self.before.iter_mut().zip(self.after.iter_mut()) {
             for (b, a) in before.segments.iter_mut().zip(after.segments.iter_mut()) {
-                *a = Segment {
-                    r: v(&m.centre, j),
-                    z: v(&m.axis, j),
-                    v: v(&m.velocity, j),
-                    w: v(&m.angular_velocity, j),
-                    n: v(&m.normal, j),
-                    f: Vector3::zeros(),
-                };
-                *b = Segment {
-                    r: v(&m.start_centre, j),
-                    z: v(&m.start_axis, j),
-                    n: v(&m.start_normal, j),
-                    ..*a
-                };
+                *a = after_step.get(j, Vector3::zeros());
+                *b = start.get(j, Vector3::zeros());
                 j += 1;
             }
         }
