@@ -33,6 +33,10 @@ use zenoh::Wait;
 /// 64 KiB, in turns (docs/performance.md, "Coupling overhead at paper size").
 pub const SHM_MIN_BYTES: usize = 16 * 1024;
 
+/// How long a peer's open waits for the rendezvous it connects to and for the peers that
+/// rendezvous tells it of (zenoh's `scouting/delay` and `connect/timeout_ms`).
+pub const PEER_OPEN_WAIT_MS: u64 = 15_000;
+
 /// Shared memory one process may take for its messages in flight.
 pub const SHM_MAX_BYTES: usize = 2 << 30;
 
@@ -294,7 +298,19 @@ impl ZenohBus {
             // most this long (15 s); on a busy machine the default 500 ms, and once 5 s while
             // tests compiled beside the run, ran out before a healthy
             // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
-            c.insert_json5("scouting/delay", "15000").map_err(terr)?;
+            c.insert_json5("scouting/delay", &PEER_OPEN_WAIT_MS.to_string())
+                .map_err(terr)?;
+            // connect to the rendezvous inside open, not in a background task: zenoh
+            // 1.10's background connector records the peer it reached only after the
+            // connection is up, and when the peer's first declarations come before that
+            // (several sessions opening at once, or a loaded host) open misses them and
+            // waits out the whole delay above ("Scouting delay elapsed before start
+            // conditions are met"; `tests::sessions_opened_together_connect_at_once`).
+            // Open fails if the rendezvous does not answer within the same time.
+            c.insert_json5("connect/exit_on_failure", "true")
+                .map_err(terr)?;
+            c.insert_json5("connect/timeout_ms", &PEER_OPEN_WAIT_MS.to_string())
+                .map_err(terr)?;
         }
         // lockstep messages are sent with CongestionControl::Block: a link whose queue stays
         // full for this long is closed and its message lost. zenoh's 5 s is too short for
@@ -593,6 +609,45 @@ mod tests {
         (bus, endpoint)
     }
 
+    /// Sessions opened together connect at once: each of six pairs opened on six threads
+    /// at the same moment returns from open well before the peer's open wait
+    /// ([`PEER_OPEN_WAIT_MS`]), and carries a message. With zenoh's background connector
+    /// (before `connect/exit_on_failure`) some of them waited it out in most runs of this
+    /// module's tests (15 s, against 2 ms).
+    #[test]
+    fn sessions_opened_together_connect_at_once() {
+        let pairs: Vec<_> = (0..6).map(|_| listening_session()).collect();
+        let barrier = std::sync::Arc::new(std::sync::Barrier::new(pairs.len()));
+        let opened: Vec<_> = pairs
+            .iter()
+            .map(|(_, endpoint)| {
+                let (endpoint, barrier) = (endpoint.clone(), barrier.clone());
+                std::thread::spawn(move || {
+                    barrier.wait();
+                    let t0 = std::time::Instant::now();
+                    let b = connected_session(endpoint);
+                    (b, t0.elapsed())
+                })
+            })
+            .collect();
+        for (i, (handle, (a, _))) in opened.into_iter().zip(&pairs).enumerate() {
+            let (b, took) = handle.join().unwrap();
+            assert!(
+                took < Duration::from_millis(PEER_OPEN_WAIT_MS / 3),
+                "session {i} took {took:?} to open"
+            );
+            let topic = format!("z/together/{i}");
+            let sub = a.subscribe(&topic).unwrap();
+            let missing = b
+                .await_subscribers(std::slice::from_ref(&topic), Duration::from_secs(20))
+                .unwrap();
+            assert!(missing.is_empty());
+            b.publish(&topic, b"hello").unwrap();
+            let (_, got) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
+            assert_eq!(&got[..], b"hello");
+        }
+    }
+
     /// A session asked to listen on port 0 reports the loopback endpoint it was given, with
     /// a real port, and a second session connected to it carries messages.
     #[test]
@@ -751,7 +806,9 @@ mod tests {
         }
         let mut got = 0;
         while got < N {
-            let Ok((p, shared)) = rx.recv_timeout(Duration::from_secs(10)) else {
+            // the first comes once the child has started and connected
+            let wait_s = if got == 0 { 60 } else { 10 };
+            let Ok((p, shared)) = rx.recv_timeout(Duration::from_secs(wait_s)) else {
                 break;
             };
             let m = sent(got);
