@@ -648,6 +648,29 @@ mod tests {
         }
     }
 
+    /// A peer whose rendezvous does not answer fails to open after [`PEER_OPEN_WAIT_MS`],
+    /// and the error names the endpoint (it used to open without a connection and leave
+    /// the node to wait for messages that could not come).
+    #[test]
+    fn open_fails_naming_a_rendezvous_that_does_not_answer() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let endpoint = format!("tcp/127.0.0.1:{port}");
+        let t0 = std::time::Instant::now();
+        let opened = ZenohBus::open(&ZenohSettings {
+            connect: vec![endpoint.clone()],
+            ..ZenohSettings::default()
+        });
+        let Err(e) = opened else {
+            panic!("opened without its rendezvous");
+        };
+        assert!(e.to_string().contains(&endpoint), "{e}");
+        assert!(t0.elapsed() >= Duration::from_millis(PEER_OPEN_WAIT_MS));
+    }
+
     /// A session asked to listen on port 0 reports the loopback endpoint it was given, with
     /// a real port, and a second session connected to it carries messages.
     #[test]
