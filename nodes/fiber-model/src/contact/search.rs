@@ -236,20 +236,20 @@ impl CellList {
         n: usize,
         point: impl Fn(usize) -> Vector3<f64> + Sync,
         bounds: [(f64, f64); 3],
-        cell: f64,
+        cell: [f64; 3],
         period: &[Option<f64>; 3],
         order: &mut Vec<u32>,
     ) {
-        let mut cell = cell.max(1e-9);
+        let mut cell = cell.map(|c| c.max(1e-9));
         let (dims, side, lo, periodic) = loop {
             let mut dims = [1usize; 3];
-            let mut side = [cell; 3];
+            let mut side = cell;
             let mut lo = [0.0; 3];
             let mut periodic = [false; 3];
             for k in 0..3 {
                 match period[k] {
                     Some(p) => {
-                        dims[k] = ((p / cell).floor() as usize).max(1);
+                        dims[k] = ((p / cell[k]).floor() as usize).max(1);
                         side[k] = p / dims[k] as f64;
                         periodic[k] = true;
                     }
@@ -257,7 +257,7 @@ impl CellList {
                         let (mn, mx) = bounds[k];
                         lo[k] = if mn.is_finite() { mn } else { 0.0 };
                         dims[k] = if mx.is_finite() {
-                            ((mx - lo[k]) / cell).floor() as usize + 1
+                            ((mx - lo[k]) / cell[k]).floor() as usize + 1
                         } else {
                             1
                         };
@@ -266,7 +266,7 @@ impl CellList {
             }
             // a sparse cloud spread far apart gets larger cells, not a huge grid
             if dims.iter().product::<usize>() > 8 * n + 64 {
-                cell *= 2.0;
+                cell = cell.map(|c| 2.0 * c);
                 continue;
             }
             break (dims, side, lo, periodic);
@@ -445,9 +445,9 @@ impl CellList {
         }
     }
 
-    /// Every cell that may hold points within `radius` of `r` (the cells the box
-    /// r ± radius touches), each once.
-    fn cells_within(&self, r: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
+    /// Every cell that may hold points within `radius[k]` of `r` along each direction k
+    /// (the cells the box r ± radius touches), each once.
+    fn cells_within(&self, r: &Vector3<f64>, radius: [f64; 3], mut visit: impl FnMut(usize)) {
         let range = |k: usize| -> Vec<i64> {
             let n = self.dims[k] as i64;
             let x = if self.periodic[k] {
@@ -455,8 +455,8 @@ impl CellList {
             } else {
                 r[k] - self.lo[k]
             };
-            let lo = ((x - radius) / self.side[k]).floor();
-            let hi = ((x + radius) / self.side[k]).floor();
+            let lo = ((x - radius[k]) / self.side[k]).floor();
+            let hi = ((x + radius[k]) / self.side[k]).floor();
             if !(lo.is_finite() && hi.is_finite()) {
                 return Vec::new();
             }
@@ -633,7 +633,8 @@ fn fresh_pair(
 /// different fibres, or non-adjacent segments of one fibre (adjacent ones share a joint),
 /// whose mid-step centres are close enough for them to touch at some
 /// moment of the step — within (l_a + l_b)/2 + (d_a + d_b)/2 + |Δr_a − Δr_b|/2 + turn_a +
-/// turn_b, a necessary condition — and whose centre-lines at the start are within their
+/// turn_b, and along each direction k within the same with |Δr_a,k − Δr_b,k|/2, necessary
+/// conditions — and whose centre-lines at the start are within their
 /// contact distance plus the skin |Δr_a − Δr_b| + turn_a + turn_b ([`candidate`]).
 /// `first` is a bound on the first distance that every pair's exceeds.
 fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option<Candidate> {
@@ -652,9 +653,14 @@ fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option
         return None;
     }
     let relative = (ea.shift - eb.shift).norm();
-    let mid_limit =
-        slack(ea.half + eb.half + ea.radius + eb.radius + 0.5 * relative + ea.turn + eb.turn);
+    let reach = ea.half + eb.half + ea.radius + eb.radius + ea.turn + eb.turn;
+    let mid_limit = slack(reach + 0.5 * relative);
     if !(d2 < mid_limit * mid_limit) {
+        return None;
+    }
+    // and along each direction with the relative displacement along it (what lets the
+    // cells be narrower across a mean flow than along it)
+    if !(0..3).all(|k| between[k].abs() < slack(reach + 0.5 * (ea.shift[k] - eb.shift[k]).abs())) {
         return None;
     }
     candidate(
@@ -688,6 +694,9 @@ pub(crate) struct Search {
     /// every segment.
     centre_shift: Vector3<f64>,
     spread: f64,
+    /// Half the box's extent along each direction: |Δr_k − centre_shift_k| ≤
+    /// `spread_along[k]` (a mean flow along x spreads the displacements along x alone).
+    spread_along: Vector3<f64>,
     longest: f64,
     widest: f64,
     most_turn: f64,
@@ -796,18 +805,25 @@ impl Search {
                 ext
             })
             .reduce(|| none, join);
-        (self.centre_shift, self.spread) = if total == 0 {
-            (Vector3::zeros(), 0.0)
+        (self.centre_shift, self.spread, self.spread_along) = if total == 0 {
+            (Vector3::zeros(), 0.0, Vector3::zeros())
         } else {
-            (0.5 * (ext.lo + ext.hi), 0.5 * (ext.hi - ext.lo).norm())
+            (
+                0.5 * (ext.lo + ext.hi),
+                0.5 * (ext.hi - ext.lo).norm(),
+                0.5 * (ext.hi - ext.lo),
+            )
         };
         (self.longest, self.widest, self.most_turn) = (2.0 * ext.half, 2.0 * ext.radius, ext.turn);
         self.period = *period;
-        // two segments that touch in the step have mid-step centres within
-        // (l_a + l_b)/2 + D + |Δr_a − Δr_b|/2 + turn_a + turn_b (their closest approach is
-        // at most half their relative displacement away from the middle of the step), and
-        // |Δr_a − Δr_b|/2 ≤ spread
-        let side = self.longest + self.widest + self.spread + 2.0 * self.most_turn;
+        // a pair [`pair`] keeps has mid-step centres within (l_a + l_b)/2 + D + turn_a +
+        // turn_b + |Δr_a,k − Δr_b,k|/2 of each other along each direction k (their closest
+        // approach is at most half their relative displacement away from the middle of the
+        // step), and |Δr_a,k − Δr_b,k|/2 ≤ spread_along[k]: the cells are that wide along
+        // k. In a channel the mean flow spreads the displacements along x: cells narrower
+        // across it than along it hold fewer segments than cubes of the widest side
+        let reach = self.longest + self.widest + 2.0 * self.most_turn;
+        let side: [f64; 3] = std::array::from_fn(|k| reach + self.spread_along[k]);
         // single precision rounds each coordinate by at most 2⁻²⁴ of its size, each axis
         // component by 2⁻²⁴: a margin of 4 × 10⁻⁶ of the largest coordinate (on the cells,
         // on `first` and on the sum of two `rho`s), with the points' own (10⁻⁴ of `rho`, of
@@ -837,7 +853,7 @@ impl Search {
             total,
             |i| Vector3::from(points[i].mid.map(f64::from)),
             bounds,
-            slack(side) + 2.0 * self.margin,
+            side.map(|x| slack(x) + 2.0 * self.margin),
             period,
             &mut self.order,
         );
@@ -953,6 +969,11 @@ impl Search {
     /// d, not a pair on the other side. `fibres` and `before` hold the fibres the solve
     /// has corrected (`corrected[k]`) now and at the start; every other fibre is where
     /// the free step left it.
+    ///
+    /// A pair that overlaps now has centres within h_a + h_b + r_a + r_b of each other
+    /// now, whatever either did in the step, so that is all the search asks ([`fresh_pair`]
+    /// then decides each pair): the fibres no round has corrected are found in the step's
+    /// list by their mid-step centres, half their displacement from where they are now.
     pub(crate) fn around<S: Segments>(
         &self,
         s: &S,
@@ -970,23 +991,12 @@ impl Search {
             let (was, now) = (&before[k].segments[i], &fibres[k].segments[i]);
             ((was.r, was.z, h, r), (now.r, now.z, h, r))
         };
-        // the corrected fibres' segments where they are now, in their own small list,
-        // and the most any of them moved or turned since the start
+        // the corrected fibres' segments, in their own small list by where they are now
         let here: Vec<(usize, usize)> = (0..fibres.len())
             .filter(|&k| corrected[k])
             .flat_map(|k| (0..fibres[k].len()).map(move |i| (k, i)))
             .collect();
-        // (placed by their centres in the middle of their motion since the start, and the
-        // most any of them moved apart from the mean displacement, or turned)
-        let (mut far, mut turned) = (0.0_f64, 0.0_f64);
-        let mut centres = Vec::with_capacity(here.len());
-        for &(k, i) in &here {
-            let p = poses(k, i);
-            let (d, t) = motion(&p);
-            far = far.max((d - self.centre_shift).norm());
-            turned = turned.max(t);
-            centres.push(p.0 .0 + d * 0.5);
-        }
+        let centres: Vec<Vector3<f64>> = here.iter().map(|&(k, i)| poses(k, i).1 .0).collect();
         let mut near = CellList::default();
         let mut order = Vec::new();
         let bounds = std::array::from_fn(|k| {
@@ -1000,75 +1010,60 @@ impl Search {
             centres.len(),
             |i| centres[i],
             bounds,
-            slack(self.longest + self.widest),
+            [slack(self.longest + self.widest); 3],
             period,
             &mut order,
         );
-        // the pair of segments a and b (each at the start and now), oriented, if it may
-        // have come within reach since the start and overlaps now on its side at the start
+        // the pair of segments a and b (each at the start and now), oriented, if it
+        // overlaps now on its side at the start
         let mut out: Vec<Candidate> = moved
             .par_iter()
             .flat_map_iter(|&q| {
                 let mut found = Vec::new();
                 for i in 0..fibres[q].len() {
                     let pq = poses(q, i);
-                    let (dq, tq) = motion(&pq);
-                    let (hq, rq) = (pq.1 .2, pq.1 .3);
+                    let (now_q, hq, rq) = (pq.1 .0, pq.1 .2, pq.1 .3);
                     // fibres no round has moved, in the step's list by their mid-step
-                    // centre: the pair's mid-step centres are within the sum of their
-                    // reaches, half their relative motion and their turns, as for the
-                    // step's pairs, and half the relative motion is within half of this
-                    // one's from the centre of all displacements plus `spread`
-                    let mid_q = pq.0 .0 + dq * 0.5;
-                    let own = hq + rq + tq;
-                    let radius = slack(
-                        own + 0.5 * (dq - self.centre_shift).norm()
-                            + 0.5 * self.longest
-                            + 0.5 * self.widest
-                            + self.spread
-                            + self.most_turn,
-                    );
-                    self.cells.cells_within(&mid_q, radius, |n| {
+                    // centre: where they are now less half their displacement, which is
+                    // within spread_along[k] of half the centre of all displacements
+                    // along each direction k (the points' own rounding as the cells')
+                    let from = now_q - self.centre_shift * 0.5;
+                    let radius: [f64; 3] = std::array::from_fn(|k| {
+                        slack(
+                            hq + rq
+                                + 0.5 * self.longest
+                                + 0.5 * self.widest
+                                + 0.5 * self.spread_along[k],
+                        ) + 2.0 * self.margin
+                    });
+                    self.cells.cells_within(&from, radius, |n| {
                         for slot in self.cells.slots(n) {
-                            let k = self.sorted[slot].fibre as usize;
-                            let e = &Entry::of(
-                                s,
-                                k,
-                                self.order[slot] as usize - s.offsets()[k],
-                                self.pad,
-                            );
-                            let kb = e.fibre as usize;
+                            let kb = self.sorted[slot].fibre as usize;
                             if kb == q || corrected[kb] {
                                 continue;
                             }
-                            let mid = e.mid();
-                            let d = mid + image_shift(&mid_q, &mid, period) - mid_q;
-                            let limit = slack(
-                                own + e.half + e.radius + e.turn + 0.5 * (dq - e.shift).norm(),
-                            );
+                            let ib = self.order[slot] as usize - s.offsets()[kb];
+                            let (rb, zb) = s.end(kb, ib);
+                            let d = rb + image_shift(&now_q, &rb, period) - now_q;
+                            let p = s.props(kb, ib);
+                            let (hb, radb) = (0.5 * p.shape.length, 0.5 * p.shape.diameter);
+                            let limit = slack(hq + rq + hb + radb);
                             if !(d.dot(&d) < limit * limit) {
                                 continue;
                             }
-                            let (rb, zb) = s.end(kb, e.segment as usize);
-                            let was = (e.start, e.axis, e.half, e.radius);
+                            let (ra, za) = s.start(kb, ib);
                             found.extend(fresh_pair(
                                 (q, i),
                                 pq,
-                                e.key(),
-                                (was, (rb, zb, e.half, e.radius)),
+                                (kb, ib),
+                                ((ra, za, hb, radb), (rb, zb, hb, radb)),
                                 period,
                             ));
                         }
                     });
-                    // the corrected fibres, by the middle of their motion too
-                    let radius = slack(
-                        own + 0.5 * (dq - self.centre_shift).norm()
-                            + 0.5 * far
-                            + 0.5 * self.longest
-                            + 0.5 * self.widest
-                            + turned,
-                    );
-                    near.cells_within(&mid_q, radius, |n| {
+                    // the corrected fibres, by where they are now
+                    let radius = slack(hq + rq + 0.5 * self.longest + 0.5 * self.widest);
+                    near.cells_within(&now_q, [radius; 3], |n| {
                         for &j in &order[near.slots(n)] {
                             let (kb, ib) = here[j as usize];
                             if kb != q || ib.abs_diff(i) >= 2 {
@@ -1183,6 +1178,33 @@ mod tests {
             let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
             let mut g = f.clone();
             let shift = rng.vector(if k % 10 == 0 { 4.0 } else { 0.3 });
+            for s in g.segments.iter_mut() {
+                s.r += shift + rng.vector(0.05);
+                s.z = (s.z + rng.vector(0.1)).normalize();
+            }
+            before.push(f);
+            after.push(g);
+        }
+        (before, after)
+    }
+
+    /// 150 seven-segment fibres as in [`start_and_end`], moved by a mean flow along x that
+    /// grows across y (from 0 to 6 over the box's 12, as near a wall) and by up to 0.15
+    /// along each direction besides, each segment jittered and turned.
+    fn in_a_mean_flow(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
+        let mut rng = Rng(seed);
+        let mut before = Vec::new();
+        let mut after = Vec::new();
+        for _ in 0..150 {
+            let centre = Vector3::new(
+                24.0 * rng.next(),
+                12.0 * rng.next() - 6.0,
+                18.0 * rng.next(),
+            );
+            let axis = rng.vector(1.0).normalize();
+            let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
+            let mut g = f.clone();
+            let shift = Vector3::new(0.5 * (centre.y + 6.0), 0.0, 0.0) + rng.vector(0.15);
             for s in g.segments.iter_mut() {
                 s.r += shift + rng.vector(0.05);
                 s.z = (s.z + rng.vector(0.1)).normalize();
@@ -1409,13 +1431,48 @@ mod tests {
         }
     }
 
+    /// In a mean flow along x the cells are narrower across the flow than along it, and
+    /// the scan still finds every pair the exact test keeps, among them pairs whose
+    /// displacements differ by more than their contact distance.
+    #[test]
+    fn cells_narrower_across_a_mean_flow_find_every_pair() {
+        for seed in [7, 8, 9] {
+            let (before, after) = in_a_mean_flow(seed);
+            let s = Slices::new(&before, &after);
+            let search = Search::new(&s, &PERIOD, 0.0);
+            let found = search.pairs(&s);
+            let expected = all_pairs(&s, &search);
+            assert!(expected.len() > 100, "{} pairs", expected.len());
+            let apart = |c: &Candidate| {
+                (after[c.a.0].segments[c.a.1].r - before[c.a.0].segments[c.a.1].r)
+                    - (after[c.b.0].segments[c.b.1].r - before[c.b.0].segments[c.b.1].r)
+            };
+            assert!(expected.iter().any(|c| apart(c).x.abs() > 1.0));
+            let along = search.spread_along;
+            assert!(along.x > 2.5 && along.y < 0.3 && along.z < 0.3, "{along:?}");
+            let side = search.cells.side;
+            assert!(
+                side[0] > side[1] + 2.0 && side[0] > side[2] + 2.0,
+                "{side:?}"
+            );
+            assert!(
+                same(&found, &expected),
+                "seed {seed}: {} found, {} expected",
+                found.len(),
+                expected.len()
+            );
+        }
+    }
+
     /// After a round of corrections, the search around the moved fibres finds exactly the
     /// overlaps a test of every pair finds, each on the side it was on at the start of
-    /// the step (some corrections here push fibres through others).
+    /// the step (some corrections here push fibres through others), also in a mean flow.
     #[test]
     fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
-        for seed in [4, 5, 6] {
-            let (before, after) = start_and_end(seed);
+        let cases = [4, 5, 6].map(|seed| (seed, start_and_end(seed)));
+        // and in a mean flow, where the step's cells are narrower across the flow
+        let sheared = [10, 11, 12].map(|seed| (seed, in_a_mean_flow(seed)));
+        for (seed, (before, after)) in cases.into_iter().chain(sheared) {
             let s = Slices::new(&before, &after);
             let search = Search::new(&s, &PERIOD, 0.0);
             // a third of the fibres corrected in earlier rounds (pushed by up to 1.5),
