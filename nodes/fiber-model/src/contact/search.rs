@@ -673,6 +673,11 @@ fn pair(ea: &Entry, eb: &Entry, first: f64, period: &[Option<f64>; 3]) -> Option
     )
 }
 
+/// A fibre with a segment whose ends turned by more than this share of its half length
+/// in the step (|Δẑ| > 0.2) is searched around on its own: rarer than one fibre in a
+/// thousand in a channel, and one thrown about would otherwise widen every cell.
+const WILD_TURN: f64 = 0.2;
+
 /// The cell list of one step over every segment's mid-step centre. Kept from step to step
 /// (by the group) for its allocations; [`Search::rebuild`] places the step's segments.
 #[derive(Debug, Default)]
@@ -700,6 +705,14 @@ pub(crate) struct Search {
     longest: f64,
     widest: f64,
     most_turn: f64,
+    /// The same of the fibres not [`Self::wild`], which the cells are sized for.
+    bulk_spread: f64,
+    bulk_spread_along: Vector3<f64>,
+    bulk_most_turn: f64,
+    /// Fibres with a segment that turned by more than [`WILD_TURN`] in the step (a fibre
+    /// thrown about by the flow or by last step's contact), ascending: each is searched
+    /// around on its own, so that it does not widen every cell.
+    wild: Vec<u32>,
     period: [Option<f64>; 3],
 }
 
@@ -773,12 +786,16 @@ impl Search {
             radius: a.radius.max(b.radius),
             turn: a.turn.max(b.turn),
         };
-        let ext = runs
+        // (all fibres, the fibres not wild, the wild ones)
+        let none3 = || (none, none, Vec::new());
+        let (ext, bulk, wild) = runs
             .into_par_iter()
             .map(|(first, last, out)| {
                 let base = offsets[first];
-                let mut ext = none;
+                let (mut ext, mut bulk, mut wild) = none3();
                 for k in first..last {
+                    let mut fibre = none;
+                    let mut thrown = false;
                     for i in 0..offsets[k + 1] - offsets[k] {
                         let e = Entry::of(s, k, i, pad);
                         out[offsets[k] + i - base] = Point::of(&e, period);
@@ -787,8 +804,9 @@ impl Search {
                             && e.turn.is_finite();
                         if finite {
                             let m = e.mid();
-                            ext = join(
-                                ext,
+                            thrown |= e.turn - pad > WILD_TURN * e.half;
+                            fibre = join(
+                                fibre,
                                 Extent {
                                     lo: e.shift,
                                     hi: e.shift,
@@ -801,10 +819,34 @@ impl Search {
                             );
                         }
                     }
+                    ext = join(ext, fibre);
+                    if thrown {
+                        wild.push(k as u32);
+                    } else {
+                        bulk = join(bulk, fibre);
+                    }
                 }
-                ext
+                (ext, bulk, wild)
             })
-            .reduce(|| none, join);
+            .reduce(none3, |a, mut b| {
+                let mut wild = a.2;
+                wild.append(&mut b.2);
+                (join(a.0, b.0), join(a.1, b.1), wild)
+            });
+        self.wild = wild;
+        (
+            self.bulk_spread,
+            self.bulk_spread_along,
+            self.bulk_most_turn,
+        ) = if bulk.lo.iter().all(|x| x.is_finite()) {
+            (
+                0.5 * (bulk.hi - bulk.lo).norm(),
+                0.5 * (bulk.hi - bulk.lo),
+                bulk.turn,
+            )
+        } else {
+            (0.0, Vector3::zeros(), 0.0)
+        };
         (self.centre_shift, self.spread, self.spread_along) = if total == 0 {
             (Vector3::zeros(), 0.0, Vector3::zeros())
         } else {
@@ -822,8 +864,9 @@ impl Search {
         // step), and |Δr_a,k − Δr_b,k|/2 ≤ spread_along[k]: the cells are that wide along
         // k. In a channel the mean flow spreads the displacements along x: cells narrower
         // across it than along it hold fewer segments than cubes of the widest side
-        let reach = self.longest + self.widest + 2.0 * self.most_turn;
-        let side: [f64; 3] = std::array::from_fn(|k| reach + self.spread_along[k]);
+        // (the fibres not wild: the wild ones are searched around on their own)
+        let reach = self.longest + self.widest + 2.0 * self.bulk_most_turn;
+        let side: [f64; 3] = std::array::from_fn(|k| reach + self.bulk_spread_along[k]);
         // single precision rounds each coordinate by at most 2⁻²⁴ of its size, each axis
         // component by 2⁻²⁴: a margin of 4 × 10⁻⁶ of the largest coordinate (on the cells,
         // on `first` and on the sum of two `rho`s), with the points' own (10⁻⁴ of `rho`, of
@@ -871,7 +914,10 @@ impl Search {
     /// a pair's cells are neighbours (test
     /// `the_cell_list_finds_every_pair_the_exact_test_keeps`).
     pub(crate) fn pairs<S: Segments>(&self, s: &S) -> Vec<Candidate> {
-        let first = slack(self.longest + self.widest + self.spread + 2.0 * self.most_turn);
+        // the scan finds the pairs of two fibres not wild (the cells are sized for them);
+        // pairs with a segment of a wild fibre are found around it below
+        let first =
+            slack(self.longest + self.widest + self.bulk_spread + 2.0 * self.bulk_most_turn);
         let cells = &self.cells;
         let period = &self.period;
         // the scan's tests read the sorted points alone (less than half the memory of
@@ -955,8 +1001,46 @@ impl Search {
             out
         };
         let mut out: Vec<Candidate> = (0..nx).into_par_iter().flat_map_iter(plane).collect();
-        // the pairs are unique, so this order is the same whatever the threads did
+        // around every segment of a wild fibre, every segment whose mid-step centre may be
+        // within reach along each direction (a pair with a mid-step distance beyond the
+        // cells' reach has a segment of a wild fibre)
+        let first_all = slack(self.longest + self.widest + self.spread + 2.0 * self.most_turn);
+        let wild: Vec<Candidate> = self
+            .wild
+            .par_iter()
+            .flat_map_iter(|&k| {
+                let k = k as usize;
+                let mut found = Vec::new();
+                for i in 0..offsets[k + 1] - offsets[k] {
+                    let ew = Entry::of(s, k, i, pad);
+                    let mid = ew.mid();
+                    let radius: [f64; 3] = std::array::from_fn(|a| {
+                        slack(
+                            ew.half
+                                + ew.radius
+                                + ew.turn
+                                + 0.5 * self.longest
+                                + 0.5 * self.widest
+                                + self.most_turn
+                                + 0.5
+                                    * ((ew.shift[a] - self.centre_shift[a]).abs()
+                                        + self.spread_along[a]),
+                        ) + 2.0 * self.margin
+                    });
+                    cells.cells_within(&mid, radius, |n| {
+                        for slot in cells.slots(n) {
+                            found.extend(pair(&ew, &entry(slot), first_all, period));
+                        }
+                    });
+                }
+                found
+            })
+            .collect();
+        out.extend(wild);
+        // the pairs are unique once the wild fibres' are merged, so this order is the
+        // same whatever the threads did
         out.par_sort_unstable_by_key(|c| (c.a, c.b));
+        out.dedup_by_key(|c| (c.a, c.b));
         out
     }
 
@@ -1036,10 +1120,36 @@ impl Search {
                                 + 0.5 * self.spread_along[k],
                         ) + 2.0 * self.margin
                     });
+                    // where it is now in single precision, folded as the points are, for a
+                    // first test on the points (read one after another in the cells'
+                    // order) before the segment's own numbers are read: the point's centre
+                    // now is its mid-step centre plus half its displacement, rounded within
+                    // the step's margin along each direction
+                    let now32: [f32; 3] = std::array::from_fn(|k| match period[k] {
+                        Some(p) => fold(now_q[k], p) as f32,
+                        None => now_q[k] as f32,
+                    });
+                    let (reach32, margin32) = ((hq + rq) as f32, (4.0 * self.margin) as f32);
                     self.cells.cells_within(&from, radius, |n| {
                         for slot in self.cells.slots(n) {
-                            let kb = self.sorted[slot].fibre as usize;
+                            let pb = &self.sorted[slot];
+                            let kb = pb.fibre as usize;
                             if kb == q || corrected[kb] {
+                                continue;
+                            }
+                            let mut d2 = 0.0_f32;
+                            for k in 0..3 {
+                                let mut x = pb.mid[k] + 0.5 * pb.shift[k] - now32[k];
+                                let p = self.period32[k];
+                                if x > 0.5 * p && p > 0.0 {
+                                    x -= p;
+                                } else if x < -0.5 * p {
+                                    x += p;
+                                }
+                                d2 += x * x;
+                            }
+                            let lim = (reach32 + pb.half + pb.rho) * (1.0 + 1e-4) + margin32;
+                            if !(d2 < lim * lim) {
                                 continue;
                             }
                             let ib = self.order[slot] as usize - s.offsets()[kb];
@@ -1190,12 +1300,14 @@ mod tests {
 
     /// 150 seven-segment fibres as in [`start_and_end`], moved by a mean flow along x that
     /// grows across y (from 0 to 6 over the box's 12, as near a wall) and by up to 0.15
-    /// along each direction besides, each segment jittered and turned.
-    fn in_a_mean_flow(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
+    /// along each direction besides, each segment jittered and turned; with `thrown`,
+    /// every 25th fibre is instead thrown by up to 6 along each direction and its segments
+    /// turned far (wild fibres, searched around on their own).
+    fn in_a_mean_flow(seed: u64, thrown: bool) -> (Vec<Fibre>, Vec<Fibre>) {
         let mut rng = Rng(seed);
         let mut before = Vec::new();
         let mut after = Vec::new();
-        for _ in 0..150 {
+        for k in 0..150 {
             let centre = Vector3::new(
                 24.0 * rng.next(),
                 12.0 * rng.next() - 6.0,
@@ -1204,10 +1316,16 @@ mod tests {
             let axis = rng.vector(1.0).normalize();
             let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
             let mut g = f.clone();
-            let shift = Vector3::new(0.5 * (centre.y + 6.0), 0.0, 0.0) + rng.vector(0.15);
+            let wild = thrown && k % 25 == 0;
+            let shift = if wild {
+                rng.vector(6.0)
+            } else {
+                Vector3::new(0.5 * (centre.y + 6.0), 0.0, 0.0) + rng.vector(0.15)
+            };
             for s in g.segments.iter_mut() {
                 s.r += shift + rng.vector(0.05);
-                s.z = (s.z + rng.vector(0.1)).normalize();
+                let turn = if wild { 1.0 } else { 0.1 };
+                s.z = (s.z + rng.vector(turn)).normalize();
             }
             before.push(f);
             after.push(g);
@@ -1437,7 +1555,7 @@ mod tests {
     #[test]
     fn cells_narrower_across_a_mean_flow_find_every_pair() {
         for seed in [7, 8, 9] {
-            let (before, after) = in_a_mean_flow(seed);
+            let (before, after) = in_a_mean_flow(seed, false);
             let s = Slices::new(&before, &after);
             let search = Search::new(&s, &PERIOD, 0.0);
             let found = search.pairs(&s);
@@ -1450,11 +1568,45 @@ mod tests {
             assert!(expected.iter().any(|c| apart(c).x.abs() > 1.0));
             let along = search.spread_along;
             assert!(along.x > 2.5 && along.y < 0.3 && along.z < 0.3, "{along:?}");
+            assert!(search.wild.is_empty());
             let side = search.cells.side;
             assert!(
                 side[0] > side[1] + 2.0 && side[0] > side[2] + 2.0,
                 "{side:?}"
             );
+            assert!(
+                same(&found, &expected),
+                "seed {seed}: {} found, {} expected",
+                found.len(),
+                expected.len()
+            );
+        }
+    }
+
+    /// Fibres thrown about (displaced and turned far beyond the others) are searched
+    /// around on their own: the cells keep the size the others need, and the scan and
+    /// the wild fibres' search together find every pair the exact test keeps, among them
+    /// pairs of a wild fibre beyond the cells' reach and pairs of two wild fibres' segments.
+    #[test]
+    fn wild_fibres_are_searched_on_their_own_and_every_pair_is_found() {
+        for seed in [13, 14, 15, 16] {
+            let (before, after) = in_a_mean_flow(seed, true);
+            let s = Slices::new(&before, &after);
+            let search = Search::new(&s, &PERIOD, 0.0);
+            assert_eq!(search.wild, [0, 25, 50, 75, 100, 125]);
+            assert!(search.bulk_most_turn < 0.5 * search.most_turn);
+            assert!(
+                search.bulk_spread_along.y < 0.3 && search.spread_along.y > 1.0,
+                "{:?} {:?}",
+                search.bulk_spread_along,
+                search.spread_along
+            );
+            let side = search.cells.side;
+            assert!(side[1] < 5.0 && side[2] < 5.0, "{side:?}");
+            let found = search.pairs(&s);
+            let expected = all_pairs(&s, &search);
+            let wild = |c: &Candidate| c.a.0 % 25 == 0 || c.b.0 % 25 == 0;
+            assert!(expected.iter().filter(|c| wild(c)).count() > 10);
             assert!(
                 same(&found, &expected),
                 "seed {seed}: {} found, {} expected",
@@ -1471,7 +1623,7 @@ mod tests {
     fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
         let cases = [4, 5, 6].map(|seed| (seed, start_and_end(seed)));
         // and in a mean flow, where the step's cells are narrower across the flow
-        let sheared = [10, 11, 12].map(|seed| (seed, in_a_mean_flow(seed)));
+        let sheared = [10, 11, 12].map(|seed| (seed, in_a_mean_flow(seed, seed == 12)));
         for (seed, (before, after)) in cases.into_iter().chain(sheared) {
             let s = Slices::new(&before, &after);
             let search = Search::new(&s, &PERIOD, 0.0);
