@@ -481,6 +481,62 @@ impl CellList {
         }
     }
 
+    /// The slots of every cell [`Self::cells_within`] visits, as runs along z: the cells
+    /// of one column along z are contiguous in the sorted entries, so a run is read with
+    /// two lookups instead of two per cell (at most two runs a column across a periodic
+    /// edge).
+    fn runs_within(
+        &self,
+        r: &Vector3<f64>,
+        radius: [f64; 3],
+        mut visit: impl FnMut(std::ops::Range<usize>),
+    ) {
+        // the cells along direction k as at most two ranges of cell coordinates
+        let along = |k: usize| -> [Option<(i64, i64)>; 2] {
+            let n = self.dims[k] as i64;
+            let x = if self.periodic[k] {
+                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
+            } else {
+                r[k] - self.lo[k]
+            };
+            let lo = ((x - radius[k]) / self.side[k]).floor();
+            let hi = ((x + radius[k]) / self.side[k]).floor();
+            if !(lo.is_finite() && hi.is_finite()) {
+                return [None, None];
+            }
+            let (lo, hi) = (lo as i64, hi as i64);
+            if self.periodic[k] {
+                if hi - lo + 1 >= n {
+                    [Some((0, n - 1)), None]
+                } else {
+                    let (a, b) = (lo.rem_euclid(n), hi.rem_euclid(n));
+                    if a <= b {
+                        [Some((a, b)), None]
+                    } else {
+                        [Some((a, n - 1)), Some((0, b))]
+                    }
+                }
+            } else if lo.max(0) <= hi.min(n - 1) {
+                [Some((lo.max(0), hi.min(n - 1))), None]
+            } else {
+                [None, None]
+            }
+        };
+        let (xs, ys, zs) = (along(0), along(1), along(2));
+        for (x0, x1) in xs.into_iter().flatten() {
+            for x in x0..=x1 {
+                for (y0, y1) in ys.into_iter().flatten() {
+                    for y in y0..=y1 {
+                        for (z0, z1) in zs.into_iter().flatten() {
+                            let (a, b) = (self.id(&[x, y, z0]), self.id(&[x, y, z1]));
+                            visit(self.start[a] as usize..self.start[b + 1] as usize);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     fn slots(&self, id: usize) -> std::ops::Range<usize> {
         self.start[id] as usize..self.start[id + 1] as usize
     }
@@ -1027,8 +1083,8 @@ impl Search {
                                         + self.spread_along[a]),
                         ) + 2.0 * self.margin
                     });
-                    cells.cells_within(&mid, radius, |n| {
-                        for slot in cells.slots(n) {
+                    cells.runs_within(&mid, radius, |run| {
+                        for slot in run {
                             found.extend(pair(&ew, &entry(slot), first_all, period));
                         }
                     });
@@ -1130,8 +1186,8 @@ impl Search {
                         None => now_q[k] as f32,
                     });
                     let (reach32, margin32) = ((hq + rq) as f32, (4.0 * self.margin) as f32);
-                    self.cells.cells_within(&from, radius, |n| {
-                        for slot in self.cells.slots(n) {
+                    self.cells.runs_within(&from, radius, |run| {
+                        for slot in run {
                             let pb = &self.sorted[slot];
                             let kb = pb.fibre as usize;
                             if kb == q || corrected[kb] {
