@@ -445,46 +445,11 @@ impl CellList {
         }
     }
 
-    /// Every cell that may hold points within `radius[k]` of `r` along each direction k
-    /// (the cells the box r ± radius touches), each once.
-    fn cells_within(&self, r: &Vector3<f64>, radius: [f64; 3], mut visit: impl FnMut(usize)) {
-        let range = |k: usize| -> Vec<i64> {
-            let n = self.dims[k] as i64;
-            let x = if self.periodic[k] {
-                r[k].rem_euclid(self.side[k] * self.dims[k] as f64)
-            } else {
-                r[k] - self.lo[k]
-            };
-            let lo = ((x - radius[k]) / self.side[k]).floor();
-            let hi = ((x + radius[k]) / self.side[k]).floor();
-            if !(lo.is_finite() && hi.is_finite()) {
-                return Vec::new();
-            }
-            let (lo, hi) = (lo as i64, hi as i64);
-            if self.periodic[k] {
-                if hi - lo + 1 >= n {
-                    (0..n).collect()
-                } else {
-                    (lo..=hi).map(|c| c.rem_euclid(n)).collect()
-                }
-            } else {
-                (lo.max(0)..=hi.min(n - 1)).collect()
-            }
-        };
-        let (xs, ys, zs) = (range(0), range(1), range(2));
-        for &x in &xs {
-            for &y in &ys {
-                for &z in &zs {
-                    visit(self.id(&[x, y, z]));
-                }
-            }
-        }
-    }
-
-    /// The slots of every cell [`Self::cells_within`] visits, as runs along z: the cells
-    /// of one column along z are contiguous in the sorted entries, so a run is read with
-    /// two lookups instead of two per cell (at most two runs a column across a periodic
-    /// edge).
+    /// The slots of every cell that may hold points within `radius[k]` of `r` along each
+    /// direction k (the cells the box r ± radius touches, each once), as runs along z:
+    /// the cells of one column along z are contiguous in the sorted entries, so a run is
+    /// read with two lookups instead of two per cell (at most two runs a column across a
+    /// periodic edge).
     fn runs_within(
         &self,
         r: &Vector3<f64>,
@@ -535,10 +500,6 @@ impl CellList {
                 }
             }
         }
-    }
-
-    fn slots(&self, id: usize) -> std::ops::Range<usize> {
-        self.start[id] as usize..self.start[id + 1] as usize
     }
 }
 
@@ -1229,8 +1190,8 @@ impl Search {
                     });
                     // the corrected fibres, by where they are now
                     let radius = slack(hq + rq + 0.5 * self.longest + 0.5 * self.widest);
-                    near.cells_within(&now_q, [radius; 3], |n| {
-                        for &j in &order[near.slots(n)] {
+                    near.runs_within(&now_q, [radius; 3], |run| {
+                        for &j in &order[run] {
                             let (kb, ib) = here[j as usize];
                             if kb != q || ib.abs_diff(i) >= 2 {
                                 found.extend(fresh_pair(
@@ -1327,14 +1288,19 @@ mod tests {
 
     const PERIOD: [Option<f64>; 3] = [Some(24.0), None, Some(18.0)];
 
-    /// 60 seven-segment fibres (l = 3, d = 0.8) at random in a box periodic in x and z, and
-    /// the same fibres after a step: most moved by up to 0.3, every tenth by up to 4 (a
-    /// large spread of displacements), each segment jittered and turned (bending).
-    fn start_and_end(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
+    /// `n` seven-segment fibres (l = 3, d = 0.8) at random in a box periodic in x and z,
+    /// and the same fibres after a step: each moved by the shift `motion` gives it (from
+    /// its index and centre) and each segment jittered and turned by up to the turn it
+    /// gives.
+    fn moved_fibres(
+        seed: u64,
+        n: usize,
+        motion: impl Fn(usize, &Vector3<f64>, &mut Rng) -> (Vector3<f64>, f64),
+    ) -> (Vec<Fibre>, Vec<Fibre>) {
         let mut rng = Rng(seed);
         let mut before = Vec::new();
         let mut after = Vec::new();
-        for k in 0..60 {
+        for k in 0..n {
             let centre = Vector3::new(
                 24.0 * rng.next(),
                 12.0 * rng.next() - 6.0,
@@ -1343,10 +1309,10 @@ mod tests {
             let axis = rng.vector(1.0).normalize();
             let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
             let mut g = f.clone();
-            let shift = rng.vector(if k % 10 == 0 { 4.0 } else { 0.3 });
+            let (shift, turn) = motion(k, &centre, &mut rng);
             for s in g.segments.iter_mut() {
                 s.r += shift + rng.vector(0.05);
-                s.z = (s.z + rng.vector(0.1)).normalize();
+                s.z = (s.z + rng.vector(turn)).normalize();
             }
             before.push(f);
             after.push(g);
@@ -1354,39 +1320,27 @@ mod tests {
         (before, after)
     }
 
-    /// 150 seven-segment fibres as in [`start_and_end`], moved by a mean flow along x that
-    /// grows across y (from 0 to 6 over the box's 12, as near a wall) and by up to 0.15
-    /// along each direction besides, each segment jittered and turned; with `thrown`,
-    /// every 25th fibre is instead thrown by up to 6 along each direction and its segments
-    /// turned far (wild fibres, searched around on their own).
+    /// 60 fibres: most moved by up to 0.3, every tenth by up to 4 (a large spread of
+    /// displacements), each segment turned by up to 0.1 (bending).
+    fn start_and_end(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
+        moved_fibres(seed, 60, |k, _, rng| {
+            (rng.vector(if k % 10 == 0 { 4.0 } else { 0.3 }), 0.1)
+        })
+    }
+
+    /// 150 fibres moved by a mean flow along x that grows across y (from 0 to 6 over the
+    /// box's 12, as near a wall) and by up to 0.15 along each direction besides; with
+    /// `thrown`, every 25th fibre is instead thrown by up to 6 along each direction and its
+    /// segments turned far (wild fibres, searched around on their own).
     fn in_a_mean_flow(seed: u64, thrown: bool) -> (Vec<Fibre>, Vec<Fibre>) {
-        let mut rng = Rng(seed);
-        let mut before = Vec::new();
-        let mut after = Vec::new();
-        for k in 0..150 {
-            let centre = Vector3::new(
-                24.0 * rng.next(),
-                12.0 * rng.next() - 6.0,
-                18.0 * rng.next(),
-            );
-            let axis = rng.vector(1.0).normalize();
-            let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
-            let mut g = f.clone();
-            let wild = thrown && k % 25 == 0;
-            let shift = if wild {
-                rng.vector(6.0)
+        moved_fibres(seed, 150, |k, centre, rng| {
+            if thrown && k.is_multiple_of(25) {
+                (rng.vector(6.0), 1.0)
             } else {
-                Vector3::new(0.5 * (centre.y + 6.0), 0.0, 0.0) + rng.vector(0.15)
-            };
-            for s in g.segments.iter_mut() {
-                s.r += shift + rng.vector(0.05);
-                let turn = if wild { 1.0 } else { 0.1 };
-                s.z = (s.z + rng.vector(turn)).normalize();
+                let flow = Vector3::new(0.5 * (centre.y + 6.0), 0.0, 0.0);
+                (flow + rng.vector(0.15), 0.1)
             }
-            before.push(f);
-            after.push(g);
-        }
-        (before, after)
+        })
     }
 
     fn same(a: &[Candidate], b: &[Candidate]) -> bool {
@@ -1398,6 +1352,25 @@ mod tests {
                     && x.normal0 == y.normal0
                     && x.reach.to_bits() == y.reach.to_bits()
             })
+    }
+
+    /// The step's search over `before` → `after`, what its scan finds and what a test of
+    /// every pair keeps.
+    fn scanned(before: &[Fibre], after: &[Fibre]) -> (Search, Vec<Candidate>, Vec<Candidate>) {
+        let s = Slices::new(before, after);
+        let search = Search::new(&s, &PERIOD, 0.0);
+        let found = search.pairs(&s);
+        let expected = all_pairs(&s, &search);
+        (search, found, expected)
+    }
+
+    fn assert_found(seed: u64, found: &[Candidate], expected: &[Candidate]) {
+        assert!(
+            same(found, expected),
+            "seed {seed}: {} found, {} expected",
+            found.len(),
+            expected.len()
+        );
     }
 
     /// Every pair of segments of different fibres, and of non-adjacent segments of one
@@ -1587,21 +1560,13 @@ mod tests {
     fn the_cell_list_finds_every_pair_the_exact_test_keeps() {
         for seed in [1, 2, 3] {
             let (before, after) = start_and_end(seed);
-            let s = Slices::new(&before, &after);
-            let search = Search::new(&s, &PERIOD, 0.0);
-            let found = search.pairs(&s);
-            let expected = all_pairs(&s, &search);
+            let (search, found, expected) = scanned(&before, &after);
             // the case is a real one: many pairs, some across a periodic boundary, and
             // displacements spread far wider than a diameter
             assert!(expected.len() > 100, "{} pairs", expected.len());
             assert!(expected.iter().any(|c| c.shift != Vector3::zeros()));
             assert!(search.spread > 2.0, "spread {}", search.spread);
-            assert!(
-                same(&found, &expected),
-                "seed {seed}: {} found, {} expected",
-                found.len(),
-                expected.len()
-            );
+            assert_found(seed, &found, &expected);
         }
     }
 
@@ -1612,10 +1577,7 @@ mod tests {
     fn cells_narrower_across_a_mean_flow_find_every_pair() {
         for seed in [7, 8, 9] {
             let (before, after) = in_a_mean_flow(seed, false);
-            let s = Slices::new(&before, &after);
-            let search = Search::new(&s, &PERIOD, 0.0);
-            let found = search.pairs(&s);
-            let expected = all_pairs(&s, &search);
+            let (search, found, expected) = scanned(&before, &after);
             assert!(expected.len() > 100, "{} pairs", expected.len());
             let apart = |c: &Candidate| {
                 (after[c.a.0].segments[c.a.1].r - before[c.a.0].segments[c.a.1].r)
@@ -1630,12 +1592,7 @@ mod tests {
                 side[0] > side[1] + 2.0 && side[0] > side[2] + 2.0,
                 "{side:?}"
             );
-            assert!(
-                same(&found, &expected),
-                "seed {seed}: {} found, {} expected",
-                found.len(),
-                expected.len()
-            );
+            assert_found(seed, &found, &expected);
         }
     }
 
@@ -1661,14 +1618,9 @@ mod tests {
             assert!(side[1] < 5.0 && side[2] < 5.0, "{side:?}");
             let found = search.pairs(&s);
             let expected = all_pairs(&s, &search);
-            let wild = |c: &Candidate| c.a.0 % 25 == 0 || c.b.0 % 25 == 0;
+            let wild = |c: &Candidate| c.a.0.is_multiple_of(25) || c.b.0.is_multiple_of(25);
             assert!(expected.iter().filter(|c| wild(c)).count() > 10);
-            assert!(
-                same(&found, &expected),
-                "seed {seed}: {} found, {} expected",
-                found.len(),
-                expected.len()
-            );
+            assert_found(seed, &found, &expected);
         }
     }
 
@@ -1722,12 +1674,7 @@ mod tests {
                 expected.iter().any(|c| geometry(&now, c).2 < -c.reach),
                 "no pair crossed"
             );
-            assert!(
-                same(&found, &expected),
-                "seed {seed}: {} found, {} expected",
-                found.len(),
-                expected.len()
-            );
+            assert_found(seed, &found, &expected);
         }
     }
 
