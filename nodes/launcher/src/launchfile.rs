@@ -854,7 +854,7 @@ pub(crate) mod tests {
             );
         }
         idle.sort();
-        assert_eq!(n, 15, "launch files with a [run] table");
+        assert_eq!(n, 17, "launch files with a [run] table");
         assert_eq!(
             idle,
             [
