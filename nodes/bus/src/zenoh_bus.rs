@@ -609,46 +609,66 @@ mod tests {
         (bus, endpoint)
     }
 
-    /// Sessions opened together connect at once: each of six pairs opened on six threads
-    /// at the same moment returns from open well before the peer's open wait
-    /// ([`PEER_OPEN_WAIT_MS`]), and carries a message. With zenoh's background connector
-    /// (before `connect/exit_on_failure`) some of them waited it out in most runs of this
-    /// module's tests (15 s, against 2 ms).
+    /// Sessions opened together connect without waiting out the open delay: sixteen pairs
+    /// opened on sixteen threads at the same moment, in a child process (this test binary run
+    /// again) that logs zenoh's warnings, each carry a message, and zenoh never warns
+    /// "Scouting delay elapsed before start conditions are met" — its sign of an open that
+    /// missed the rendezvous's first declarations and waited out [`PEER_OPEN_WAIT_MS`].
+    /// With zenoh's background connector (before `connect/exit_on_failure`) it warned in
+    /// four runs of five of this test, and in none of five with it.
     #[test]
     fn sessions_opened_together_connect_at_once() {
-        let pairs: Vec<_> = (0..6).map(|_| listening_session()).collect();
-        let barrier = std::sync::Arc::new(std::sync::Barrier::new(pairs.len()));
-        let opened: Vec<_> = pairs
-            .iter()
-            .map(|(_, endpoint)| {
-                let (endpoint, barrier) = (endpoint.clone(), barrier.clone());
-                std::thread::spawn(move || {
-                    barrier.wait();
-                    let t0 = std::time::Instant::now();
-                    let b = connected_session(endpoint);
-                    (b, t0.elapsed())
+        const CHILD: &str = "FIBERFLOW_TEST_TOGETHER_CHILD";
+        if std::env::var(CHILD).is_ok() {
+            let _ = tracing_subscriber::fmt()
+                .with_env_filter(tracing_subscriber::EnvFilter::new("zenoh=warn"))
+                .with_writer(std::io::stderr)
+                .try_init();
+            let pairs: Vec<_> = (0..16).map(|_| listening_session()).collect();
+            let barrier = std::sync::Arc::new(std::sync::Barrier::new(pairs.len()));
+            let opened: Vec<_> = pairs
+                .iter()
+                .map(|(_, endpoint)| {
+                    let (endpoint, barrier) = (endpoint.clone(), barrier.clone());
+                    std::thread::spawn(move || {
+                        barrier.wait();
+                        connected_session(endpoint)
+                    })
                 })
-            })
-            .collect();
-        for (i, (handle, (a, _))) in opened.into_iter().zip(&pairs).enumerate() {
-            let (b, took) = handle.join().unwrap();
-            assert!(
-                took < Duration::from_millis(PEER_OPEN_WAIT_MS / 3),
-                "session {i} took {took:?} to open"
-            );
-            let topic = format!("z/together/{i}");
-            let sub = a.subscribe(&topic).unwrap();
-            let missing = b
-                .await_subscribers(std::slice::from_ref(&topic), Duration::from_secs(20))
-                .unwrap();
-            assert!(missing.is_empty());
-            b.publish(&topic, b"hello").unwrap();
-            let (_, got) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
-            assert_eq!(&got[..], b"hello");
+                .collect();
+            for (i, (handle, (a, _))) in opened.into_iter().zip(&pairs).enumerate() {
+                let b = handle.join().unwrap();
+                let topic = format!("z/together/{i}");
+                let sub = a.subscribe(&topic).unwrap();
+                let missing = b
+                    .await_subscribers(std::slice::from_ref(&topic), Duration::from_secs(20))
+                    .unwrap();
+                assert!(missing.is_empty());
+                b.publish(&topic, b"hello").unwrap();
+                let (_, got) = sub.rx.recv_timeout(Duration::from_secs(10)).unwrap();
+                assert_eq!(&got[..], b"hello");
+            }
+            return;
         }
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args([
+                "--exact",
+                "zenoh_bus::tests::sessions_opened_together_connect_at_once",
+                "--nocapture",
+                "--test-threads=1",
+            ])
+            .env(CHILD, "1")
+            .output()
+            .unwrap();
+        let log = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "the child failed:\n{log}");
+        assert!(
+            !log.contains("Scouting delay elapsed"),
+            "an open waited out the delay:\n{log}"
+        );
     }
 
-    /// A peer whose rendezvous does not answer fails to open after [`PEER_OPEN_WAIT_MS`],
+    /// A peer whose rendezvous does not answer fails to open (after [`PEER_OPEN_WAIT_MS`]),
     /// and the error names the endpoint (it used to open without a connection and leave
     /// the node to wait for messages that could not come).
     #[test]
@@ -659,7 +679,6 @@ mod tests {
             .unwrap()
             .port();
         let endpoint = format!("tcp/127.0.0.1:{port}");
-        let t0 = std::time::Instant::now();
         let opened = ZenohBus::open(&ZenohSettings {
             connect: vec![endpoint.clone()],
             ..ZenohSettings::default()
@@ -668,7 +687,6 @@ mod tests {
             panic!("opened without its rendezvous");
         };
         assert!(e.to_string().contains(&endpoint), "{e}");
-        assert!(t0.elapsed() >= Duration::from_millis(PEER_OPEN_WAIT_MS));
     }
 
     /// A session asked to listen on port 0 reports the loopback endpoint it was given, with
