@@ -399,6 +399,32 @@ impl ZenohBus {
         info.peers_zid().wait().count() + info.routers_zid().wait().count()
     }
 
+    /// Waits until the number of peers this session is connected to has not changed for
+    /// `quiet` (at most `timeout`); returns it. A session that joined a mesh through its
+    /// rendezvous connects to the other peers as it hears of them: a topic can match the
+    /// rendezvous's subscriber while another subscriber's link is still coming up, and
+    /// what is sent before that link is up never reaches it. (Once, under CI load, a run's
+    /// recorder counted 9974 of 10⁴ messages injected on each of nine topics, the same
+    /// on every topic: a window of ≈ 3 ms of the 1.3 s injection, most likely its start.)
+    pub fn await_peers_settled(
+        &self,
+        quiet: std::time::Duration,
+        timeout: std::time::Duration,
+    ) -> usize {
+        let deadline = std::time::Instant::now() + timeout;
+        let mut peers = self.connections();
+        let mut since = std::time::Instant::now();
+        while since.elapsed() < quiet && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+            let now = self.connections();
+            if now != peers {
+                peers = now;
+                since = std::time::Instant::now();
+            }
+        }
+        peers
+    }
+
     /// Waits until every topic has at least one subscriber this session knows of (zenoh
     /// drops a put for which it knows none, so a tool that publishes right after opening
     /// loses what it sends before the peers' declarations arrive); returns the topics

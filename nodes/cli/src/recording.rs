@@ -88,11 +88,6 @@ fn zenoh(connect: Vec<String>, listen: Vec<String>) -> Result<ZenohBus> {
     ZenohBus::open(&s).context("opening zenoh session")
 }
 
-/// A zenoh session on which every topic of `topics` has a subscriber, or as many as have
-/// one after `wait_s` seconds (the others go on without: a topic may have none in this
-/// run). A session that reached no peer at all by then is opened once more (on a loaded host a
-/// first connection attempt has stalled for good), and if that one reaches none either it
-/// is an error naming the endpoints: sending into nothing would only look like success.
 /// Whom a publishing command waits for before it starts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Await {
@@ -103,6 +98,16 @@ enum Await {
     Any,
 }
 
+/// How long the number of connected peers must stay the same before a publishing command
+/// starts (the mesh is complete: [`ZenohBus::await_peers_settled`]).
+const PEERS_QUIET: Duration = Duration::from_secs(1);
+
+/// A zenoh session on which every topic of `topics` has a subscriber, or as many as have
+/// one after `wait_s` seconds (the others go on without: a topic may have none in this
+/// run), and whose links to the run's peers have stopped coming up ([`PEERS_QUIET`]). A
+/// session that reached no peer at all by then is opened once more (on a loaded host a
+/// first connection attempt has stalled for good), and if that one reaches none either it
+/// is an error naming the endpoints: sending into nothing would only look like success.
 fn session_with_subscribers(
     connect: &[String],
     listen: &[String],
@@ -126,6 +131,10 @@ fn session_with_subscribers(
             Await::Every => bus.await_subscribers(topics, wait)?,
             Await::Any => bus.await_any_subscriber(topics, wait, Duration::from_millis(500))?,
         };
+        if unheard.len() < topics.len() {
+            let peers = bus.await_peers_settled(PEERS_QUIET, wait);
+            tracing::info!(peers, "connected to the run's peers");
+        }
         if need == Await::Any && unheard.len() < topics.len() {
             if !unheard.is_empty() {
                 tracing::info!(
@@ -262,9 +271,6 @@ pub fn inject_cmd(
         .collect();
     // what is sent before the run's subscriptions are known here would go nowhere
     let bus = session_with_subscribers(&connect, &[], &full, wait_s, "injecting", Await::Every)?;
-    // one topic's first subscriber may be known before the others' (every node's
-    // declarations arrive over its own link)
-    std::thread::sleep(Duration::from_millis(500));
     // the run's group names, so that structured messages also name real groups
     let groups: Vec<String> = full
         .iter()

@@ -380,6 +380,7 @@ fn kernel(
     let mut ok = [true; LANES];
     let dt4 = F4::splat(dt);
     let half = F4::splat(0.5);
+    let (one, two) = (F4::splat(1.0), F4::splat(2.0));
     let gravity = V3::splat([p.gravity.x, p.gravity.y, p.gravity.z]);
     let kb = F4::splat(p.bending_stiffness);
     for i in 0..n {
@@ -428,8 +429,13 @@ fn kernel(
             perp: c.inertia_perp,
             par: c.inertia_axial,
         };
-        let i_w = inertia.apply(z, w);
-        let gyroscopic = w.cross(i_w);
+        // step::precessed
+        let w_par = z.dot(w);
+        let w_perp = w - z.scale(w_par);
+        let tan_half = (c.inertia_axial / c.inertia_perp - one) * w_par * (half * dt4);
+        let tt = tan_half * tan_half;
+        let turned = (w_perp.scale(one - tt) + z.cross(w).scale(two * tan_half)).unscale(one + tt);
+        let i_w = inertia.apply(z, z.scale(w_par) + turned);
         let qinv = Axi {
             perp: inertia.perp / dt4 + rc.perp,
             par: inertia.par / dt4 + rc.par,
@@ -444,7 +450,7 @@ fn kernel(
                 bend = bend + z.cross(seg[i - 1].z).scale(kb);
             }
         }
-        let b_t = i_w.unscale(dt4) - gyroscopic + rc.apply(z, omega) + h_g + bend;
+        let b_t = i_w.unscale(dt4) + rc.apply(z, omega) + h_g + bend;
         let h = half * l;
         let zz = M3::outer(z);
         pa[i] = pinv;

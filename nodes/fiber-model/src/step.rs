@@ -5,7 +5,7 @@
 //!   ṙ_i = P_i (s̃_i + Y_i − Y_{i−1}),   ω_i = Q_i (b̃_i + (l_i/2) [ẑ_i]× (Y_i + Y_{i−1})),
 //! where Y_k is the force that segment k+1 exerts on segment k (the paper's X_{k+2}),
 //! s̃_i = m/Δt ṙ_{i,n−1} + A_i v(r_i) + F^w_i and
-//! b̃_i = I_i/Δt ω_{i,n−1} − ω_{i,n−1} × (I_i ω_{i,n−1}) + C_i Ω + H_i:G + M^b_i,
+//! b̃_i = I_i/Δt ω*_i + C_i Ω + H_i:G + M^b_i (ω* below),
 //! turns the connectivity condition (eq. 8) into a block-tridiagonal system for Y_0..Y_{N−2}
 //! (paper eq. 9–10, Appendix B — re-derived here: the first "I*" in b* and C_z* is İ, and
 //! no extra scaling r_p is needed in f64 with consistent units):
@@ -17,8 +17,14 @@
 //! İ_{n−1}·ω_n (implicit in ω_n). For a slender segment I∥/I⊥ ≈ 1.5 (d/l)² ≈ 0.01, and the
 //! term I⊥ ẑ·(ω_{n−1} × ω_n) it adds to the axial equation is not balanced by I∥/Δt: the
 //! axial spin is then amplified every step and the fibre blows up in turbulence. We use the
-//! exact gyroscopic term ω × (Iω) = İω at n−1, explicitly; its axial component vanishes
-//! identically for an axisymmetric segment, and the scheme stays first order.
+//! exact gyroscopic term ω × (Iω) = İω = (I⊥ − I∥) ω∥ ẑ × ω⊥; its axial component
+//! vanishes identically for an axisymmetric segment. It is a precession of ω⊥ about ẑ at
+//! the rate (1 − I∥/I⊥) ω∥, taken here over the step as an exact-norm (Cayley) rotation of
+//! ω_{n−1} into ω* ([`precessed`]): I/Δt ω* = I/Δt ω_{n−1} − ω × (Iω) + O(Δt). Taken
+//! explicitly, as before, it multiplied |ω⊥| by √(1 + (ω∥ Δt)²) every step: harmless
+//! while ω∥ Δt ≪ 1, but a frictional contact spins a segment about its axis (I∥ ≈ I⊥/170
+//! for these segments) to ω∥ Δt ≈ 9, and the fibre then whipped and folded
+//! (docs/contact.md). The scheme stays first order.
 
 use crate::error::FibreError;
 use crate::fibre::Fibre;
@@ -176,7 +182,8 @@ pub struct Loads {
     pub force: Vec<Vector3<f64>>,
     /// T^h_i per segment.
     pub torque: Vec<Vector3<f64>>,
-    /// Explicit gyroscopic term ω_{n−1} × (I ω_{n−1}) per segment (= İ_{n−1} ω_{n−1}).
+    /// The gyroscopic term as the step takes it, I (ω_{n−1} − ω*)/Δt per segment, with ω*
+    /// the precessed ω_{n−1} ([`precessed`]); → ω × (I ω) = İ ω as Δt → 0.
     pub gyroscopic: Vec<Vector3<f64>>,
 }
 
@@ -259,7 +266,10 @@ fn step_inner(
             perp: pr.inertia_perp,
             par: pr.inertia_axial,
         };
-        let gyroscopic = s.w.cross(&inertia.apply(&s.z, &s.w));
+        let i_w = inertia.apply(
+            &s.z,
+            &precessed(&s.z, &s.w, pr.inertia_axial / pr.inertia_perp, dt),
+        );
         let qinv = Axisymmetric {
             perp: inertia.perp / dt + r.c.perp,
             par: inertia.par / dt + r.c.par,
@@ -295,8 +305,7 @@ fn step_inner(
                 bend -= p.twisting_stiffness * f.twist(i - 1) * t;
             }
         }
-        let b_t =
-            inertia.apply(&s.z, &s.w) / dt - gyroscopic + r.c.apply(&s.z, &omega) + r.h_g + bend;
+        let b_t = i_w / dt + r.c.apply(&s.z, &omega) + r.h_g + bend;
         let h = 0.5 * pr.shape.length;
         let zz = s.z * s.z.transpose();
         pa[i] = pinv;
@@ -309,7 +318,7 @@ fn step_inner(
         zqb[i] = h * s.z.cross(&qb[i]);
         if loads.is_some() {
             res[i] = Some(r);
-            gyro[i] = gyroscopic;
+            gyro[i] = (inertia.apply(&s.z, &s.w) - i_w) / dt;
         }
     }
     // joint forces Y_0..Y_{n-2}
@@ -386,6 +395,28 @@ fn step_inner(
         wall_contact(f, hh);
     }
     Ok(())
+}
+
+/// ω with its part across the axis turned about the axis by one step's gyroscopic
+/// precession, angle −(1 − I∥/I⊥) ω∥ Δt, as the Cayley (implicit-midpoint) rotation:
+/// I⊥ dω⊥/dt = −ω × (I ω) = −(I⊥ − I∥) ω∥ ẑ × ω⊥ taken over the step with ẑ and ω∥
+/// held. To first order this is the explicit term, I ω* = I ω − Δt ω × (I ω); unlike it,
+/// it keeps |ω⊥| exactly, so a segment spinning fast about its own axis (a frictional
+/// contact sets one spinning, docs/contact.md) does not feed its tumbling: explicitly,
+/// each step multiplied |ω⊥| by √(1 + (ω∥ Δt)²).
+pub fn precessed(
+    z: &Vector3<f64>,
+    w: &Vector3<f64>,
+    axial_over_perp: f64,
+    dt: f64,
+) -> Vector3<f64> {
+    let w_par = z.dot(w);
+    let w_perp = w - z * w_par;
+    // tan of half the angle
+    let c = (axial_over_perp - 1.0) * w_par * (0.5 * dt);
+    let cc = c * c;
+    let turned = (w_perp * (1.0 - cc) + z.cross(w) * (2.0 * c)) / (1.0 + cc);
+    z * w_par + turned
 }
 
 /// Rotates `z` by the rotation vector `phi` (Rodrigues) and renormalises. To first order
