@@ -990,7 +990,7 @@ mod tests {
 
     /// A recorder told to stop (Ctrl-C) first takes what already arrived: 10⁴ garbage
     /// messages wait in its subscription and the stop is set before it starts; every one
-    /// is counted as a drop (without the drain it stopped having counted none).
+    /// is counted as a drop (with the drain taken out it counted none).
     #[test]
     fn a_stopped_recorder_keeps_what_already_arrived() {
         let t = Topics::new("st");
