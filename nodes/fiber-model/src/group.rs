@@ -174,6 +174,12 @@ impl FibreGroup {
         self.contact.as_ref()
     }
 
+    /// Where the contact solves of this group (or, on the shard that solves a sharded
+    /// suspension's contact, of the whole suspension) spent their time so far.
+    pub fn contact_time(&self) -> contact::ContactTime {
+        self.search.spent
+    }
+
     /// What contact did in the last step (empty when contact is off).
     pub fn last_contact(&self) -> &ContactOutcome {
         &self.last_contact

@@ -829,6 +829,20 @@ impl Served {
                 ),
                 "contact over the run"
             );
+            let t = self.group.contact_time();
+            if t.steps > 0 {
+                tracing::info!(
+                    group = %self.node,
+                    steps_solved = t.steps,
+                    rebuild_s = format!("{:.3}", t.rebuild_s),
+                    scan_s = format!("{:.3}", t.scan_s),
+                    sweeps_s = format!("{:.3}", t.sweeps_s),
+                    around_s = format!("{:.3}", t.around_s),
+                    rest_s = format!("{:.3}", t.rest_s),
+                    rounds = t.rounds,
+                    "where contact's time went"
+                );
+            }
         }
         self.hb(lifecycle::DONE, self.steps)?;
         let mut drops = self.samples_in.drops.clone();

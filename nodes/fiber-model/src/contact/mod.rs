@@ -91,6 +91,25 @@ impl Default for ContactParams {
     }
 }
 
+/// Where contact's time went over the steps solved (wall-clock seconds, summed): what a
+/// node logs at the end of its run (docs/contact.md, "Cost").
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ContactTime {
+    pub steps: u64,
+    /// Placing the step's segments in the cell list.
+    pub rebuild_s: f64,
+    /// The scan for the step's candidate pairs.
+    pub scan_s: f64,
+    /// The rounds' gaps, islands and sweeps.
+    pub sweeps_s: f64,
+    /// The rounds' searches around the fibres a round moved.
+    pub around_s: f64,
+    /// Rounds over all steps.
+    pub rounds: u64,
+    /// Copying fibres out, the backstop for what still overlaps, and the step's contacts.
+    pub rest_s: f64,
+}
+
 /// One contact of a step: the segments, where they touched, and the total impulse on the
 /// first (the second received its opposite).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -327,8 +346,17 @@ pub(crate) fn resolve_segments<S: Segments>(
     dt: f64,
 ) -> (Outcome, Vec<Fibre>) {
     let n = s.offsets().len().saturating_sub(1);
+    let mut spent = search.spent;
+    let mut clock = std::time::Instant::now();
+    let mut lap = |into: &mut f64| {
+        let now = std::time::Instant::now();
+        *into += (now - clock).as_secs_f64();
+        clock = now;
+    };
     search.rebuild(s, &params.period, 0.0);
+    lap(&mut spent.rebuild_s);
     let mut cands = search.pairs(s);
+    lap(&mut spent.scan_s);
     // the fibres the solve reads, copied out as pairs name them
     let empty = Fibre {
         segments: Vec::new(),
@@ -358,7 +386,9 @@ pub(crate) fn resolve_segments<S: Segments>(
     };
     let mut moved_fibres = vec![false; n];
     let mut locked = vec![false; n];
+    lap(&mut spent.rest_s);
     for _round in 0..MAX_ROUNDS {
+        spent.rounds += 1;
         // the pairs that overlap now or have pushed in this step, and the islands of
         // fibres they join (a floc, not every fibre within reach of another)
         let gaps: Vec<f64> = cands
@@ -400,6 +430,7 @@ pub(crate) fn resolve_segments<S: Segments>(
                 cands[n] = c;
             }
         }
+        lap(&mut spent.sweeps_s);
         if !changed {
             break;
         }
@@ -418,7 +449,10 @@ pub(crate) fn resolve_segments<S: Segments>(
         load(&fresh, &mut fibres, &mut before);
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
+        lap(&mut spent.around_s);
     }
+    // a round that found nothing to do ends before its sweeps' lap
+    lap(&mut spent.sweeps_s);
     let frozen = freeze_what_still_overlaps(
         s,
         search,
@@ -445,6 +479,9 @@ pub(crate) fn resolve_segments<S: Segments>(
             });
         }
     }
+    lap(&mut spent.rest_s);
+    spent.steps += 1;
+    search.spent = spent;
     (outcome, fibres)
 }
 

@@ -731,6 +731,8 @@ pub(crate) struct Search {
     /// around on its own, so that it does not widen every cell.
     wild: Vec<u32>,
     period: [Option<f64>; 3],
+    /// Where the contact solves that used this search spent their time, summed.
+    pub(crate) spent: super::ContactTime,
 }
 
 /// Only working memory: a copy starts empty (the next step rebuilds it).

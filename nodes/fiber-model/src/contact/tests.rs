@@ -845,7 +845,7 @@ fn a_fibre_on_an_incline_sticks_above_tan_theta_and_slides_below() {
 
 /// A group with contact on steps to the same bits as the model's step fibre by fibre
 /// followed by [`resolve`] (what the tests above check), here for 60 crowded fibres in
-/// shear over 10 steps, and its fibres touch.
+/// shear over 10 steps, and its fibres touch; its contact time counts the 10 steps.
 #[test]
 fn a_group_with_contact_steps_as_step_then_resolve() {
     let side = 30.0;
@@ -877,6 +877,15 @@ fn a_group_with_contact_steps_as_step_then_resolve() {
         assert_eq!(group.fibres(), by_hand);
     }
     assert!(touched > 0, "no contacts: the test checks nothing");
+    // where the time went: every step solved is counted, with at least one round each
+    // (more in a step with contacts), and every part's seconds are finite and ≥ 0
+    let t = group.contact_time();
+    assert_eq!(t.steps, 10);
+    assert!(t.rounds > 10, "{t:?}");
+    for x in [t.rebuild_s, t.scan_s, t.sweeps_s, t.around_s, t.rest_s] {
+        assert!(x.is_finite() && x >= 0.0, "{t:?}");
+    }
+    assert!(t.scan_s > 0.0, "{t:?}");
 }
 
 /// A correction can push a fibre into one that was no candidate: A is driven into B,
