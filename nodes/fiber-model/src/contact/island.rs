@@ -94,11 +94,37 @@ pub(super) fn solve_island(
         })
         .collect();
     let came = mine.clone();
-    let (sweeps, applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
-    let gap_left = pairs
-        .iter()
-        .map(|c| geometry(&mine, c).2 / c.reach)
-        .fold(0.0_f64, f64::min);
+    let (mut sweeps, mut applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
+    let deepest = |mine: &[Fibre], pairs: &[Candidate]| {
+        pairs
+            .iter()
+            .map(|c| geometry(mine, c).2 / c.reach)
+            .fold(0.0_f64, f64::min)
+    };
+    let mut gap_left = deepest(&mine, &pairs);
+    // the sweeps act at the material points and along the normal where each pair first
+    // touched; once its fibres have turned, the closest points can still overlap while
+    // those points are apart. Sweep again from the closest points before locking
+    // (test `contact::tests::an_island_by_the_wall_is_parted_or_locked_keeping_every_pair_on_its_side`)
+    for _ in 0..REFRESHES {
+        if gap_left >= -LOCK_GAP || sweeps >= params.sweeps {
+            break;
+        }
+        let (more, more_applied) = sweep(
+            &mut mine,
+            &mut pairs,
+            &held,
+            params.sweeps - sweeps,
+            params,
+            dt,
+        );
+        if more_applied == 0 {
+            break;
+        }
+        sweeps += more;
+        applied += more_applied;
+        gap_left = deepest(&mine, &pairs);
+    }
     let ran = sweeps >= params.sweeps && ran_away(&came, &mine, &pairs, dt);
     let locked = gap_left < -LOCK_GAP || ran;
     if locked {
@@ -133,6 +159,10 @@ pub(super) fn solve_island(
         locked,
     }
 }
+
+/// How many times an island's sweeps start again from the pairs' closest points before
+/// it is locked.
+const REFRESHES: usize = 4;
 
 /// An island whose sweeps leave a pair closer than this fraction of its contact distance
 /// is locked.

@@ -1043,9 +1043,12 @@ fn a_fibre_pinched_in_a_coil_locks_its_island() {
 /// took that side. Their island was then locked, which put them back where the start
 /// had them, on the other side of each other, 4.3 d apart: the pair looked crossed
 /// (−5.3 d), and its side would have driven the next corrections through. A locked
-/// island's pairs take their side from where the lock put them.
+/// island's pairs take their side from where the lock put them (forced here with two
+/// sweeps). With its full sweeps the island is now parted without a lock: they start
+/// again from the pairs' closest points when those still overlap (before, they
+/// stopped acting at the points first touched and the island was locked).
 #[test]
-fn a_locked_island_next_to_the_wall_keeps_every_pair_on_its_side() {
+fn an_island_by_the_wall_is_parted_or_locked_keeping_every_pair_on_its_side() {
     let r = recorded(include_str!("../testdata/wall-island.txt"));
     assert_eq!(r.before.len(), 11);
     let period = r.params.period;
@@ -1053,22 +1056,32 @@ fn a_locked_island_next_to_the_wall_keeps_every_pair_on_its_side() {
         min_distance(&r.before, &period) >= 0.99 * D,
         "the start overlaps"
     );
-    let mut fs = r.free.clone();
-    let out = resolve(&mut fs, &r.before, &[], &r.params, r.dt);
-    assert!(!out.locked.is_empty(), "no island was locked");
-    assert!(
-        out.worst_gap >= -0.01 * D,
-        "worst gap {}",
-        out.worst_gap / D
-    );
-    let m = min_distance(&fs, &period);
-    assert!(m >= 0.99 * D, "centre-lines {m} apart");
-    for (k, f) in fs.iter().enumerate() {
+    // with the sweeps it has the island is now parted without a lock (its sweeps start
+    // again from the closest points); with two sweeps it is locked, as it once was
+    for (sweeps, locks) in [(r.params.sweeps, false), (2, true)] {
+        let params = ContactParams { sweeps, ..r.params };
+        let mut fs = r.free.clone();
+        let out = resolve(&mut fs, &r.before, &[], &params, r.dt);
         assert_eq!(
-            crate::step::wall_shift(f, 150.0),
-            0.0,
-            "fibre {k} in the wall"
+            !out.locked.is_empty(),
+            locks,
+            "{sweeps} sweeps: locked {:?}",
+            out.locked
         );
+        assert!(
+            out.worst_gap >= -0.01 * D,
+            "worst gap {}",
+            out.worst_gap / D
+        );
+        let m = min_distance(&fs, &period);
+        assert!(m >= 0.99 * D, "{sweeps} sweeps: centre-lines {m} apart");
+        for (k, f) in fs.iter().enumerate() {
+            assert_eq!(
+                crate::step::wall_shift(f, 150.0),
+                0.0,
+                "fibre {k} in the wall"
+            );
+        }
     }
 }
 
