@@ -253,6 +253,26 @@ type Load<'a> = dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]) + 'a;
 /// them), and so, in turn, is every fibre that then comes that close to one of them. From
 /// a start where no pair was that close, none is left so. Returns which fibres it froze.
 #[allow(clippy::too_many_arguments)]
+/// How far (as a share of its diameter) every point of a corrected fibre may move before
+/// the rounds search around it again.
+const SEARCH_SLACK: f64 = 1e-3;
+
+/// Whether some point of `fibre` (fibre `k` of the step) is further than SEARCH_SLACK of
+/// its segment's diameter from where it was at `at` (each segment's centre and axis; empty:
+/// at the end of the free step): a segment's points move by at most |Δr| + (l/2) |Δẑ|.
+fn moved_beyond<S: Segments>(
+    s: &S,
+    fibre: &Fibre,
+    k: usize,
+    at: &[(Vector3<f64>, Vector3<f64>)],
+) -> bool {
+    fibre.segments.iter().zip(&fibre.props).enumerate().any(|(i, (g, p))| {
+        let (r, z) = at.get(i).copied().unwrap_or_else(|| s.end(k, i));
+        (g.r - r).norm() + 0.5 * p.shape.length * (g.z - z).norm()
+            > SEARCH_SLACK * p.shape.diameter
+    })
+}
+
 fn freeze_what_still_overlaps<S: Segments>(
     s: &S,
     search: &Search,
@@ -386,6 +406,9 @@ pub(crate) fn resolve_segments<S: Segments>(
     };
     let mut moved_fibres = vec![false; n];
     let mut locked = vec![false; n];
+    // where each fibre's segments were when it was last searched around (empty: at the
+    // end of the free step)
+    let mut searched_at: Vec<Vec<(Vector3<f64>, Vector3<f64>)>> = vec![Vec::new(); n];
     lap(&mut spent.rest_s);
     for _round in 0..MAX_ROUNDS {
         spent.rounds += 1;
@@ -435,8 +458,17 @@ pub(crate) fn resolve_segments<S: Segments>(
             break;
         }
         // the corrections moved fibres: pairs they pushed together that were not
-        // candidates join (their side is where they were at the start of the step)
+        // candidates join (their side is where they were at the start of the step).
+        // A fibre whose every point moved less than SEARCH_SLACK of its diameter since it
+        // was last searched around (or since the free step, which no candidate-less pair
+        // ended closer than its contact distance) cannot have made an overlap deeper than
+        // twice that with one also so moved: it waits until it has moved more (most of a
+        // round's fibres move less than 10⁻³ d; what is left the next step separates)
         round_moved.sort_unstable();
+        round_moved.retain(|&k| moved_beyond(s, &fibres[k], k, &searched_at[k]));
+        for &k in &round_moved {
+            searched_at[k] = fibres[k].segments.iter().map(|g| (g.r, g.z)).collect();
+        }
         let fresh: Vec<Candidate> = search
             .around(s, &fibres, &before, &moved_fibres, &round_moved)
             .into_iter()

@@ -1216,3 +1216,36 @@ fn fibres_locked_together_stay_one_island_for_the_step() {
     let m = min_distance(&fs, &period);
     assert!(m >= 0.99 * D, "centre-lines {m} apart");
 }
+
+/// The rounds search again around a corrected fibre only once some point of it moved
+/// more than 10⁻³ d since its last search (or the free step): a shift of 0.9 × 10⁻³ d
+/// does not count, 1.1 × 10⁻³ d does, and so does a turn that moves an end by
+/// 1.1 × 10⁻³ d while the centre stays.
+#[test]
+fn a_fibre_is_searched_around_again_once_a_point_moved_beyond_the_slack() {
+    let free = vec![fibre(Vector3::zeros(), Vector3::x())];
+    let slices = Slices::new(&free, &free);
+    let moved = |shift: f64| {
+        let mut f = free[0].clone();
+        f.segments.iter_mut().for_each(|g| g.r.y += shift * D);
+        f
+    };
+    assert!(!moved_beyond(&slices, &moved(0.9e-3), 0, &[]));
+    assert!(moved_beyond(&slices, &moved(1.1e-3), 0, &[]));
+    // from where it was last searched, not from the free step
+    let at: Vec<_> = moved(1.1e-3)
+        .segments
+        .iter()
+        .map(|g| (g.r, g.z))
+        .collect();
+    assert!(!moved_beyond(&slices, &moved(1.1e-3), 0, &at));
+    assert!(!moved_beyond(&slices, &moved(2.0e-3), 0, &at));
+    assert!(moved_beyond(&slices, &moved(2.3e-3), 0, &at));
+    // a turn of the middle segment about its centre: its ends move by (l/2) |Δẑ|
+    let mut turned = free[0].clone();
+    let angle = 1.1e-3 * D / (0.5 * L);
+    turned.segments[3].z = Vector3::new(angle.cos(), angle.sin(), 0.0);
+    assert!(moved_beyond(&slices, &turned, 0, &[]));
+    turned.segments[3].z = Vector3::new((0.9 * angle).cos(), (0.9 * angle).sin(), 0.0);
+    assert!(!moved_beyond(&slices, &turned, 0, &[]));
+}
