@@ -266,11 +266,16 @@ fn moved_beyond<S: Segments>(
     k: usize,
     at: &[(Vector3<f64>, Vector3<f64>)],
 ) -> bool {
-    fibre.segments.iter().zip(&fibre.props).enumerate().any(|(i, (g, p))| {
-        let (r, z) = at.get(i).copied().unwrap_or_else(|| s.end(k, i));
-        (g.r - r).norm() + 0.5 * p.shape.length * (g.z - z).norm()
-            > SEARCH_SLACK * p.shape.diameter
-    })
+    fibre
+        .segments
+        .iter()
+        .zip(&fibre.props)
+        .enumerate()
+        .any(|(i, (g, p))| {
+            let (r, z) = at.get(i).copied().unwrap_or_else(|| s.end(k, i));
+            (g.r - r).norm() + 0.5 * p.shape.length * (g.z - z).norm()
+                > SEARCH_SLACK * p.shape.diameter
+        })
 }
 
 fn freeze_what_still_overlaps<S: Segments>(

@@ -1397,6 +1397,16 @@ mod tests {
     /// come within reach between `was` (the start of the step) and `now` (skin: their
     /// relative motion and turns) and overlaps now on the side it was on in `was`.
     fn all_overlaps(was: &[Fibre], now: &[Fibre], moved: &[usize]) -> Vec<Candidate> {
+        all_overlaps_in(was, now, moved, &PERIOD)
+    }
+
+    /// [`all_overlaps`] in a box of `period`.
+    fn all_overlaps_in(
+        was: &[Fibre],
+        now: &[Fibre],
+        moved: &[usize],
+        period: &[Option<f64>; 3],
+    ) -> Vec<Candidate> {
         let segs: Vec<(usize, usize)> = (0..now.len())
             .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
             .collect();
@@ -1417,7 +1427,7 @@ mod tests {
                     (pose(was, ka, ia), pose(now, ka, ia)),
                     (kb, ib),
                     (pose(was, kb, ib), pose(now, kb, ib)),
-                    &PERIOD,
+                    period,
                 ));
             }
         }
@@ -1678,6 +1688,97 @@ mod tests {
             );
             assert_found(seed, &found, &expected);
         }
+    }
+
+    /// The search after a round in single precision, at its edge: a corrected fibre
+    /// pushed to 2 × 10⁻⁶ of a contact distance inside one that the free step left where
+    /// it is (crossing, skew, parallel, and end to end on one line, where the centres are
+    /// as far apart as the first test allows; an overlap counts from 10⁻⁶), in the fine-grid
+    /// box, by its far x and z faces where single precision rounds a coordinate by up to
+    /// 3 × 10⁻⁵, the unmoved one at rest or moved by up to 3 wall units in the step: every
+    /// such overlap is found, as a test of every pair finds it. (The segments' own
+    /// margins, 10⁻⁴ of their sizes, exceed the rounding there: a first test made 3 × 10⁻⁴
+    /// tighter lost the 60 end-to-end pairs, one 10⁻⁵ tighter none.)
+    #[test]
+    fn the_search_around_keeps_overlaps_just_within_reach_in_single_precision() {
+        let period = [Some(942.48), None, Some(471.24)];
+        let (xp, zp) = (period[0].unwrap_or(0.0), period[2].unwrap_or(0.0));
+        let (half, d) = (1.5, 0.232);
+        let mut rng = Rng(17);
+        let (mut before, mut after, mut now) = (Vec::new(), Vec::new(), Vec::new());
+        let trials = 300;
+        for k in 0..trials {
+            // the unmoved fibre: where the free step left it
+            let ca = Vector3::new(
+                if k % 3 == 0 {
+                    xp - 0.01
+                } else {
+                    xp * rng.next()
+                },
+                290.0 * (rng.next() - 0.5),
+                if k % 3 == 1 {
+                    zp - 0.005
+                } else {
+                    zp * rng.next()
+                },
+            );
+            let za = rng.vector(1.0).normalize();
+            let shift = if k % 2 == 0 {
+                Vector3::zeros()
+            } else {
+                rng.vector(3.0)
+            };
+            let a0 = Fibre::straight(ca, za, &[2.0 * half], &[d], 1000.0).unwrap();
+            let mut a1 = a0.clone();
+            a1.segments[0].r += shift;
+            // the corrected one, now 10⁻⁶ d inside it
+            let p = a1.segments[0].r + za * (0.9 * half * (2.0 * rng.next() - 1.0));
+            let across = za.cross(&rng.vector(1.0)).normalize();
+            let angle = std::f64::consts::PI * rng.next();
+            let zb = if k % 4 == 0 {
+                za
+            } else {
+                (za * angle.cos() + across.cross(&za) * angle.sin()).normalize()
+            };
+            let (q, cb, zb, across) = if k % 5 == 2 {
+                // end to end along one line: the centres as far apart as an overlap allows,
+                // at the bound of the first single-precision test
+                let end = a1.segments[0].r + za * half;
+                let q = end + za * (d * (1.0 - 2e-6));
+                (q, q + za * half, za, za)
+            } else {
+                let q = p + across * (d * (1.0 - 2e-6));
+                (
+                    q,
+                    q - zb * (0.9 * half * (2.0 * rng.next() - 1.0)),
+                    zb,
+                    across,
+                )
+            };
+            let b_now = Fibre::straight(cb, zb, &[2.0 * half], &[d], 1000.0).unwrap();
+            // it came there from the same side, three contact distances out
+            let mut b0 = b_now.clone();
+            b0.segments[0].r += across * (3.0 * d);
+            before.extend([a0, b0.clone()]);
+            after.extend([a1.clone(), b0]);
+            now.extend([a1, b_now]);
+        }
+        let s = Slices::new(&before, &after);
+        let search = Search::new(&s, &period, 0.0);
+        let corrected: Vec<bool> = (0..now.len()).map(|k| k % 2 == 1).collect();
+        let moved: Vec<usize> = (0..now.len()).filter(|k| k % 2 == 1).collect();
+        let found = search.around(&s, &now, &before, &corrected, &moved);
+        let mut expected = all_overlaps_in(&before, &now, &moved, &period);
+        expected.sort_by_key(|c| (c.a, c.b));
+        for k in 0..trials {
+            assert!(
+                expected
+                    .iter()
+                    .any(|c| c.a == (2 * k, 0) && c.b == (2 * k + 1, 0)),
+                "the exact test dropped trial {k}"
+            );
+        }
+        assert_found(17, &found, &expected);
     }
 
     /// The conditions of [`pair`] are necessary: two segments that come within their

@@ -1233,11 +1233,7 @@ fn a_fibre_is_searched_around_again_once_a_point_moved_beyond_the_slack() {
     assert!(!moved_beyond(&slices, &moved(0.9e-3), 0, &[]));
     assert!(moved_beyond(&slices, &moved(1.1e-3), 0, &[]));
     // from where it was last searched, not from the free step
-    let at: Vec<_> = moved(1.1e-3)
-        .segments
-        .iter()
-        .map(|g| (g.r, g.z))
-        .collect();
+    let at: Vec<_> = moved(1.1e-3).segments.iter().map(|g| (g.r, g.z)).collect();
     assert!(!moved_beyond(&slices, &moved(1.1e-3), 0, &at));
     assert!(!moved_beyond(&slices, &moved(2.0e-3), 0, &at));
     assert!(moved_beyond(&slices, &moved(2.3e-3), 0, &at));
