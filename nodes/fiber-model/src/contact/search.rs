@@ -1748,12 +1748,7 @@ mod tests {
                 (q + za * half, za, za)
             } else {
                 let q = p + across * (d * (1.0 - 2e-6));
-                (
-                    q,
-                    q - zb * (0.9 * half * (2.0 * rng.next() - 1.0)),
-                    zb,
-                    across,
-                )
+                (q - zb * (0.9 * half * (2.0 * rng.next() - 1.0)), zb, across)
             };
             let b_now = Fibre::straight(cb, zb, &[2.0 * half], &[d], 1000.0).unwrap();
             // it came there from the same side, three contact distances out
