@@ -1366,6 +1366,18 @@ mod tests {
         (search, found, expected)
     }
 
+    /// Each trial k's pair of fibres 2k and 2k + 1 is among `expected`.
+    fn assert_every_trial_kept(expected: &[Candidate], trials: usize) {
+        for k in 0..trials {
+            assert!(
+                expected
+                    .iter()
+                    .any(|c| c.a == (2 * k, 0) && c.b == (2 * k + 1, 0)),
+                "the exact test dropped trial {k}"
+            );
+        }
+    }
+
     fn assert_found(seed: u64, found: &[Candidate], expected: &[Candidate]) {
         assert!(
             same(found, expected),
@@ -1552,14 +1564,7 @@ mod tests {
         let search = Search::new(&s, &period, 0.0);
         let found = search.pairs(&s);
         let expected = all_pairs(&s, &search);
-        for k in 0..trials {
-            assert!(
-                expected
-                    .iter()
-                    .any(|c| c.a == (2 * k, 0) && c.b == (2 * k + 1, 0)),
-                "the exact test dropped trial {k}"
-            );
-        }
+        assert_every_trial_kept(&expected, trials);
         assert!(
             same(&found, &expected),
             "{} found, {} expected",
@@ -1765,14 +1770,7 @@ mod tests {
         let found = search.around(&s, &now, &before, &corrected, &moved);
         let mut expected = all_overlaps_in(&before, &now, &moved, &period);
         expected.sort_by_key(|c| (c.a, c.b));
-        for k in 0..trials {
-            assert!(
-                expected
-                    .iter()
-                    .any(|c| c.a == (2 * k, 0) && c.b == (2 * k + 1, 0)),
-                "the exact test dropped trial {k}"
-            );
-        }
+        assert_every_trial_kept(&expected, trials);
         assert_found(17, &found, &expected);
     }
 
