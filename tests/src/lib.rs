@@ -282,6 +282,20 @@ pub fn loopback_endpoint() -> String {
 /// port and returns what `echo` printed (a `total <topic> <count>` line per topic).
 pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
     use std::process::Stdio;
+    // the echo stops once it has every bus message of the recording (the derived point
+    // clouds are not bus topics), or after 60 s without one: no guess at how long the
+    // replay may pause on a loaded host (once, 5 s of quiet ended an echo a few messages
+    // early under CI load)
+    let mut expected = 0u64;
+    for seg in fiberflow_messages::segments::segment_paths(path).expect("recording segments") {
+        fiberflow_messages::reading::for_each_message(&seg, |m| {
+            if m.topic.starts_with(&format!("fiberflow/{run_id}/")) && !m.topic.ends_with("/points")
+            {
+                expected += 1;
+            }
+        })
+        .expect("recording reads");
+    }
     let ep = loopback_endpoint();
     let echo = Command::new(fiberflow())
         .args([
@@ -290,7 +304,9 @@ pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
             "--listen",
             &ep,
             "--idle-s",
-            "5",
+            "60",
+            "--count",
+            &expected.to_string(),
             "--raw",
         ])
         .stdout(Stdio::piped())
