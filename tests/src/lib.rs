@@ -284,8 +284,8 @@ pub fn replay_and_echo(path: &Path, run_id: &str) -> String {
     use std::process::Stdio;
     // the echo stops once it has every bus message of the recording (the derived point
     // clouds are not bus topics), or after 60 s without one: no guess at how long the
-    // replay may pause on a loaded host (once, 5 s of quiet ended an echo a few messages
-    // early under CI load)
+    // replay may pause on a loaded host (once, under CI load, an echo that stopped after
+    // 5 s of quiet ended five messages short; such a pause is one explanation, not shown)
     let mut expected = 0u64;
     for seg in fiberflow_messages::segments::segment_paths(path).expect("recording segments") {
         fiberflow_messages::reading::for_each_message(&seg, |m| {
