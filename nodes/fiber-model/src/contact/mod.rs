@@ -247,12 +247,6 @@ pub(crate) struct Candidate {
 /// Copies the fibres of candidate pairs into the solve's lists (now, at the start).
 type Load<'a> = dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]) + 'a;
 
-/// The backstop after the last round (section 9 of docs/contact.md): fibres of pairs
-/// still closer than (1 − [`FREEZE_DEPTH`]) of their contact distance are kept where they
-/// started the step (their centres, axes and normals; velocities as the solve left
-/// them), and so, in turn, is every fibre that then comes that close to one of them. From
-/// a start where no pair was that close, none is left so. Returns which fibres it froze.
-#[allow(clippy::too_many_arguments)]
 /// How far (as a share of its diameter) every point of a corrected fibre may move before
 /// the rounds search around it again.
 const SEARCH_SLACK: f64 = 1e-3;
@@ -278,6 +272,12 @@ fn moved_beyond<S: Segments>(
         })
 }
 
+/// The backstop after the last round (section 9 of docs/contact.md): fibres of pairs
+/// still closer than (1 − [`FREEZE_DEPTH`]) of their contact distance are kept where they
+/// started the step (their centres, axes and normals; velocities as the solve left
+/// them), and so, in turn, is every fibre that then comes that close to one of them. From
+/// a start where no pair was that close, none is left so. Returns which fibres it froze.
+#[allow(clippy::too_many_arguments)]
 fn freeze_what_still_overlaps<S: Segments>(
     s: &S,
     search: &Search,
