@@ -238,7 +238,7 @@ pub(crate) struct Nodes {
 }
 
 impl Nodes {
-    fn new(y: Vec<f64>) -> Self {
+    pub(crate) fn new(y: Vec<f64>) -> Self {
         let n = y.len();
         let bins = 16 * n;
         let (lo, hi) = (y[0], y[n - 1]);

@@ -25,6 +25,7 @@
 
 use crate::field::Velocity;
 use crate::grid::Grid;
+use crate::sample::Nodes;
 use rayon::prelude::*;
 
 /// Three-point Roma–Peskin kernel φ(r), r in grid spacings.
@@ -92,17 +93,15 @@ fn periodic(x: f64, d: f64, n: usize, shift: f64) -> Stencil {
     }
 }
 
-/// Wall-normal direction: nodes at `pos[lo..=hi]` (the component's interior nodes, padded
-/// indices), stretched; `y` in outer units within [pos[lo-1], pos[hi+1]].
-fn wall_normal(y: f64, pos: &[f64], lo: usize, hi: usize) -> Stencil {
+/// Wall-normal direction: the nodes of one of the component's lists (`nodes`: every node of
+/// the list, ghosts and walls included, at its padded index), of which those at padded
+/// indices `lo..=hi` are in the fluid; `y` in outer units within the list. The node
+/// interval holding `y` comes from the list's bin table in a step or two (the bits of the
+/// binary search it replaced, test `wall_normal_stencils_are_those_of_the_search`).
+fn wall_normal(y: f64, nodes: &Nodes, lo: usize, hi: usize) -> Stencil {
     // the node interval [pos[j], pos[j+1]] holding y (j may be a ghost/wall index)
-    let mut j = match pos[lo..=hi].partition_point(|&p| p <= y) {
-        0 => lo - 1,
-        m => lo + m - 1,
-    };
-    j = j.min(hi);
-    let t = ((y - pos[j]) / (pos[j + 1] - pos[j])).clamp(0.0, 1.0);
-    let s = j as f64 + t;
+    let (j, t) = nodes.bracket(y);
+    let s = j as f64 + t.clamp(0.0, 1.0);
     let nearest = round_non_negative(s);
     let mut w = around(s - nearest);
     let nearest = nearest as isize;
@@ -119,15 +118,32 @@ fn wall_normal(y: f64, pos: &[f64], lo: usize, hi: usize) -> Stencil {
     }
 }
 
+/// The wall-normal node lists of the staggered components with their bin tables: cell
+/// centres with their ghosts (`Grid::yc`, u and w) and faces (`Grid::yf`, v).
+#[derive(Debug, Clone)]
+struct Rows {
+    centres: Nodes,
+    faces: Nodes,
+}
+
+impl Rows {
+    fn of(g: &Grid) -> Self {
+        Self {
+            centres: Nodes::new(g.yc.clone()),
+            faces: Nodes::new(g.yf.clone()),
+        }
+    }
+}
+
 /// A point's x, y and z stencils for component `c` (0 u, 1 v, 2 w): u sits on x faces,
 /// y and z centres; v on x centres, y faces, z centres; w on x and y centres, z faces.
-fn component_stencils(g: &Grid, p: &[f64; 3], c: usize) -> [Stencil; 3] {
+fn component_stencils(g: &Grid, rows: &Rows, p: &[f64; 3], c: usize) -> [Stencil; 3] {
     let y = p[1].clamp(-1.0, 1.0);
     let x = periodic(p[0], g.dx, g.nx, if c == 0 { 0.0 } else { -0.5 });
     let y = if c == 1 {
-        wall_normal(y, &g.yf, 1, g.ny - 1)
+        wall_normal(y, &rows.faces, 1, g.ny - 1)
     } else {
-        wall_normal(y, &g.yc, 1, g.ny)
+        wall_normal(y, &rows.centres, 1, g.ny)
     };
     [x, y, z_stencil(g, p, c)]
 }
@@ -137,13 +153,14 @@ fn z_stencil(g: &Grid, p: &[f64; 3], c: usize) -> Stencil {
     periodic(p[2], g.dz, g.nz, if c == 2 { 0.0 } else { -0.5 })
 }
 
-/// What the spreading of one component reads of a point, together (88 bytes; a plane's
+/// What the spreading of one component reads of a point, together (96 bytes; a plane's
 /// points lie next to each other, [`spread`]): its x and y stencils, the force times each
 /// z weight (the first factor of every node's share `f w_z w_y w_x / V`) and which z
 /// offsets get a share (force and weight both non-zero).
 #[derive(Debug, Clone, Copy, Default)]
 struct Share {
-    x_first: i32,
+    /// The padded x indices of the stencil's three nodes, wrapped.
+    x_at: [u32; 3],
     y_first: i32,
     wx: [f64; 3],
     wy: [f64; 3],
@@ -153,8 +170,8 @@ struct Share {
 }
 
 impl Share {
-    fn of(g: &Grid, p: &[f64; 3], force: &[f64; 3], c: usize) -> Self {
-        let [sx, sy, sz] = component_stencils(g, p, c);
+    fn of(g: &Grid, rows: &Rows, p: &[f64; 3], force: &[f64; 3], c: usize) -> Self {
+        let [sx, sy, sz] = component_stencils(g, rows, p, c);
         let f = force[c];
         let mut z_mask = 0u8;
         if f != 0.0 {
@@ -166,7 +183,7 @@ impl Share {
         }
         // stencil indices are within one node of the padded grid (far below 2³¹)
         Share {
-            x_first: sx.first as i32,
+            x_at: std::array::from_fn(|ox| wrap(sx.first + ox as isize, g.nx) as u32),
             y_first: sy.first as i32,
             wx: sx.w,
             wy: sy.w,
@@ -221,6 +238,7 @@ pub struct BodyForce {
     run_start: [Vec<usize>; 2],
     shares: [Vec<Share>; 3],
     written: Vec<Vec<u64>>,
+    rows: Rows,
 }
 
 impl BodyForce {
@@ -234,6 +252,7 @@ impl BodyForce {
             run_start: [Vec::new(), Vec::new()],
             shares: std::array::from_fn(|_| Vec::new()),
             written: vec![vec![0; g.plane().div_ceil(64)]; g.nz + 2],
+            rows: Rows::of(g),
         }
     }
 
@@ -259,7 +278,9 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
         run_start,
         shares,
         written,
+        rows,
     } = out;
+    let rows = &*rows;
     let (plane, nz) = (g.plane(), g.nz);
     // each point's first z plane: of u and v (z centres), of w (z faces)
     {
@@ -309,7 +330,7 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
                 .with_min_len(1024)
                 .map(|&n| {
                     let (p, f) = (&points[n as usize], &forces[n as usize]);
-                    (Share::of(g, p, f, 0), Share::of(g, p, f, 1))
+                    (Share::of(g, rows, p, f, 0), Share::of(g, rows, p, f, 1))
                 })
                 .unzip_into_vecs(su, sv)
         },
@@ -317,7 +338,7 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
             order[1]
                 .par_iter()
                 .with_min_len(1024)
-                .map(|&n| Share::of(g, &points[n as usize], &forces[n as usize], 2))
+                .map(|&n| Share::of(g, rows, &points[n as usize], &forces[n as usize], 2))
                 .collect_into_vec(sw)
         },
     );
@@ -394,7 +415,7 @@ fn spread_plane(
                 let j = (sh.y_first as isize + oy as isize) as usize;
                 let scale = fz * wy * per_volume[j];
                 for (ox, &wx) in sh.wx.iter().enumerate() {
-                    let at = wrap(sh.x_first as isize + ox as isize, g.nx) + g.px * j;
+                    let at = sh.x_at[ox] as usize + g.px * j;
                     pl[at] += scale * wx;
                     // listed once, the first time it is written
                     let (word, bit) = (at / 64, 1u64 << (at % 64));
@@ -460,6 +481,64 @@ mod tests {
             for (o, wo) in w.iter().enumerate() {
                 let r = t - (o as f64 - 1.0);
                 assert!((wo - roma_peskin(r)).abs() < 1e-15, "t {t} o {o}");
+            }
+        }
+    }
+
+    /// The wall-normal stencils from the bin table are those of the binary search over the
+    /// list's fluid nodes (the spreading's first way), bit for bit: random heights, every
+    /// node, the walls and the floats next to each, for both lists on a stretched and a
+    /// uniform grid.
+    #[test]
+    fn wall_normal_stencils_are_those_of_the_search() {
+        fn searched(y: f64, pos: &[f64], lo: usize, hi: usize) -> Stencil {
+            let mut j = match pos[lo..=hi].partition_point(|&p| p <= y) {
+                0 => lo - 1,
+                m => lo + m - 1,
+            };
+            j = j.min(hi);
+            let t = ((y - pos[j]) / (pos[j + 1] - pos[j])).clamp(0.0, 1.0);
+            let s = j as f64 + t;
+            let nearest = round_non_negative(s);
+            let mut w = around(s - nearest);
+            let nearest = nearest as isize;
+            for (o, wo) in w.iter_mut().enumerate() {
+                let m = nearest - 1 + o as isize;
+                if m < lo as isize || m > hi as isize {
+                    *wo = 0.0;
+                }
+            }
+            let sum = w[0] + w[1] + w[2];
+            Stencil {
+                first: nearest - 1,
+                w: w.map(|x| x / sum),
+            }
+        }
+        let mut seed = 11u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for g in [grid(), Grid::new(8, 64, 8, 2.0, 1.0, 150.0, None).unwrap()] {
+            let rows = Rows::of(&g);
+            let mut ys: Vec<f64> = (0..20_000).map(|_| 2.0 * rnd() - 1.0).collect();
+            for &p in g.yf.iter().chain(&g.yc) {
+                ys.extend([p, p.next_up(), p.next_down()]);
+            }
+            let bits = |s: Stencil| (s.first, s.w.map(f64::to_bits));
+            for y in ys.into_iter().map(|y| y.clamp(-1.0, 1.0)) {
+                assert_eq!(
+                    bits(wall_normal(y, &rows.faces, 1, g.ny - 1)),
+                    bits(searched(y, &g.yf, 1, g.ny - 1)),
+                    "faces, y {y}"
+                );
+                assert_eq!(
+                    bits(wall_normal(y, &rows.centres, 1, g.ny)),
+                    bits(searched(y, &g.yc, 1, g.ny)),
+                    "centres, y {y}"
+                );
             }
         }
     }

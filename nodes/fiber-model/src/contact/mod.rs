@@ -51,7 +51,7 @@ pub(crate) use search::Segments;
 use search::Slices;
 
 /// Most rounds of solving islands and searching for the pairs their corrections made.
-const MAX_ROUNDS: usize = 8;
+const MAX_ROUNDS: usize = 12;
 
 /// How far within its contact distance a pair may be left when the rounds run out (as a
 /// share of it) before the backstop keeps its fibres where they started: the lock's
