@@ -101,7 +101,13 @@ fn periodic(x: f64, d: f64, n: usize, shift: f64) -> Stencil {
 fn wall_normal(y: f64, nodes: &Nodes, lo: usize, hi: usize) -> Stencil {
     // the node interval [pos[j], pos[j+1]] holding y (j may be a ghost/wall index)
     let (j, t) = nodes.bracket(y);
-    let s = j as f64 + t.clamp(0.0, 1.0);
+    in_interval(j, t.clamp(0.0, 1.0), lo, hi)
+}
+
+/// The wall-normal stencil of a point a share `t` of the way along the node interval
+/// from padded index `j`, the nodes outside `lo..=hi` given nothing.
+fn in_interval(j: usize, t: f64, lo: usize, hi: usize) -> Stencil {
+    let s = j as f64 + t;
     let nearest = round_non_negative(s);
     let mut w = around(s - nearest);
     let nearest = nearest as isize;
@@ -457,6 +463,16 @@ mod tests {
         Grid::new(16, 24, 12, 2.0, 1.0, 150.0, Some(0.33)).unwrap()
     }
 
+    /// Reproducible uniform numbers in [0, 1) from `seed`.
+    fn uniform(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// φ's weights over the integer shifts sum to 1 and have zero first moment for any
     /// offset (to 1e-15).
     #[test]
@@ -498,29 +514,9 @@ mod tests {
             };
             j = j.min(hi);
             let t = ((y - pos[j]) / (pos[j + 1] - pos[j])).clamp(0.0, 1.0);
-            let s = j as f64 + t;
-            let nearest = round_non_negative(s);
-            let mut w = around(s - nearest);
-            let nearest = nearest as isize;
-            for (o, wo) in w.iter_mut().enumerate() {
-                let m = nearest - 1 + o as isize;
-                if m < lo as isize || m > hi as isize {
-                    *wo = 0.0;
-                }
-            }
-            let sum = w[0] + w[1] + w[2];
-            Stencil {
-                first: nearest - 1,
-                w: w.map(|x| x / sum),
-            }
+            in_interval(j, t, lo, hi)
         }
-        let mut seed = 11u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = uniform(11);
         for g in [grid(), Grid::new(8, 64, 8, 2.0, 1.0, 150.0, None).unwrap()] {
             let rows = Rows::of(&g);
             let mut ys: Vec<f64> = (0..20_000).map(|_| 2.0 * rnd() - 1.0).collect();
@@ -660,13 +656,7 @@ mod tests {
     #[test]
     fn spreading_is_independent_of_the_thread_count() {
         let g = grid();
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = uniform(7);
         let pts: Vec<[f64; 3]> = (0..500)
             .map(|_| [2.0 * rnd(), 2.0 * rnd() - 1.0, rnd()])
             .collect();
