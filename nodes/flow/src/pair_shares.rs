@@ -52,6 +52,11 @@ pub fn add_pair(
     let coeff = [0, 1, 2].map(|b| &coeff[b][start..end]);
     #[cfg(target_arch = "x86_64")]
     {
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above); the function only
+            // lets the compiler use it for the same arithmetic.
+            return unsafe { add_pair_avx512(coeff, r2, near, far) };
+        }
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU supports AVX2 (checked just above); the function only lets
             // the compiler use it for the same arithmetic.
@@ -64,6 +69,13 @@ pub fn add_pair(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn add_pair_avx2(coeff: [&[f32]; 3], r2: [f32; 3], near: &mut [f32], far: &mut [f32]) {
+    add_pair_lanes(coeff, r2, near, far)
+}
+
+/// Sixteen lanes a vector: the same operations lane by lane, so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn add_pair_avx512(coeff: [&[f32]; 3], r2: [f32; 3], near: &mut [f32], far: &mut [f32]) {
     add_pair_lanes(coeff, r2, near, far)
 }
 
@@ -98,9 +110,10 @@ mod tests {
         assert_eq!(sinc(0.0), 1.0);
     }
 
-    /// The AVX2 path and the plain one give the same bits.
+    /// The AVX-512, AVX2 and plain paths give the same bits (each vector path where the
+    /// CPU has it).
     #[test]
-    fn both_paths_give_the_same_bits() {
+    fn every_path_gives_the_same_bits() {
         let coeff: [Vec<f32>; 3] =
             std::array::from_fn(|b| (0..141).map(|q| 1e-3 * (q * q + b + 1) as f32).collect());
         let r2 = [2.25, 0.09, 7.3];
@@ -108,6 +121,28 @@ mod tests {
         let (mut c, mut d) = (vec![0.5; 141], vec![0.0; 141]);
         add_pair(&coeff, 0..141, r2, &mut a, &mut b);
         add_pair_lanes([0, 1, 2].map(|b| &coeff[b][..]), r2, &mut c, &mut d);
+        #[cfg(target_arch = "x86_64")]
+        {
+            let paths: [(
+                bool,
+                unsafe fn([&[f32]; 3], [f32; 3], &mut [f32], &mut [f32]),
+            ); 2] = [
+                (
+                    std::arch::is_x86_feature_detected!("avx512f"),
+                    add_pair_avx512,
+                ),
+                (std::arch::is_x86_feature_detected!("avx2"), add_pair_avx2),
+            ];
+            for (_, path) in paths.into_iter().filter(|p| p.0) {
+                let (mut e, mut f) = (vec![0.5; 141], vec![0.0; 141]);
+                // SAFETY: the CPU has the path's features (checked just above)
+                unsafe { path([0, 1, 2].map(|b| &coeff[b][..]), r2, &mut e, &mut f) };
+                for q in 0..141 {
+                    assert_eq!(e[q].to_bits(), c[q].to_bits());
+                    assert_eq!(f[q].to_bits(), d[q].to_bits());
+                }
+            }
+        }
         // a range of lanes touches only those
         let (mut e, mut f) = (vec![0.5; 141], vec![0.0; 141]);
         add_pair(&coeff, 30..90, r2, &mut e, &mut f);
