@@ -116,6 +116,20 @@ struct Round {
     /// Closest centre-lines of segments of different fibres over d, over the steps
     /// (with contact only; ∞ when none within d).
     closest_over_d: f64,
+    /// Minor page faults of the process per step (fresh memory touched inside the step).
+    faults: f64,
+}
+
+/// The process's minor page faults so far (0 where the count cannot be read).
+fn minor_faults() -> f64 {
+    let mut u = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage writes the struct it is given; zeroed is a valid rusage
+    let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, u.as_mut_ptr()) };
+    if rc != 0 {
+        return 0.0;
+    }
+    // SAFETY: initialised (zeroed, then written by the call)
+    unsafe { u.assume_init() }.ru_minflt as f64
 }
 
 /// Steps `group` `warmup` times, then `steps` times counted.
@@ -132,10 +146,11 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
             .iter()
             .map(if near_wall { near_wall_flow } else { flow })
             .collect();
-        let t = Instant::now();
+        let (t, f0) = (Instant::now(), minor_faults());
         group.step(&fluid, dt)?;
         if step >= warmup {
             r.wall += t.elapsed().as_secs_f64();
+            r.faults += minor_faults() - f0;
             r.contacts += group.last_contact().contacts.len() as f64;
             r.candidates += group.last_contact().candidates as f64;
         }
@@ -151,6 +166,7 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
     r.wall /= n;
     r.contacts /= n;
     r.candidates /= n;
+    r.faults /= n;
     Ok(r)
 }
 
@@ -176,7 +192,7 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
     );
     let mut ratios = Vec::new();
     println!(
-        "| round | off ms/step | on ms/step | on/off | contacts/step | candidates/step | closest / d |\n|---|---|---|---|---|---|---|"
+        "| round | off ms/step | on ms/step | on/off | contacts/step | candidates/step | closest / d | page faults/step off, on |\n|---|---|---|---|---|---|---|---|"
     );
     for r in 0..o.rounds {
         let order = if r % 2 == 0 {
@@ -196,7 +212,7 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
         let ratio = got[1].wall / got[0].wall;
         ratios.push(ratio);
         println!(
-            "| {} | {:.1} | {:.1} | {:.3} | {:.0} | {:.0} | {} |",
+            "| {} | {:.1} | {:.1} | {:.3} | {:.0} | {:.0} | {} | {:.0}, {:.0} |",
             r + 1,
             1e3 * got[0].wall,
             1e3 * got[1].wall,
@@ -207,7 +223,9 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
                 format!("{:.4}", got[1].closest_over_d)
             } else {
                 "≥ 1".into()
-            }
+            },
+            got[0].faults,
+            got[1].faults
         );
     }
     ratios.sort_by(f64::total_cmp);
