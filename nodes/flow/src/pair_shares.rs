@@ -123,10 +123,8 @@ mod tests {
         add_pair_lanes([0, 1, 2].map(|b| &coeff[b][..]), r2, &mut c, &mut d);
         #[cfg(target_arch = "x86_64")]
         {
-            let paths: [(
-                bool,
-                unsafe fn([&[f32]; 3], [f32; 3], &mut [f32], &mut [f32]),
-            ); 2] = [
+            type Path = unsafe fn([&[f32]; 3], [f32; 3], &mut [f32], &mut [f32]);
+            let paths: [(bool, Path); 2] = [
                 (
                     std::arch::is_x86_feature_detected!("avx512f"),
                     add_pair_avx512,
