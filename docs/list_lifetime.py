@@ -1,5 +1,5 @@
 """How long a contact neighbour list kept over steps would stay valid, measured on the
-states of a recording that holds every step (docs/contact.md, "Cost").
+states of a recording that holds every step (docs/history/contact-cost.md, "How long any list would hold").
 
     fiberflow launch launch/flocs-wall.toml --out recordings/flocs-wall-30 \
         --set run.steps=30 --set recorder.states_every_steps=1 --set run.analyze=false

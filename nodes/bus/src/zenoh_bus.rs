@@ -30,7 +30,7 @@ use zenoh::Wait;
 /// Messages from this size on are written into shared memory (smaller ones are cheaper
 /// to copy than to hand over as a shared buffer). 16 KiB puts a 50-fibre group's ≈ 34 kB
 /// samples and states there: at paper size the coupled step was 1% shorter than with
-/// 64 KiB, in turns (docs/performance.md, "Coupling overhead at paper size").
+/// 64 KiB, in turns (docs/history/performance.md, "Coupling overhead at paper size").
 pub const SHM_MIN_BYTES: usize = 16 * 1024;
 
 /// How long a peer's open waits for the rendezvous it connects to and for the peers that
@@ -50,7 +50,7 @@ pub const SHM_MIN_POOL_BYTES: usize = 32 << 20;
 /// each wake-up preempting a DNS pool thread on a busy core; on one worker the poller
 /// runs the tasks itself. The launcher starts the nodes of a one-host zenoh run with it
 /// (paper size, in turns: the coupled step 1.5% shorter, faster in 14 of 16 rounds;
-/// docs/performance.md, "Coupling overhead at paper size"). Test
+/// docs/history/performance.md, "Coupling overhead at paper size"). Test
 /// `one_thread_runtime_carries_messages_on_one_thread`.
 pub const ONE_THREAD_RUNTIME: &str =
     "(rx: (handover: acc), tx: (handover: acc), net: (handover: acc), app: (handover: acc))";

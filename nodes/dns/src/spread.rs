@@ -229,7 +229,7 @@ fn volume(g: &Grid, c: usize, j: usize) -> f64 {
 /// value) in index order. Clearing visits only those nodes, and a field step adds only
 /// them, so a few hundred fibres cost what they touch, not the whole field (at paper size
 /// the touched rows covered nearly every row of the coarse grid: adding them in each
-/// substep cost ≈ 10% of the step; `docs/two-way.md`, "Cost").
+/// substep cost ≈ 10% of the step; `docs/history/two-way-cost.md`).
 #[derive(Debug, Clone)]
 pub struct BodyForce {
     /// Node accelerations (outer units), zero outside [`Self::entries`].

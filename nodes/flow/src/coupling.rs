@@ -326,7 +326,7 @@ impl<'a> Coupling<'a> {
     /// is the last step), each fibre's own disturbance leaves its samples (two-way) and the
     /// samples go out, so that the fibre nodes step while the field does. Neither side
     /// reads what the other writes, so the bits are those of one after the other
-    /// (docs/two-way.md, "Cost"). Returns the field step's report (None for the last step
+    /// (docs/history/two-way-cost.md). Returns the field step's report (None for the last step
     /// or the analytic flow).
     pub(crate) fn serve_and_step(
         &mut self,

@@ -8,7 +8,7 @@
 //! In single precision: the shares are a model's estimate, exact to second order in r,
 //! and sinc is within 3e-7 of sin x / x (test `sinc_is_sin_over_x`), far below what the
 //! model leaves out; eight lanes a vector and a shorter series make the shares ≈ 3 times
-//! cheaper than in double precision (docs/two-way.md, "Cost").
+//! cheaper than in double precision (docs/history/two-way-cost.md).
 
 /// sin(x)/x for x ≥ 0, without a branch: x = nπ + r with |r| ≤ π/2 (Cody–Waite, two parts
 /// of π, the first exact in n·π for n < 2¹⁶), sin r by its Taylor series through r¹¹

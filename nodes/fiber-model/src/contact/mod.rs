@@ -92,7 +92,7 @@ impl Default for ContactParams {
 }
 
 /// Where contact's time went over the steps solved (wall-clock seconds, summed): what a
-/// node logs at the end of its run (docs/contact.md, "Cost").
+/// node logs at the end of its run (docs/history/contact-cost.md).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ContactTime {
     pub steps: u64,
