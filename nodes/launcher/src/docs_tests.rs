@@ -91,7 +91,8 @@ fn every_test_the_docs_name_exists() {
     markdown(&root.join("docs"), &mut docs);
     // the records of what was measured (docs/history/) cite tests too
     assert!(
-        docs.iter().any(|d| d.parent().is_some_and(|p| p.ends_with("history"))),
+        docs.iter()
+            .any(|d| d.parent().is_some_and(|p| p.ends_with("history"))),
         "docs/history/ not read"
     );
     let mut checked = 0;
