@@ -6,6 +6,7 @@ pub mod checkpoint;
 pub mod config;
 mod coupling;
 pub mod error;
+pub mod fast_exp;
 pub mod feedback;
 mod lockstep;
 mod outgoing;

@@ -375,8 +375,10 @@ fn fibre(
     // (modes no row holds are skipped: a fibre's row changes, the modes any row holds
     // are kept up in every row)
     let held = widths.held.clone();
-    let mut mode = [[0.0; 3]; MODES];
-    for (k, wk) in w.weights.iter().enumerate().take(held.end).skip(held.start) {
+    // per (mode, component) lane: −½ Σ_b ⟨k_b²⟩⟨o_b²⟩, then its exponential, all lanes at
+    // once (`fast_exp`)
+    let mut drift = [0.0; LANES];
+    for k in held.clone() {
         for b in 0..3 {
             let (o, s) = (&mut offset[3 * k + b], slip[b]);
             square[3 * k + b] += (2.0 * *o + s) * s;
@@ -388,7 +390,14 @@ fn fibre(
         for a in 0..3 {
             let m = &w.moments[k][a];
             let spread: f64 = (0..3).map(|b| m[b] * square[3 * k + b]).sum();
-            mode[k][a] = (-0.5 * spread).exp() * wk[a] * forces[3 * k + a];
+            drift[3 * k + a] = -0.5 * spread;
+        }
+    }
+    crate::fast_exp::exp_in_place(&mut drift[3 * w.active.start..3 * w.active.end]);
+    let mut mode = [[0.0; 3]; MODES];
+    for k in w.active.clone() {
+        for a in 0..3 {
+            mode[k][a] = drift[3 * k + a] * w.weights[k][a] * forces[3 * k + a];
         }
     }
     // segment i gets segment j's share of the force (1/n of it) through the mode's
