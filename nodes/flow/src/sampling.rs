@@ -221,7 +221,7 @@ fn fibres_per_task(fibres: usize) -> usize {
 
 /// Asks the CPU to bring `data` into cache (a hint: no effect on any value).
 #[inline(always)]
-fn prefetch(data: &[f64]) {
+pub(crate) fn prefetch(data: &[f64]) {
     #[cfg(target_arch = "x86_64")]
     for line in data.chunks(8) {
         // SAFETY: a prefetch never faults and changes no memory; the address is in `data`.
