@@ -7,6 +7,7 @@
 mod contact;
 mod scale;
 mod slicing;
+mod stages;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -101,9 +102,31 @@ enum Cmd {
         #[arg(long)]
         near_wall: bool,
     },
+    /// The flow node's per-fibre stages (sampling, spreading, the self-induced correction)
+    /// at scale, each beside a floor kernel doing its irreducible work with trivial
+    /// arithmetic, in alternating rounds on each thread count; prints a table.
+    Stages {
+        /// Fibres (seven segments each, at random in the fine grid's channel).
+        #[arg(long, default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..=2_000_000))]
+        fibers: u64,
+        /// Timed rounds (after one warm-up round).
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..=1000))]
+        rounds: u64,
+        /// Thread counts to compare.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        threads: Vec<usize>,
+    },
 }
 
 fn main() -> Result<()> {
+    // the allocator's settings of the `fiberflow` process (nodes/cli: buffers of several MB
+    // kept in the heap instead of fresh pages each step), so that the stages measure here
+    // what they cost in the flow node
+    // SAFETY: mallopt only tunes the allocator; called before any thread starts
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
+    }
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
@@ -153,6 +176,15 @@ fn main() -> Result<()> {
             rounds,
             warmup,
             friction,
+        }),
+        Cmd::Stages {
+            fibers,
+            rounds,
+            threads,
+        } => stages::run_stages(&stages::StagesOptions {
+            fibres: fibers as usize,
+            rounds: rounds as usize,
+            threads,
         }),
     }
 }

@@ -248,7 +248,7 @@ impl Share {
 
 /// The fibres' body force per unit mass on the grid (dense, staggered like the velocity),
 /// and its non-zero nodes: per component and padded k-plane, (index within the plane,
-/// value) in index order. Clearing visits only those nodes, and a field step adds only
+/// value), each node once. Clearing visits only those nodes, and a field step adds only
 /// them, so a few hundred fibres cost what they touch, not the whole field (at paper size
 /// the touched rows covered nearly every row of the coarse grid: adding them in each
 /// substep cost ≈ 10% of the step; `docs/history/two-way-cost.md`).
@@ -458,7 +458,10 @@ fn prefetch<T>(x: &T) {
 /// One component of one plane `pl` of [`spread`]: clears the nodes the last spreading
 /// wrote (`nodes`), adds the shares of the points whose stencil starts `oz` planes before
 /// (`runs[oz]`), and lists the nodes written, each once (`written`: a bit per node, left
-/// zero).
+/// zero). A plane whose shares could write each of its fluid nodes (nine nodes a share)
+/// is taken as dense: zeroed whole, added without keeping the bits, and every fluid node
+/// listed (the nodes never written hold 0: adding them changes nothing). Which planes
+/// are dense depends on the points alone, not on the threads.
 fn spread_plane(
     g: &Grid,
     runs: [&[Share]; 3],
@@ -467,11 +470,49 @@ fn spread_plane(
     nodes: &mut Vec<(u32, f64)>,
     written: &mut [u64],
 ) {
+    let fluid_rows = per_volume.iter().filter(|v| **v != 0.0).count();
+    let shares: usize = runs.iter().map(|r| r.len()).sum();
+    if 9 * shares >= fluid_rows * g.nx {
+        pl.iter_mut().for_each(|x| *x = 0.0);
+        add_runs(g, runs, per_volume, pl, |_| {});
+        nodes.clear();
+        for (j, _) in per_volume.iter().enumerate().filter(|(_, v)| **v != 0.0) {
+            for at in g.px * j + 1..=g.px * j + g.nx {
+                nodes.push((at as u32, pl[at]));
+            }
+        }
+        return;
+    }
     // the nodes the last spreading wrote go back to zero
     for &(at, _) in nodes.iter() {
         pl[at as usize] = 0.0;
     }
     nodes.clear();
+    add_runs(g, runs, per_volume, pl, |at| {
+        // listed once, the first time it is written
+        let (word, bit) = (at / 64, 1u64 << (at % 64));
+        if written[word] & bit == 0 {
+            written[word] |= bit;
+            nodes.push((at as u32, 0.0));
+        }
+    });
+    // their values; the bits go back to zero for the next component
+    for (at, a) in nodes.iter_mut() {
+        *a = pl[*at as usize];
+        written[*at as usize / 64] = 0;
+    }
+}
+
+/// Adds the shares of `runs[oz]` (points whose stencil starts `oz` planes before) to the
+/// plane `pl`, in order, calling `wrote` with each node's index.
+#[inline(always)]
+fn add_runs(
+    g: &Grid,
+    runs: [&[Share]; 3],
+    per_volume: &[f64],
+    pl: &mut [f64],
+    mut wrote: impl FnMut(usize),
+) {
     for (oz, run) in runs.iter().enumerate() {
         for sh in run.iter() {
             if sh.z_mask & (1 << oz) == 0 {
@@ -487,20 +528,10 @@ fn spread_plane(
                 for (ox, &wx) in sh.wx.iter().enumerate() {
                     let at = sh.x_at[ox] as usize + g.px * j;
                     pl[at] += scale * wx;
-                    // listed once, the first time it is written
-                    let (word, bit) = (at / 64, 1u64 << (at % 64));
-                    if written[word] & bit == 0 {
-                        written[word] |= bit;
-                        nodes.push((at as u32, 0.0));
-                    }
+                    wrote(at);
                 }
             }
         }
-    }
-    // their values; the bits go back to zero for the next component
-    for (at, a) in nodes.iter_mut() {
-        *a = pl[*at as usize];
-        written[*at as usize / 64] = 0;
     }
 }
 
@@ -804,25 +835,44 @@ mod tests {
                 }
             })
             .collect();
-        let want = plain_spread(g, &pts, &fs);
+        // dense planes (every point), then sparse ones (a few), then both again
         let mut out = BodyForce::zeros(g);
-        spread(g, &pts[..100], &fs[..100], &mut out);
-        spread(g, &pts, &fs, &mut out);
-        for (c, (x, y)) in [
-            (&out.field.u, &want.u),
-            (&out.field.v, &want.v),
-            (&out.field.w, &want.w),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            let differ = x
-                .iter()
-                .zip(y.iter())
-                .filter(|(p, q)| p.to_bits() != q.to_bits())
-                .count();
-            assert_eq!(differ, 0, "component {c}: {differ} nodes differ");
-            assert!(y.iter().any(|v| *v != 0.0));
+        for n in [100, pts.len(), 7, 300] {
+            let want = plain_spread(g, &pts[..n], &fs[..n]);
+            spread(g, &pts[..n], &fs[..n], &mut out);
+            for (c, (x, y)) in [
+                (&out.field.u, &want.u),
+                (&out.field.v, &want.v),
+                (&out.field.w, &want.w),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let differ = x
+                    .iter()
+                    .zip(y.iter())
+                    .filter(|(p, q)| p.to_bits() != q.to_bits())
+                    .count();
+                assert_eq!(
+                    differ, 0,
+                    "{n} points, component {c}: {differ} nodes differ"
+                );
+                assert!(y.iter().any(|v| *v != 0.0));
+                // every node written is listed once with its value
+                for k in 1..=g.nz {
+                    let plane = &x[k * g.plane()..(k + 1) * g.plane()];
+                    let listed = out.entries(c, k);
+                    let mut at: Vec<u32> = listed.iter().map(|e| e.0).collect();
+                    at.sort_unstable();
+                    assert!(at.windows(2).all(|w| w[0] < w[1]), "{n} points, c{c} k{k}");
+                    for &(at, v) in listed {
+                        assert_eq!(v.to_bits(), plane[at as usize].to_bits());
+                    }
+                    let nonzero = plane.iter().filter(|v| **v != 0.0).count();
+                    let listed_nonzero = listed.iter().filter(|e| e.1 != 0.0).count();
+                    assert_eq!(nonzero, listed_nonzero, "{n} points, c{c} k{k}");
+                }
+            }
         }
     }
 
