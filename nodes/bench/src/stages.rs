@@ -43,13 +43,8 @@ pub struct StagesOptions {
 /// The case's fibres: segment centres (wall units, 3 per point) and forces (3 per point).
 fn fibres(n: usize) -> (Vec<f64>, Vec<f64>) {
     let pi = std::f64::consts::PI;
-    let mut x = 0x0dd_5eedu64;
-    let mut rnd = move || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        (x >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut rng = fiberflow_dns::init::SplitMix64::new(0x0dd_5eed);
+    let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
     let (mut centre, mut force) = (Vec::with_capacity(21 * n), Vec::with_capacity(21 * n));
     for _ in 0..n {
         let c = [rnd() * 2.0 * pi, rnd() * 1.8 - 0.9, rnd() * pi].map(|v| v * RE_TAU);

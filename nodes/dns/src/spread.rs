@@ -373,24 +373,20 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
         su.clear();
         sv.clear();
         sw.clear();
-        let run = &order[0][run_start[0][r]..run_start[0][r + 1]];
-        for (i, &n) in run.iter().enumerate() {
-            if let Some(&m) = run.get(i + 16) {
-                prefetch(&points[m as usize]);
-                prefetch(&forces[m as usize]);
-            }
-            let (p, f) = (&points[n as usize], &forces[n as usize]);
+        for (p, f) in fetched_ahead(
+            &order[0][run_start[0][r]..run_start[0][r + 1]],
+            points,
+            forces,
+        ) {
             let [u, v] = stencils_uv(g, rows, p);
             su.push(Share::new(g, &u, f[0]));
             sv.push(Share::new(g, &v, f[1]));
         }
-        let run = &order[1][run_start[1][r]..run_start[1][r + 1]];
-        for (i, &n) in run.iter().enumerate() {
-            if let Some(&m) = run.get(i + 16) {
-                prefetch(&points[m as usize]);
-                prefetch(&forces[m as usize]);
-            }
-            let (p, f) = (&points[n as usize], &forces[n as usize]);
+        for (p, f) in fetched_ahead(
+            &order[1][run_start[1][r]..run_start[1][r + 1]],
+            points,
+            forces,
+        ) {
             sw.push(Share::new(g, &stencils_w(g, rows, p), f[2]));
         }
     };
@@ -445,7 +441,23 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
         });
 }
 
-/// Asks for the cache line of `x` ahead of its use (the points are read out of order).
+/// The points and forces of `run` (indices into them), in its order, each asked for
+/// sixteen points ahead of its use (the points are read out of order).
+fn fetched_ahead<'a>(
+    run: &'a [u32],
+    points: &'a [[f64; 3]],
+    forces: &'a [[f64; 3]],
+) -> impl Iterator<Item = (&'a [f64; 3], &'a [f64; 3])> + 'a {
+    run.iter().enumerate().map(move |(i, &n)| {
+        if let Some(&m) = run.get(i + 16) {
+            prefetch(&points[m as usize]);
+            prefetch(&forces[m as usize]);
+        }
+        (&points[n as usize], &forces[n as usize])
+    })
+}
+
+/// Asks for the cache line of `x` ahead of its use.
 #[inline(always)]
 fn prefetch<T>(x: &T) {
     #[cfg(target_arch = "x86_64")]

@@ -642,13 +642,8 @@ mod tests {
         let g = Grid::with_stretch(16, 16, 16, 6.0, 3.0, 0.0).unwrap();
         let widths = Widths::new(&g, 150.0);
         let fibres = PREFETCH_FROM_FIBRES + 7;
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut rnd = move || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = fiberflow_dns::init::SplitMix64::new(0x2545_f491);
+        let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
         let spf = vec![7u32; fibres];
         let (mut centre, mut force) = (Vec::new(), Vec::new());
         for _ in 0..fibres {
