@@ -26,7 +26,10 @@
 use crate::field::Velocity;
 use crate::grid::Grid;
 use crate::sample::Nodes;
+use lanes::{Components, LANES};
 use rayon::prelude::*;
+
+mod lanes;
 
 /// Three-point Roma–Peskin kernel φ(r), r in grid spacings.
 #[inline]
@@ -373,22 +376,17 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
         su.clear();
         sv.clear();
         sw.clear();
-        for (p, f) in fetched_ahead(
-            &order[0][run_start[0][r]..run_start[0][r + 1]],
+        let runs = [0, 1].map(|o| &order[o][run_start[o][r]..run_start[o][r + 1]]);
+        push_run(g, rows, runs[0], points, forces, Components::UV, [su, sv]);
+        push_run(
+            g,
+            rows,
+            runs[1],
             points,
             forces,
-        ) {
-            let [u, v] = stencils_uv(g, rows, p);
-            su.push(Share::new(g, &u, f[0]));
-            sv.push(Share::new(g, &v, f[1]));
-        }
-        for (p, f) in fetched_ahead(
-            &order[1][run_start[1][r]..run_start[1][r + 1]],
-            points,
-            forces,
-        ) {
-            sw.push(Share::new(g, &stencils_w(g, rows, p), f[2]));
-        }
+            Components::W,
+            [sw, &mut Vec::new()],
+        );
     };
     // 1 / the control volume of each row and component (a division per node took as long
     // as the rest)
@@ -441,20 +439,49 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
         });
 }
 
-/// The points and forces of `run` (indices into them), in its order, each asked for
-/// sixteen points ahead of its use (the points are read out of order).
-fn fetched_ahead<'a>(
-    run: &'a [u32],
-    points: &'a [[f64; 3]],
-    forces: &'a [[f64; 3]],
-) -> impl Iterator<Item = (&'a [f64; 3], &'a [f64; 3])> + 'a {
-    run.iter().enumerate().map(move |(i, &n)| {
-        if let Some(&m) = run.get(i + 16) {
+/// Pushes the shares of the points of `run` (indices into `points` and `forces`), in its
+/// order, for `which` onto `out` (u or w, then v): [`lanes::LANES`] points at a time, each
+/// block's points asked for two blocks ahead (they are read out of order), the one-point
+/// path for a block that needs it.
+fn push_run(
+    g: &Grid,
+    rows: &Rows,
+    run: &[u32],
+    points: &[[f64; 3]],
+    forces: &[[f64; 3]],
+    which: Components,
+    out: [&mut Vec<Share>; 2],
+) {
+    let [first, second] = out;
+    for (b, block) in run.chunks(LANES).enumerate() {
+        for &m in run.iter().skip((b + 2) * LANES).take(LANES) {
             prefetch(&points[m as usize]);
             prefetch(&forces[m as usize]);
         }
-        (&points[n as usize], &forces[n as usize])
-    })
+        let n = block.len();
+        let at = |l: usize| block[l.min(n - 1)] as usize;
+        let job = lanes::Job {
+            g,
+            rows,
+            points: std::array::from_fn(|l| points[at(l)]),
+            forces: std::array::from_fn(|l| forces[at(l)]),
+            n,
+            which,
+        };
+        if lanes::push_shares(&job, [&mut *first, &mut *second]) {
+            continue;
+        }
+        for (p, f) in job.points.iter().zip(&job.forces).take(n) {
+            match which {
+                Components::UV => {
+                    let [u, v] = stencils_uv(g, rows, p);
+                    first.push(Share::new(g, &u, f[0]));
+                    second.push(Share::new(g, &v, f[1]));
+                }
+                Components::W => first.push(Share::new(g, &stencils_w(g, rows, p), f[2])),
+            }
+        }
+    }
 }
 
 /// Asks for the cache line of `x` ahead of its use.
@@ -831,11 +858,15 @@ mod tests {
                 [4.0 * rnd() - 1.0, y, 3.0 * rnd() - 1.0]
             })
             .collect();
+        // box edges, and points beyond two box lengths (the one-point path's remainder)
         pts.extend([
             [0.0, 0.0, 0.0],
             [2.0, 0.5, 1.0],
             [-2.0, -1.0, -1.0],
             [1.0, 1.0, 0.5],
+            [-0.0, 0.3, -0.0],
+            [5.3, 0.1, 0.2],
+            [-2.5, -0.3, 4.1],
         ]);
         let fs: Vec<[f64; 3]> = (0..pts.len())
             .map(|n| {
