@@ -467,3 +467,30 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The stages and their floors run on a few fibres on one and two threads, and a
+    /// thread count of 0 is refused by name.
+    #[test]
+    fn stages_run_on_a_few_fibres_and_refuse_no_threads() {
+        let ok = run_stages(&StagesOptions {
+            fibres: 40,
+            rounds: 1,
+            threads: vec![1, 2],
+        });
+        assert!(ok.is_ok(), "{ok:?}");
+        let err = run_stages(&StagesOptions {
+            fibres: 40,
+            rounds: 1,
+            threads: vec![0],
+        });
+        let msg = format!("{:#}", err.expect_err("0 threads refused"));
+        assert!(
+            msg.contains("--threads") && msg.contains("1..=256"),
+            "{msg}"
+        );
+    }
+}
