@@ -94,9 +94,11 @@ pub fn read_histories(dir: &Path) -> Result<Histories, FlowError> {
     let b = std::fs::read(&p).map_err(io_err(&p))?;
     let bad = || FlowError::Protocol(format!("{}: damaged self-induced memories", p.display()));
     let mut at = 0usize;
+    // a count read from the file may be anything: the end is checked, not assumed
     let mut take = |n: usize| -> Result<&[u8], FlowError> {
-        let s = b.get(at..at + n).ok_or_else(bad)?;
-        at += n;
+        let end = at.checked_add(n).ok_or_else(bad)?;
+        let s = b.get(at..end).ok_or_else(bad)?;
+        at = end;
         Ok(s)
     };
     match take(8)? {
@@ -191,6 +193,28 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("damaged"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A damaged file whose value count is near the largest a u64 holds (its bytes past
+    /// the end of any address) is refused as damaged, in every build (the end of what it
+    /// asks for is computed with a checked add).
+    #[test]
+    fn a_huge_count_is_damage_not_an_overflow() {
+        let dir = std::env::temp_dir().join(format!("ff-self-huge-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for count in [u64::MAX / 8, u64::MAX / 8 - 1, u64::MAX] {
+            let mut b = HISTORY_MAGIC.to_vec();
+            b.extend_from_slice(&1u64.to_le_bytes());
+            b.extend_from_slice(&5u32.to_le_bytes());
+            b.extend_from_slice(b"case1");
+            b.extend_from_slice(&0u32.to_le_bytes());
+            b.extend_from_slice(&count.to_le_bytes());
+            b.extend_from_slice(&[0u8; 64]);
+            std::fs::write(dir.join(HISTORY_FILE), &b).unwrap();
+            let e = read_histories(&dir).unwrap_err().to_string();
+            assert!(e.contains("damaged"), "{count}: {e}");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
