@@ -104,6 +104,38 @@ fn transports_give_bitwise_identical_states() {
     assert!(md["fiberflow.node_configs"].contains_key("case1"));
 }
 
+/// The flow alone (no fibre group) with the recorder on runs to its last step and records
+/// its status at every step: the flow node does not wait for the recorder to hold fibre states there are
+/// none of (it stopped at step 5 and failed after `run.step_timeout_s` before).
+#[test]
+fn the_flow_alone_with_the_recorder_on_runs_to_the_end() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("flow-alone");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("flow-alone.toml");
+    std::fs::write(
+        &file,
+        "[run]\nid = \"flow-alone\"\nsteps = 30\ndt_plus = 0.5\nstep_timeout_s = 20\n\n\
+         [flow]\nstatus_every_steps = 1\n\n\
+         [flow.source]\nkind = \"analytic\"\nflow = { kind = \"simple_shear\", shear_rate = 0.1 }\n",
+    )
+    .unwrap();
+    let out = dir.join("run");
+    let t0 = Instant::now();
+    launch(&file, &out, "inproc");
+    assert!(
+        t0.elapsed() < Duration::from_secs(15),
+        "the launch waited: {:?}",
+        t0.elapsed()
+    );
+    // the status of every step 1..=30, read by the independent Python reader
+    let summary = decode_all(&out.join("run.mcap"));
+    assert!(
+        summary.contains("\"fiberflow_msgs/msg/FlowStatus\": 30"),
+        "{summary}"
+    );
+}
+
 /// Runs tests/decode_all.py (the independent Python reader and ROS 2 decoder) on a
 /// recording; its JSON summary, after asserting it succeeded.
 fn decode_all(mcap: &std::path::Path) -> String {
