@@ -105,8 +105,8 @@ fn transports_give_bitwise_identical_states() {
 }
 
 /// The flow alone (no fibre group) with the recorder on runs to its last step and records
-/// its status at every step: the flow node does not wait for the recorder to hold fibre states there are
-/// none of (it stopped at step 5 and failed after `run.step_timeout_s` before).
+/// its status at every step: the flow node does not wait for the recorder to hold fibre
+/// states there are none of.
 #[test]
 fn the_flow_alone_with_the_recorder_on_runs_to_the_end() {
     let _one = one_run_at_a_time();
@@ -121,13 +121,8 @@ fn the_flow_alone_with_the_recorder_on_runs_to_the_end() {
     )
     .unwrap();
     let out = dir.join("run");
-    let t0 = Instant::now();
+    // (before, the launch failed at step 5, after `run.step_timeout_s`)
     launch(&file, &out, "inproc");
-    assert!(
-        t0.elapsed() < Duration::from_secs(15),
-        "the launch waited: {:?}",
-        t0.elapsed()
-    );
     // the status of every step 1..=30, read by the independent Python reader
     let summary = decode_all(&out.join("run.mcap"));
     assert!(

@@ -196,10 +196,11 @@ impl States {
         self.await_recorder(k, run, bus, t, hb_in, served)
     }
 
-    /// Waits until the recorder (when the run has one, and fibres) holds every piece's state through
-    /// step k − [`lifecycle::RECORDER_LAG_STEPS`], so a slow recorder slows the run rather
-    /// than letting messages pile up in its queue; fails, naming the recorder, when it is
-    /// silent for `run.liveness_s` (or, with liveness off, after the step timeout).
+    /// Waits until the recorder (when the run has one, and fibres) holds every piece's
+    /// state through step k − [`lifecycle::RECORDER_LAG_STEPS`], so a slow recorder slows
+    /// the run rather than letting messages pile up in its queue; fails, naming the
+    /// recorder, when it is silent for `run.liveness_s` (or, with liveness off, after the
+    /// step timeout).
     fn await_recorder(
         &mut self,
         k: u64,

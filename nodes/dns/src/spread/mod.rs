@@ -83,8 +83,7 @@ struct Stencil {
 /// Periodic direction: nodes at `(i + shift) * d` (shift 0 for a face-centred component,
 /// −0.5 for a cell-centred one, in padded index i = 1..=n); `x` in outer units.
 fn periodic(x: f64, d: f64, n: usize, shift: f64) -> Stencil {
-    // fractional node index of x, in [0, n) (without the library's remainder near the box)
-    let s = crate::sample::rem_euclid_fast(x / d - shift, n as f64);
+    let s = fractional_index(x, d, n, shift);
     let nearest = round_non_negative(s);
     let w = around(s - nearest);
     let sum = w[0] + w[1] + w[2];
@@ -175,12 +174,19 @@ fn stencils_w(g: &Grid, rows: &Rows, p: &[f64; 3]) -> [Stencil; 3] {
     ]
 }
 
+/// The fractional node index of `x` in a periodic direction, in [0, n) (without the
+/// library's remainder near the box).
+#[inline(always)]
+fn fractional_index(x: f64, d: f64, n: usize, shift: f64) -> f64 {
+    crate::sample::rem_euclid_fast(x / d - shift, n as f64)
+}
+
 /// The padded z index (1..=n, wrapped) of the first plane a periodic stencil touches:
 /// [`periodic`]'s `first`, without the weights.
 #[inline(always)]
 fn first_plane(x: f64, d: f64, n: usize, shift: f64) -> u32 {
-    let s = crate::sample::rem_euclid_fast(x / d - shift, n as f64);
-    wrap(round_non_negative(s) as isize - 1, n) as u32
+    let nearest = round_non_negative(fractional_index(x, d, n, shift));
+    wrap(nearest as isize - 1, n) as u32
 }
 
 /// Padded index 1..=n of node m (any integer) of a periodic direction with n nodes, where
@@ -295,8 +301,8 @@ impl BodyForce {
     }
 
     /// The nodes of plane `k` of component `c` (0 u, 1 v, 2 w) that the last spreading
-    /// wrote, each once: (index within the plane, value of [`Self::field`] there). Every
-    /// non-zero node is among them.
+    /// wrote (in a dense plane, every fluid node), each once: (index within the plane,
+    /// value of [`Self::field`] there). Every non-zero node is among them.
     pub fn entries(&self, c: usize, k: usize) -> &[(u32, f64)] {
         &self.entries[c][k]
     }
@@ -307,7 +313,7 @@ impl BodyForce {
 /// from cache (the two runs below its first plane are made by the chunk below as well).
 /// Fixed, though the bits would not depend on it: a node's shares come in the documented
 /// order whatever the chunks.
-const CHUNK_PLANES: usize = 8;
+const CHUNK_PLANES: usize = 16;
 
 /// Spreads point forces onto `out` (overwritten; halos left zero). `points[i]` is a
 /// position in outer units (x, z any real, y within the walls) and `forces[i]` the force
@@ -499,8 +505,8 @@ fn prefetch<T>(x: &T) {
 /// (`runs[oz]`), and lists the nodes written, each once (`written`: a bit per node, left
 /// zero). A plane whose shares could write each of its fluid nodes (nine nodes a share)
 /// is taken as dense: zeroed whole, added without keeping the bits, and every fluid node
-/// listed (the nodes never written hold 0: adding them changes nothing). Which planes
-/// are dense depends on the points alone, not on the threads.
+/// listed (the nodes never written hold +0, which leaves any velocity but a −0 as it
+/// was). Which planes are dense depends on the points alone, not on the threads.
 fn spread_plane(
     g: &Grid,
     runs: [&[Share]; 3],
