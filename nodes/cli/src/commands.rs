@@ -24,6 +24,40 @@ pub fn launch_cmd(file: &Path, opts: launch::LaunchOptions) -> Result<()> {
     Ok(())
 }
 
+/// `fiberflow export`: the recording as Parquet tables, with a bar over its steps.
+pub fn export_cmd(mcap: &Path, out: Option<PathBuf>, what: Option<&[String]>) -> Result<()> {
+    let out = out.unwrap_or_else(|| {
+        if mcap.is_dir() {
+            mcap.join("export")
+        } else {
+            mcap.parent().unwrap_or(Path::new(".")).join("export")
+        }
+    });
+    let tables = fiberflow_export::tables_named(what)?;
+    let bar = fiberflow_launcher::progress::bar(0, "steps");
+    let summary = fiberflow_export::export(mcap, &out, &tables, |p| {
+        if let Some(n) = p.steps {
+            bar.set_length(n);
+        }
+        bar.set_position(p.step);
+    })
+    .with_context(|| format!("export of {} failed", mcap.display()))?;
+    bar.finish_and_clear();
+    for (path, rows) in &summary.files {
+        println!("{rows:>12} rows  {}", path.display());
+    }
+    if summary.dropped > 0 || summary.repeated > 0 || summary.incomplete > 0 {
+        println!(
+            "left out: {} messages that failed their checks, {} repeated, {} incomplete sharded steps",
+            summary.dropped, summary.repeated, summary.incomplete
+        );
+    }
+    for d in &summary.damaged {
+        println!("read up to damage: {d}");
+    }
+    Ok(())
+}
+
 /// `fiberflow analyze`: the fibre analysis and, for a two-way run, the flow's modulation.
 pub fn analyze_cmd(
     mcap: &Path,

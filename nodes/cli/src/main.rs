@@ -132,6 +132,19 @@ enum Cmd {
         #[arg(long, default_value_t = 10)]
         batches: usize,
     },
+    /// A recording (a run folder or one .mcap) as Parquet tables for pandas, polars, R,
+    /// MATLAB: states per segment, metrics per fibre, flow status, profiles, contacts
+    /// (docs/export.md).
+    Export {
+        mcap: PathBuf,
+        /// Output folder (default: <run folder>/export).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Tables to write, comma separated: states, metrics, flow, profiles, contacts
+        /// (default: all).
+        #[arg(long, value_delimiter = ',')]
+        what: Option<Vec<String>>,
+    },
     /// Show a recording (a run folder or one .mcap) in Rerun: channel box, fibres
     /// coloured by coiling, plots per case.
     View {
@@ -274,6 +287,7 @@ fn main() -> Result<()> {
         ),
         Cmd::Node { spec } => nodes::node_cmd(&spec),
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
+        Cmd::Export { mcap, out, what } => commands::export_cmd(&mcap, out, what.as_deref()),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),
         Cmd::Replay {
             mcap,

@@ -418,11 +418,11 @@ impl Session<'_> {
             if is_state {
                 if let Some(first) = self.held_first.remove(&slice) {
                     let held = sanity::check_state(&first).ok();
-                    self.write_new(topic, type_name, Some(0), &first, held)?;
+                    self.write_new(topic, type_name, Some(0), slice.1, &first, held)?;
                 }
             }
         }
-        self.write_new(topic, type_name, step, bytes, state)?;
+        self.write_new(topic, type_name, step, stamp.first_fiber, bytes, state)?;
         self.maybe_commit()
     }
 
@@ -475,7 +475,8 @@ impl Session<'_> {
         Ok(())
     }
 
-    /// Writes unless this (topic, step, slice) is already recorded; `st` is the decoded
+    /// Writes unless this (topic, step, slice) is already recorded (`first`: the slice's
+    /// first fibre, 0 for a whole group or a message of no group); `st` is the decoded
     /// state of a state message (for the timeline and, once its group is complete, the
     /// group's PointCloud2).
     fn write_new(
@@ -483,11 +484,11 @@ impl Session<'_> {
         topic: &str,
         type_name: &'static str,
         step: Option<u64>,
+        first: u32,
         bytes: &[u8],
         st: Option<FiberGroupState>,
     ) -> Result<(), RecorderError> {
         if let Some(k) = step {
-            let first = st.as_ref().map_or(0, |s| s.first_fiber);
             if !self.seen.insert(topic, k, first) {
                 self.summary.already_recorded += 1;
                 return Ok(());
@@ -580,12 +581,13 @@ impl Session<'_> {
 
     /// Writes what is still held (a group whose only state is step 0).
     fn release_held(&mut self) -> Result<(), RecorderError> {
-        for ((topic, _), bytes) in std::mem::take(&mut self.held_first) {
+        for ((topic, first), bytes) in std::mem::take(&mut self.held_first) {
             let st = sanity::check_state(&bytes).ok();
             self.write_new(
                 &topic,
                 "fiberflow_msgs/msg/FiberGroupState",
                 Some(0),
+                first,
                 &bytes,
                 st,
             )?;
@@ -1018,6 +1020,91 @@ mod tests {
         )
         .expect("recorder failed");
         assert_eq!(s.drops.total(), n);
+        std::fs::remove_file(&path).ok();
+    }
+
+    /// A group in two shards: each step's metrics (and samples) come as two slices on one
+    /// topic, and the recorder keeps both (it kept the first slice of each step only,
+    /// taking every message but a state for the whole group); a slice sent again is kept
+    /// once.
+    #[test]
+    fn both_shards_metrics_and_samples_of_a_step_are_recorded() {
+        use fiberflow_messages::{FiberGroupMetrics, FlowSamples};
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let t = Topics::new("shm");
+        let path = std::env::temp_dir().join(format!("ff-rec-shm-{}.mcap", std::process::id()));
+        let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("recorder")).unwrap());
+        let plan = RecordPlan {
+            groups: vec!["g".into()],
+            nodes: vec!["g.0".into(), "g.1".into()],
+            steps: 3,
+            samples: true,
+            ..Default::default()
+        };
+        let h = start_recorder(&bus, "shm", &path, plan, &mut hb);
+        for k in 0..=3u64 {
+            for first in [0u32, 1] {
+                let m = FiberGroupMetrics {
+                    schema_version: SCHEMA_VERSION,
+                    group: "g".into(),
+                    step: k,
+                    t_plus: k as f64 * 0.25,
+                    first_fiber: first,
+                    group_fibers: 2,
+                    centre_of_mass: vec![first as f64; 3],
+                    z1: vec![1.0],
+                    sigma2: vec![0.0],
+                    end_to_end: vec![3.0],
+                    mean_abs_z1: 1.0,
+                    mean_sigma2: 0.0,
+                };
+                let s = FlowSamples {
+                    schema_version: SCHEMA_VERSION,
+                    group: "g".into(),
+                    step: k,
+                    t_plus: k as f64 * 0.25,
+                    first_fiber: first,
+                    group_fibers: 2,
+                    velocity: vec![0.0; 3],
+                    velocity_gradient: vec![0.0; 9],
+                };
+                let st = format!("{}/{first}", t.flow_samples("g"));
+                // the second shard's metrics sent twice (a resend)
+                for _ in 0..=first {
+                    bus.publish(&t.fiber_metrics("g"), &encode(&m)).unwrap();
+                }
+                bus.publish(&st, &encode(&s)).unwrap();
+            }
+        }
+        let done = Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: "flow".into(),
+            state: lifecycle::DONE,
+            step: 3,
+            dropped: 0,
+        };
+        bus.publish(&t.heartbeat("flow"), &encode(&done)).unwrap();
+        let s = h
+            .join()
+            .expect("recorder panicked")
+            .expect("recorder failed");
+        assert_eq!(s.already_recorded, 4, "the resent slices");
+        let bytes = std::fs::read(&path).unwrap();
+        let mut metrics = BTreeSet::new();
+        let mut samples = BTreeSet::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            if m.channel.topic == t.fiber_metrics("g") {
+                let x = decode::<FiberGroupMetrics>(&m.data).unwrap();
+                assert!(metrics.insert((x.step, x.first_fiber)), "recorded twice");
+            } else if m.channel.topic.starts_with(&t.flow_samples("g")) {
+                let x = decode::<FlowSamples>(&m.data).unwrap();
+                assert!(samples.insert((x.step, x.first_fiber)), "recorded twice");
+            }
+        }
+        let want: BTreeSet<(u64, u32)> = (0..=3).flat_map(|k| [(k, 0), (k, 1)]).collect();
+        assert_eq!(metrics, want);
+        assert_eq!(samples, want);
         std::fs::remove_file(&path).ok();
     }
 
