@@ -3,8 +3,9 @@ states of a recording that holds every step (docs/history/contact-cost.md, "How 
 
     fiberflow launch launch/flocs-wall.toml --out recordings/flocs-wall-30 \
         --set run.steps=30 --set recorder.states_every_steps=1 --set run.analyze=false
-    pip install mcap mcap-ros2-support numpy scipy
-    python3 docs/list_lifetime.py recordings/flocs-wall-30/run.mcap
+    fiberflow export recordings/flocs-wall-30 --what states
+    pip install numpy pandas pyarrow scipy
+    python3 docs/list_lifetime.py recordings/flocs-wall-30/export
 
 Per group it prints two measures:
 
@@ -19,8 +20,7 @@ Per group it prints two measures:
 import sys
 
 import numpy as np
-from mcap.reader import make_reader
-from mcap_ros2.decoder import DecoderFactory
+import pandas as pd
 from scipy.spatial import cKDTree
 
 BOX = np.array([942.477796, 300.0, 471.238898])  # the fine grid's box, wall units
@@ -28,17 +28,19 @@ HALF = 1.5  # half a case-1 segment, wall units
 REACH = 3.0 + 0.232  # centres of two touching segments are within l + d
 
 
-def read(path):
+def read(export):
+    """group -> step -> (centres, axes, fibre of each segment), from the exported states
+    (docs/export.md)."""
+    centre = ["centre_x_plus", "centre_y_plus", "centre_z_plus"]
+    axis = ["axis_x", "axis_y", "axis_z"]
+    t = pd.read_parquet(export + "/states.parquet", columns=["group", "step", "fibre"] + centre + axis)
     states = {}
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, _, _, d in reader.iter_decoded_messages():
-            if schema.name == "fiberflow_msgs/msg/FiberGroupState":
-                states.setdefault(d.group, {})[d.step] = (
-                    np.array(d.centre).reshape(-1, 3),
-                    np.array(d.axis).reshape(-1, 3),
-                    np.repeat(np.arange(len(d.segments_per_fiber)), d.segments_per_fiber),
-                )
+    for (group, step), d in t.groupby(["group", "step"], sort=True):
+        states.setdefault(group, {})[step] = (
+            d[centre].to_numpy(),
+            d[axis].to_numpy(),
+            d["fibre"].to_numpy(),
+        )
     return states
 
 
@@ -64,7 +66,7 @@ def ideal_skin(st, b, ts):
         pairs = tree.query_pairs(REACH, output_type="ndarray")
         pairs = pairs[fibre[pairs[:, 0]] != fibre[pairs[:, 1]]]
         need = np.linalg.norm(nearest(cb[pairs[:, 0]] - cb[pairs[:, 1]]), axis=1) - REACH
-        out.append(f"{t - b}: {max(need.max(), 0):.2f}")
+        out.append(f"{t - b}: {max(need.max(initial=0.0), 0):.2f}")
     return out
 
 

@@ -157,6 +157,25 @@ fn a_run_exports_to_parquet_bitwise_and_shards_give_the_same_tables() {
         assert!(a[table].as_u64().unwrap() > 0, "{table} is empty: {a}");
     }
 
+    // docs/wall_share.py reads the export: every 2.5 t+ (a state every 5 steps of 0.25),
+    // all segments of both groups, shares that add up to one
+    let o = Command::new("python3")
+        .arg(root().join("docs/wall_share.py"))
+        .arg(sharded.join("export"))
+        .arg("2.5")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    let rows: Vec<&str> = text.lines().skip(1).collect();
+    assert_eq!(rows.len(), 5, "t+ 0, 2.5, 5, 7.5, 10: {text}");
+    let segments = a["states"].as_u64().unwrap() / 9;
+    for r in rows {
+        let v: Vec<f64> = r.split(',').map(|x| x.parse().unwrap()).collect();
+        assert_eq!(v[1] as u64, segments, "{r}");
+        assert!((v[2..].iter().sum::<f64>() - 1.0).abs() < 5e-4, "{r}");
+    }
+
     let one = dir.join("one");
     let o = launch_cmd(&file, &one, "inproc", &[]).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -179,5 +198,100 @@ fn a_run_exports_to_parquet_bitwise_and_shards_give_the_same_tables() {
         "the sharded run's tables differ from the unsharded run's: {}",
         String::from_utf8_lossy(&same.stderr)
     );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The Python block of docs/export.md, as it stands there.
+fn docs_example() -> String {
+    let docs = std::fs::read_to_string(root().join("docs/export.md")).unwrap();
+    let after = docs
+        .split("<!-- example: abs_z1.py -->")
+        .nth(1)
+        .expect("docs/export.md: the example's marker");
+    let code = after
+        .split("```python\n")
+        .nth(1)
+        .and_then(|c| c.split("```").next())
+        .expect("docs/export.md: the example's code block");
+    code.to_string()
+}
+
+/// A CSV's rows as (first column, the other columns by header name).
+fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let header = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(str::to_string)
+        .collect();
+    let rows = lines
+        .map(|l| l.split(',').map(str::to_string).collect())
+        .collect();
+    (header, rows)
+}
+
+/// The example of docs/export.md, run as it stands on the exported quick run: its ⟨|z1|⟩
+/// per case and t+ equal the analysis's `case*_abs_z1.csv` (layer "all") to the six
+/// decimals that file prints, at every one of its times.
+#[test]
+fn a_figure_from_the_export_is_the_analysis_figure() {
+    if !pyarrow_ok()
+        || !Command::new("python3")
+            .args(["-c", "import pandas, matplotlib"])
+            .status()
+            .is_ok_and(|s| s.success())
+    {
+        panic!(
+            "this test needs python3 with pandas, pyarrow and matplotlib (.ci/run installs them)"
+        );
+    }
+    let _one = one_run_at_a_time();
+    let dir = scratch("export-example");
+    let run = dir.join("quick");
+    let o = Command::new(fiberflow())
+        .arg("launch")
+        .arg(root().join("launch/quick.toml"))
+        .arg("--out")
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let exported = export(&run);
+    let script = dir.join("abs_z1.py");
+    std::fs::write(&script, docs_example()).unwrap();
+    let o = Command::new("python3")
+        .arg(&script)
+        .arg(&exported)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(exported.join("abs_z1.png").exists());
+    let (header, rows) = read_csv(&exported.join("abs_z1.csv"));
+    assert_eq!(header[0], "t_plus");
+    let mut compared = 0;
+    for (col, case) in header.iter().enumerate().skip(1) {
+        let (h, want) = read_csv(&run.join(format!("analysis/{case}_abs_z1.csv")));
+        assert_eq!(h[..3], ["t_plus", "layer", "mean_abs_z1"]);
+        let want: Vec<(f64, f64)> = want
+            .iter()
+            .filter(|r| r[1] == "all")
+            .map(|r| (r[0].parse().unwrap(), r[2].parse().unwrap()))
+            .collect();
+        assert_eq!(want.len(), rows.len(), "{case}: times");
+        for (row, (t, m)) in rows.iter().zip(&want) {
+            let t_got: f64 = row[0].parse().unwrap();
+            let m_got: f64 = row[col].parse().unwrap();
+            assert!((t_got - t).abs() < 1e-4, "{case}: t+ {t_got} against {t}");
+            // the analysis prints six decimals
+            assert!(
+                (m_got - m).abs() <= 5e-7 + 1e-12,
+                "{case} at t+ {t}: {m_got} against the analysis's {m}"
+            );
+            compared += 1;
+        }
+    }
+    assert_eq!(compared, 6 * 325, "six cases, steps 0..=324");
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -110,10 +110,10 @@ pub const METRICS: Table = Table {
         c("group", Text, "", "fibre group"),
         c("fibre", U32, "", "fibre index within its group"),
         c("centre_of_mass_x_plus", F64, LEN, "the fibre's mass-weighted centre, x (unwrapped)"),
-        c("centre_of_mass_y_plus", F64, LEN, "the fibre's centre of mass, y"),
-        c("centre_of_mass_z_plus", F64, LEN, "the fibre's centre of mass, z (unwrapped)"),
+        c("centre_of_mass_y_plus", F64, LEN, "the fibre's mass-weighted centre, y"),
+        c("centre_of_mass_z_plus", F64, LEN, "the fibre's mass-weighted centre, z (unwrapped)"),
         c("z1", F64, "", "orientation z1 = z.e1 of the fibre's mean axis direction, in [-1, 1] (paper §4.3)"),
-        c("sigma2", F64, "", "coiling sigma^2 = sum |z_i - z|^2 / (N - 1) over the segment axes (paper §4.3; 0 straight)"),
+        c("sigma2", F64, "", "coiling sigma^2: the squared distances of the segment axes z_i from the mean direction z, summed, over N - 1 (paper §4.3; 0 straight)"),
         c("end_to_end_plus", F64, LEN, "distance between the fibre's two ends"),
     ],
 };
@@ -126,7 +126,7 @@ pub const FLOW: Table = Table {
         STEP[1],
         c("dt_plus", F64, TIME, "time step"),
         c("cfl", F64, "", "Courant number of the step"),
-        c("max_divergence", F64, "", "largest |div u| of the step (outer units)"),
+        c("max_divergence", F64, "", "largest absolute divergence of the velocity in the step (outer units)"),
         c("bulk_velocity_plus", F64, VEL, "bulk (mean) streamwise velocity"),
         c("re_tau", OptF64, "", "friction Reynolds number from the mean wall shear (null on steps without a wall-shear evaluation)"),
         c("pressure_gradient", F64, "outer units (u_tau^2/h)", "mean streamwise pressure gradient that drove the step (1 at constant pressure gradient)"),
@@ -196,4 +196,60 @@ pub const ALL: [Table; 5] = [STATES, METRICS, FLOW, PROFILES, CONTACTS];
 /// The table named `name`.
 pub fn by_name(name: &str) -> Option<Table> {
     ALL.iter().copied().find(|t| t.name == name)
+}
+
+/// The Markdown table docs/export.md shows for `table` (its rows, header included).
+pub fn markdown(table: &Table) -> String {
+    let mut out = String::from("| column | type | unit | meaning |\n|---|---|---|---|\n");
+    for c in table.columns {
+        let ty = match c.kind {
+            U64 => "uint64",
+            U32 => "uint32",
+            U8 => "uint8",
+            F64 => "float64",
+            OptF64 => "float64 (nullable)",
+            Text => "string",
+        };
+        let unit = if c.unit.is_empty() { "–" } else { c.unit };
+        out += &format!("| `{}` | {ty} | {unit} | {} |\n", c.name, c.about);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// docs/export.md shows every table's columns exactly as the files carry them.
+    #[test]
+    fn docs_list_every_column() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/export.md");
+        let docs = std::fs::read_to_string(path).expect("docs/export.md");
+        for t in ALL {
+            let md = markdown(&t);
+            assert!(
+                docs.contains(&md),
+                "docs/export.md lacks the table of {}:\n{md}",
+                t.file_name()
+            );
+        }
+    }
+
+    /// Column names are unique within a table and free of Markdown's table separator.
+    #[test]
+    fn columns_are_unique_and_printable() {
+        for t in ALL {
+            let mut names: Vec<&str> = t.columns.iter().map(|c| c.name).collect();
+            names.sort();
+            names.dedup();
+            assert_eq!(names.len(), t.columns.len(), "{}", t.name);
+            for c in t.columns {
+                assert!(
+                    !c.about.contains('|') && !c.unit.contains('|'),
+                    "{}",
+                    c.name
+                );
+            }
+        }
+    }
 }
