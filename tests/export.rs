@@ -232,7 +232,8 @@ fn read_csv(path: &Path) -> (Vec<String>, Vec<Vec<String>>) {
     (header, rows)
 }
 
-/// The example of docs/export.md, run as it stands on the exported quick run: its ⟨|z1|⟩
+/// The quick run exported (every value checked as above), then the example of
+/// docs/export.md, run as it stands on the export: its ⟨|z1|⟩
 /// per case and t+ equal the analysis's `case*_abs_z1.csv` (layer "all") to the six
 /// decimals that file prints, at every one of its times.
 #[test]
@@ -259,6 +260,13 @@ fn a_figure_from_the_export_is_the_analysis_figure() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let exported = export(&run);
+    // the quick run's tables hold its recording bit for bit too
+    let counts = check(&run, &exported);
+    assert_eq!(
+        counts["states"],
+        6 * 50 * 7 * 325,
+        "six cases of 50 fibres of 7 segments"
+    );
     let script = dir.join("abs_z1.py");
     std::fs::write(&script, docs_example()).unwrap();
     let o = Command::new("python3")
