@@ -28,10 +28,12 @@ pub fn piece(step_dir: &Path, node: &str) -> PathBuf {
     step_dir.join(format!("{node}.ckpt"))
 }
 
-/// The piece of a checkpoint that stands for the fibre nodes on other hosts (multi-host
-/// runs): the flow node writes it into its own folder once every one of them has sent its
+/// The piece of a checkpoint that stands for the nodes on other hosts (multi-host runs):
+/// the flow node writes it into its own folder once every fibre node there has sent its
 /// state of the step after, which each sends only after its own file of this step is on
-/// its disk. With it, the head's checkpoint is complete for the whole run.
+/// its disk, and a recorder there has said its segment is on disk through the step
+/// ([`crate::lifecycle::COMMITTED`]). With it, the head's checkpoint is complete for the
+/// whole run.
 pub const REMOTE_PIECE: &str = "remote";
 
 /// Is `k` a checkpoint step of a run of `steps` steps checkpointing every `every` steps

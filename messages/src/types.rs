@@ -264,6 +264,11 @@ pub mod lifecycle {
     /// flow node sends its DONE again until it sees this, so a DONE the transport lost as
     /// the flow process exits cannot keep the recorder open.
     pub const FINISHING: u8 = 6;
+    /// The recorder has flushed and synced to disk every message through its checkpoint
+    /// of `step` (its `recorder.ckpt` there is written). Said again with each progress
+    /// report, so a lost one is made good: a head whose recorder runs on another host
+    /// completes a checkpoint only once it has heard this for it.
+    pub const COMMITTED: u8 = 7;
     /// How far the run may get ahead of its recorder: the flow node serves step k only
     /// once the recorder's RUNNING heartbeats say it holds every piece's state through
     /// step k − `RECORDER_LAG_STEPS`. A slow recorder (a slow disk, a busy host) slows the

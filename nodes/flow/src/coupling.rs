@@ -20,7 +20,7 @@ use fiberflow_messages::{
     encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION,
 };
 use rayon::prelude::*;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -130,6 +130,9 @@ pub(crate) struct Coupling<'a> {
     /// The wait for the first step's states is the fibre nodes starting up (once per
     /// run, tens of ms): logged apart from the loop's per-step stages.
     start_wait_s: f64,
+    /// Multi-host runs: checkpoint steps whose remote fibre nodes are confirmed, waiting for
+    /// a recorder on another host to say the step is on its disk.
+    unconfirmed: Unconfirmed,
     loop_from: Instant,
     cpu_from: f64,
     threads_from: BTreeMap<String, f64>,
@@ -182,6 +185,7 @@ impl<'a> Coupling<'a> {
             histories,
             self_widths,
             start_wait_s: 0.0,
+            unconfirmed: Unconfirmed::default(),
             // the loop's whole wall, stages and what lies between them (statistics,
             // status), less the start-up wait for the first states
             loop_from: Instant::now(),
@@ -217,42 +221,56 @@ impl<'a> Coupling<'a> {
 
     /// Multi-host runs: with every state of step `k` in, the fibre nodes on other hosts
     /// have each written their checkpoint of step k − 1 (a node saves it before it steps
-    /// on); when k − 1 was a checkpoint step, this node's folder of it gets the file that
-    /// says so, which completes the checkpoint on this host for the whole run.
-    fn confirm_remote_checkpoint(&self, k: u64) -> Result<(), FlowError> {
+    /// on). When k − 1 was a checkpoint step, this node's folder of it gets the file that
+    /// says so, which completes the checkpoint on this host for the whole run — once a
+    /// recorder on another host has also said that its segment is on disk through that
+    /// step (a step it never saved cannot be resumed from without losing what it missed);
+    /// until then the step waits here, and is confirmed at a later step.
+    fn confirm_remote_checkpoint(&mut self, k: u64) -> Result<(), FlowError> {
         let run = self.run;
         let Some(root) = &run.checkpoint_root else {
             return Ok(());
         };
-        let Some(c) = k.checked_sub(1) else {
-            return Ok(());
-        };
-        if run.remote_pieces.is_empty()
-            || c < run.start_step
-            || !fiberflow_messages::checkpoints::is_checkpoint_step(
-                c,
-                run.checkpoint_every,
-                run.steps,
-            )
-        {
+        if run.remote_pieces.is_empty() {
             return Ok(());
         }
-        let dir = fiberflow_messages::checkpoints::step_dir(root, c);
-        // where each piece is: its node and the host whose run folder holds its file
-        let mut text = format!(
-            "# every fibre node on another host sent its state of step {k}, after writing its \
-             checkpoint of step {c} into that host's run folder\nstep = {c}\n[hosts]\n"
-        );
-        for (node, host) in &run.remote_pieces {
-            text.push_str(&format!("{node:?} = {host:?}\n"));
+        let fibres_in = k.checked_sub(1).filter(|&c| {
+            c >= run.start_step
+                && fiberflow_messages::checkpoints::is_checkpoint_step(
+                    c,
+                    run.checkpoint_every,
+                    run.steps,
+                )
+        });
+        let remote_recorder = run.remote_pieces.iter().any(|(n, _)| n == "recorder");
+        let committed = remote_recorder.then(|| self.states.recorder_committed());
+        for c in self.unconfirmed.ready(fibres_in, committed) {
+            let dir = fiberflow_messages::checkpoints::step_dir(root, c);
+            // where each piece is: its node and the host whose run folder holds its file
+            let mut text = format!(
+                "# every fibre node on another host sent its state of step {}, after writing \
+                 its checkpoint of step {c} into that host's run folder{}\nstep = {c}\n[hosts]\n",
+                c + 1,
+                if remote_recorder {
+                    ", and the recorder there said its segment is on disk through it"
+                } else {
+                    ""
+                }
+            );
+            for (node, host) in &run.remote_pieces {
+                text.push_str(&format!("{node:?} = {host:?}\n"));
+            }
+            let file = fiberflow_messages::checkpoints::piece(
+                &dir,
+                fiberflow_messages::checkpoints::REMOTE_PIECE,
+            );
+            std::fs::create_dir_all(&dir)
+                .and_then(|()| {
+                    fiberflow_messages::checkpoints::write_atomic(&file, text.as_bytes())
+                })
+                .map_err(crate::error::io_err(&file))?;
         }
-        let file = fiberflow_messages::checkpoints::piece(
-            &dir,
-            fiberflow_messages::checkpoints::REMOTE_PIECE,
-        );
-        std::fs::create_dir_all(&dir)
-            .and_then(|()| fiberflow_messages::checkpoints::write_atomic(&file, text.as_bytes()))
-            .map_err(crate::error::io_err(&file))
+        Ok(())
     }
 
     /// The coupled checkpoint of the field at t_k, before this step's samples: the
@@ -645,4 +663,50 @@ fn correct(
                 vel,
             )
         });
+}
+/// Checkpoint steps whose remote fibre nodes are in, until a recorder on another host
+/// has them on disk.
+#[derive(Debug, Default)]
+struct Unconfirmed {
+    steps: BTreeSet<u64>,
+}
+
+impl Unconfirmed {
+    /// Adds `fibres_in` (a checkpoint step whose remote fibre nodes are confirmed) and
+    /// returns, oldest first, the steps now confirmed for the whole run: all of them without
+    /// a remote recorder (`committed` None), else those through the newest step it has
+    /// said is on its disk (`committed` Some(None): nothing yet).
+    fn ready(&mut self, fibres_in: Option<u64>, committed: Option<Option<u64>>) -> Vec<u64> {
+        self.steps.extend(fibres_in);
+        let through = match committed {
+            None => u64::MAX,
+            Some(None) => return Vec::new(),
+            Some(Some(c)) => c,
+        };
+        let later = self.steps.split_off(&through.saturating_add(1));
+        std::mem::replace(&mut self.steps, later)
+            .into_iter()
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without a remote recorder a checkpoint is confirmed as soon as its remote fibre
+    /// nodes are in; with one, it waits until the recorder has said it is on its disk,
+    /// and then every waiting step through that one goes at once, in order.
+    #[test]
+    fn a_remote_recorder_holds_checkpoints_until_it_has_them_on_disk() {
+        let mut u = Unconfirmed::default();
+        assert_eq!(u.ready(Some(10), None), [10]);
+        assert_eq!(u.ready(None, None), Vec::<u64>::new());
+        let mut u = Unconfirmed::default();
+        assert_eq!(u.ready(Some(10), Some(None)), Vec::<u64>::new());
+        assert_eq!(u.ready(Some(20), Some(Some(5))), Vec::<u64>::new());
+        assert_eq!(u.ready(Some(30), Some(Some(20))), [10, 20]);
+        assert_eq!(u.ready(None, Some(Some(20))), Vec::<u64>::new());
+        assert_eq!(u.ready(None, Some(Some(30))), [30]);
+    }
 }

@@ -32,6 +32,8 @@ struct Peers {
     heard: BTreeMap<String, Instant>,
     /// The step the recorder holds every piece's state through (its RUNNING heartbeats).
     recorded: u64,
+    /// The newest checkpoint the recorder has on disk (its COMMITTED heartbeats).
+    committed: Option<u64>,
     /// The run's announcement (topic, bytes) and when it last went out.
     announcement: Option<(String, Vec<u8>, Instant)>,
 }
@@ -58,6 +60,9 @@ impl Peers {
             self.heard.insert(hb.node.clone(), Instant::now());
             if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
                 self.recorded = self.recorded.max(hb.step);
+            }
+            if hb.node == "recorder" && hb.state == lifecycle::COMMITTED {
+                self.committed = self.committed.max(Some(hb.step));
             }
             if hb.state == lifecycle::READY {
                 if let Some((topic, bytes, at)) = self.announcement.as_mut() {
@@ -108,6 +113,11 @@ impl States {
     /// nodes that still say READY.
     pub(crate) fn announced(&mut self, topic: String, bytes: Vec<u8>) {
         self.peers.announcement = Some((topic, bytes, Instant::now()));
+    }
+
+    /// The newest checkpoint the recorder has said is on its disk.
+    pub(crate) fn recorder_committed(&self) -> Option<u64> {
+        self.peers.committed
     }
 
     /// Drops (and counts) what arrived before the run started: none of it is part of it.

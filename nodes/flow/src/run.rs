@@ -36,8 +36,8 @@ pub struct RunInfo {
     pub step_times: Option<PathBuf>,
     /// Two-way coupling: the fibres' forces of every state go back to the fluid.
     pub two_way: bool,
-    /// Multi-host runs: the fibre nodes on other hosts (node, host), whose checkpoints
-    /// are written there; the flow node confirms them in its own
+    /// Multi-host runs: the fibre nodes (and the recorder) on other hosts (node, host),
+    /// whose checkpoints are written there; the flow node confirms them in its own
     /// ([`fiberflow_messages::checkpoints::REMOTE_PIECE`]).
     pub remote_pieces: Vec<(String, String)>,
 }

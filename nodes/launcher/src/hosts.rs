@@ -84,7 +84,7 @@ pub fn prune_worker(root: &Path) -> Result<()> {
 
 /// A worker host's restart: waits (up to the run's step timeout) for the flow node to
 /// say READY and points `base` at this host's checkpoint of the step it says, which must
-/// hold every one of `pieces`.
+/// hold every one of `pieces`, and a recorder here at a new segment.
 fn follow(base: &mut NodeSpec, pieces: &[String]) -> Result<()> {
     let mut spec = base.clone();
     spec.node = "launcher".into();
@@ -109,6 +109,11 @@ fn follow(base: &mut NodeSpec, pieces: &[String]) -> Result<()> {
     };
     base.start_step = k;
     base.resume_dir = None;
+    // a recorder on this host goes on in a new segment after the killed one, finished
+    for s in crate::coupled::finish_segments(&base.out_dir)? {
+        println!("finished the interrupted segment {}", s.display());
+    }
+    base.segment = fiberflow_messages::segments::next_segment_index(&base.out_dir);
     if k > 0 {
         let root = fiberflow_messages::checkpoints::root(&base.out_dir);
         let dir = step_dir(&root, k);

@@ -157,15 +157,21 @@ pub fn flow_elsewhere(spec: &NodeSpec) -> Result<bool> {
     Ok(!spec.launch.host(host)?.nodes.iter().any(|n| n == "flow"))
 }
 
-/// The fibre nodes of a multi-host run that live on other hosts than the spec's, each
-/// with its host (none on one host).
+/// The fibre nodes (and the recorder) of a multi-host run that live on other hosts than
+/// the spec's, each with its host (none on one host).
 pub fn remote_pieces(spec: &NodeSpec) -> Result<Vec<(String, String)>> {
     let (Some(net), Some(host)) = (&spec.launch.network, &spec.host) else {
         return Ok(vec![]);
     };
     let mut out = Vec::new();
-    for p in spec.launch.pieces()? {
-        let node = p.node();
+    let recorder = spec.launch.recorder.enabled.then(|| "recorder".to_string());
+    let nodes = spec
+        .launch
+        .pieces()?
+        .iter()
+        .map(|p| p.node())
+        .collect::<Vec<_>>();
+    for node in nodes.into_iter().chain(recorder) {
         if let Some(h) = net
             .hosts
             .iter()

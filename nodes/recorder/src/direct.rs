@@ -39,7 +39,11 @@ pub struct RecordingFile {
 impl RecordingFile {
     /// Creates (or truncates) the file at `path`.
     pub fn create(path: &Path) -> io::Result<Self> {
-        let plain = File::create(path)?;
+        // a segment is never rewritten: a restarted recorder writes the next one
+        let plain = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)?;
         let direct = std::fs::OpenOptions::new()
             .write(true)
             .custom_flags(libc::O_DIRECT)
@@ -173,6 +177,18 @@ mod tests {
             .join(format!("ff-direct-{}-{name}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         dir.join("f.bin")
+    }
+
+    /// A segment that exists is never opened for writing again: creating it fails and
+    /// leaves its bytes as they were.
+    #[test]
+    fn an_existing_segment_is_not_rewritten() {
+        let path = scratch("existing");
+        std::fs::write(&path, b"recorded").unwrap();
+        let e = RecordingFile::create(&path).err().expect("refused");
+        assert_eq!(e.kind(), io::ErrorKind::AlreadyExists);
+        assert_eq!(std::fs::read(&path).unwrap(), b"recorded");
+        std::fs::remove_dir_all(path.parent().unwrap()).ok();
     }
 
     /// Pieces of every size (across block and buffer edges) with flushes in between: after

@@ -321,6 +321,8 @@ struct Session<'a> {
     status_step: Option<u64>,
     plan: &'a RecordPlan,
     next_checkpoint: Option<u64>,
+    /// The newest checkpoint whose messages are on disk (`recorder.ckpt` written).
+    committed: Option<u64>,
 }
 
 impl Session<'_> {
@@ -573,6 +575,7 @@ impl Session<'_> {
                 ms = t0.elapsed().as_millis() as u64,
                 "checkpoint written (segment flushed to disk)"
             );
+            self.committed = Some(c);
             let next = c + self.plan.checkpoint_every;
             self.next_checkpoint = (next < self.plan.steps).then_some(next);
         }
@@ -632,6 +635,7 @@ pub fn record(
         status_step: None,
         plan,
         next_checkpoint,
+        committed: None,
     };
     let mut done: BTreeSet<String> = BTreeSet::new();
     let expected: BTreeSet<String> = expect_done.iter().cloned().collect();
@@ -648,6 +652,7 @@ pub fn record(
     let beat = Arc::new(Beat::default());
     beat.step.store(plan.start_step, Ordering::Relaxed);
     let mut reported = plan.start_step;
+    let mut said_committed: Option<u64> = None;
     let _pulse = Pulse::start(
         bus.clone(),
         vec![(t.heartbeat("recorder"), "recorder".into(), beat.clone())],
@@ -734,7 +739,15 @@ pub fn record(
                 let hb = own_heartbeat(lifecycle::RUNNING, k, sess.drops.total());
                 bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
                 reported = k;
+                // said again with every report, in case one was lost
+                said_committed = None;
             }
+        }
+        // a head whose recorder is on another host completes a checkpoint only on this
+        if let Some(c) = sess.committed.filter(|&c| said_committed != Some(c)) {
+            let hb = own_heartbeat(lifecycle::COMMITTED, c, sess.drops.total());
+            bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
+            said_committed = Some(c);
         }
         sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
     }
@@ -1331,7 +1344,8 @@ mod tests {
     /// `states_every_steps = 4`, `samples = false` over 10 steps, states lean where the plan
     /// leaves them out: complete states (and PointCloud2) of steps 0, 4, 8 and the last
     /// step 10 only, a lean state at a recorded step dropped and counted, no samples,
-    /// metrics every step, and the plan written into the file's metadata.
+    /// metrics every step, and the plan written into the file's metadata; its checkpoints
+    /// of steps 4 and 8 are committed and said (COMMITTED heartbeats).
     #[test]
     fn decimated_recording_keeps_every_kth_state_and_the_last() {
         use fiberflow_messages::{FiberGroupMetrics, FlowSamples};
@@ -1453,12 +1467,19 @@ mod tests {
         assert_eq!(meta.metadata["states_every_steps"], "4");
         assert_eq!(meta.metadata["samples"], "false");
         // the recorder's share of checkpoints 4 and 8 is committed without samples (the
-        // flow node's status of a later step stands in for them)
+        // flow node's status of a later step stands in for them), and said on the bus
         for c in [4u64, 8] {
             let piece = checkpoints::piece(&checkpoints::step_dir(&ck_root, c), "recorder");
             let text = std::fs::read_to_string(&piece).expect("recorder checkpoint piece");
             assert!(text.contains(&format!("step = {c}")), "{text}");
         }
+        let mut committed = BTreeSet::new();
+        while let Some((_, b)) = hb.recv::<Heartbeat>(Duration::ZERO) {
+            if b.state == lifecycle::COMMITTED {
+                committed.insert(b.step);
+            }
+        }
+        assert_eq!(committed, BTreeSet::from([4, 8]));
         std::fs::remove_dir_all(&ck_root).ok();
         std::fs::remove_file(&path).ok();
     }

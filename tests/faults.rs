@@ -1,0 +1,111 @@
+//! Fault paths of runs across hosts (docs/architecture.md, "Runs across hosts"): two
+//! launchers on loopback as two hosts, zenoh over mutual TLS, processes killed with
+//! SIGKILL mid-run; nothing recorded may be lost or recorded twice.
+
+use fiberflow_e2e::*;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// The two-host analytic-shear launch on loopback with the recorder on the worker (flow
+/// and case1 on the head; recorder and stiff on the worker): a user whose disk is on the
+/// worker.
+fn recorder_on_worker(dir: &Path) -> PathBuf {
+    let file = two_host_launch(dir, "worker", "");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let moved = text
+        .replace(
+            r#"nodes = ["flow", "recorder", "case1"]"#,
+            r#"nodes = ["flow", "case1"]"#,
+        )
+        .replace(r#"nodes = ["stiff"]"#, r#"nodes = ["recorder", "stiff"]"#);
+    assert_ne!(moved, text, "the launch file's hosts changed shape");
+    std::fs::write(&file, moved).unwrap();
+    file
+}
+
+/// Kills (SIGKILL) the launcher `child` and every process whose command line names
+/// `out` (its nodes), and waits until they are gone.
+fn kill_host(child: &mut std::process::Child, out: &Path) {
+    // SAFETY: plain syscalls on processes this test started
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    for pid in pids_with(&out.display().to_string()) {
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+    }
+    let _ = child.wait();
+    let t0 = Instant::now();
+    while !pids_with(&out.display().to_string()).is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "nodes outlived the kill"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The recorder on the worker: once the head has a complete checkpoint, the worker's
+/// launcher and all its nodes are killed (`kill -9`) and the worker is started again with
+/// `--resume`. The head rolls back to its newest complete checkpoint, which it completed
+/// only once the worker's recorder had said the step was on its disk; the resumed
+/// recorder finishes the killed segment and goes on in a new one. Both complete, and the
+/// worker's recording holds every state of steps 0..=4000 exactly once, bit for bit
+/// those of the run in one process. (Before, the resumed recorder started `run.mcap`
+/// again: steps 0, 1, 2, … were gone, and nothing warned.)
+#[test]
+fn a_recorder_on_a_killed_worker_keeps_every_step_once() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("faults-recorder-on-worker");
+    let file = recorder_on_worker(&dir);
+    let sets = [
+        "run.steps=4000",
+        "run.checkpoint_every_plus=100",
+        "run.liveness_s=4",
+    ];
+    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
+    let head = launch_host(&file, "head", &head_dir, &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut worker = launch_host(&file, "worker", &worker_dir, &sets);
+    wait_for_checkpoint(&head_dir, 300);
+    kill_host(&mut worker, &worker_dir);
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(&file)
+        .args(["--host", "worker", "--resume"])
+        .arg(&worker_dir);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    let resumed = c
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let o = head.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "head failed:\n{said}");
+    assert!(
+        said.contains("restarting every node from step"),
+        "no restart:\n{said}"
+    );
+    assert_all_succeed(vec![("the resumed worker", resumed)]);
+    let (b, segments) = states_by_step(&worker_dir);
+    assert!(segments >= 2, "the resumed recorder writes a new segment");
+    let one = dir.join("one");
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        &sets,
+    );
+    let (a, _) = states_by_step(&one);
+    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
+    assert_eq!(
+        a.keys().collect::<Vec<_>>(),
+        b.keys().collect::<Vec<_>>(),
+        "the worker's recording lost or gained steps"
+    );
+    for (k, v) in &a {
+        assert!(v == &b[k], "{k:?}: the resumed run's state differs");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
