@@ -109,3 +109,58 @@ fn a_recorder_on_a_killed_worker_keeps_every_step_once() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A checkpoint every step, the recorder on the worker: the head's newest complete
+/// checkpoint trails the worker's newest by the steps the recorder may lag, so a worker
+/// that kept only its three newest had often pruned the step the head resumed from (the
+/// head restarted from step 50 with the worker's folders at 51–53; two of three trials
+/// failed so). The worker's launcher and nodes killed (`kill -9`) mid-run and resumed: it
+/// finds its checkpoint of the head's step, and its recording holds every state once, bit
+/// for bit the one-process run's.
+#[test]
+fn a_worker_keeps_the_step_the_head_resumes_from() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("faults-worker-keeps");
+    let file = recorder_on_worker(&dir);
+    let sets = [
+        "run.steps=4000",
+        "run.checkpoint_every_plus=0.5",
+        "run.liveness_s=4",
+    ];
+    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
+    let head = launch_host(&file, "head", &head_dir, &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut worker = launch_host(&file, "worker", &worker_dir, &sets);
+    wait_for_checkpoint(&head_dir, 300);
+    std::thread::sleep(Duration::from_millis(300));
+    kill_host(&mut worker, &worker_dir);
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(&file)
+        .args(["--host", "worker", "--resume"])
+        .arg(&worker_dir);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    let resumed = c
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    assert_all_succeed(vec![("head", head), ("the resumed worker", resumed)]);
+    let (b, _) = states_by_step(&worker_dir);
+    let one = dir.join("one");
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        &sets,
+    );
+    let (a, _) = states_by_step(&one);
+    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(v == &b[k], "{k:?}: the resumed run's state differs");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

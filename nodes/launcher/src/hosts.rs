@@ -29,9 +29,17 @@ pub enum Role {
     Worker,
 }
 
-/// How many of its newest checkpoints a worker host keeps: the head completes a step only
-/// once the workers have stepped past it, so the one it resumes from is among these.
+/// How many of its newest checkpoints a worker host keeps at least.
 pub const WORKER_KEEPS: usize = 3;
+
+/// A worker host also keeps every checkpoint within this many steps of its newest. The
+/// head completes step c once every node has sent its state of c + 1 and the recorder
+/// (which the lockstep keeps at most [`lifecycle::RECORDER_LAG_STEPS`] behind) has c on
+/// disk, so its newest complete checkpoint trails a worker's newest by about
+/// `RECORDER_LAG_STEPS + 1` steps and a checkpoint interval, more while messages are in
+/// flight; with a checkpoint every step, three checkpoints were not enough (test
+/// `a_worker_keeps_the_step_the_head_resumes_from`). Four times the lag is kept.
+pub const WORKER_WINDOW_STEPS: u64 = 4 * lifecycle::RECORDER_LAG_STEPS;
 
 impl Role {
     pub fn of(spec: &NodeSpec) -> Result<Self> {
@@ -66,7 +74,8 @@ impl Role {
     }
 }
 
-/// Removes all but a worker host's [`WORKER_KEEPS`] newest checkpoint folders.
+/// Removes a worker host's checkpoint folders but its [`WORKER_KEEPS`] newest and those
+/// within [`WORKER_WINDOW_STEPS`] of its newest.
 pub fn prune_worker(root: &Path) -> Result<()> {
     let mut dirs: Vec<(u64, std::path::PathBuf)> = std::fs::read_dir(root)
         .into_iter()
@@ -75,8 +84,10 @@ pub fn prune_worker(root: &Path) -> Result<()> {
         .filter_map(|e| step_of(&e.file_name().to_string_lossy()).map(|k| (k, e.path())))
         .collect();
     dirs.sort();
-    let old = dirs.len().saturating_sub(WORKER_KEEPS);
-    for (_, d) in &dirs[..old] {
+    let newest = dirs.last().map_or(0, |(k, _)| *k);
+    let by_count = dirs.len().saturating_sub(WORKER_KEEPS);
+    let by_window = dirs.partition_point(|(k, _)| k + WORKER_WINDOW_STEPS < newest);
+    for (_, d) in &dirs[..by_count.min(by_window)] {
         std::fs::remove_dir_all(d).with_context(|| format!("removing {}", d.display()))?;
     }
     Ok(())
@@ -137,9 +148,10 @@ fn follow(base: &mut NodeSpec, pieces: &[String]) -> Result<()> {
 mod tests {
     use super::*;
 
-    /// A worker keeps its three newest checkpoint folders.
+    /// A worker keeps its three newest checkpoint folders, and every one within
+    /// [`WORKER_WINDOW_STEPS`] of the newest.
     #[test]
-    fn a_worker_keeps_its_three_newest_checkpoints() {
+    fn a_worker_keeps_its_three_newest_checkpoints_and_a_window() {
         let root = std::env::temp_dir().join(format!("ff-worker-ck-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         for k in [20u64, 40, 60, 80, 100] {
@@ -153,6 +165,19 @@ mod tests {
             .collect();
         left.sort();
         assert_eq!(left, [60, 80, 100]);
+        // a checkpoint every step: the window
+        for k in 101..=130u64 {
+            std::fs::create_dir_all(step_dir(&root, k)).unwrap();
+        }
+        prune_worker(&root).unwrap();
+        let mut left: Vec<u64> = std::fs::read_dir(&root)
+            .unwrap()
+            .flatten()
+            .filter_map(|e| step_of(&e.file_name().to_string_lossy()))
+            .collect();
+        left.sort();
+        let want: Vec<u64> = (130 - WORKER_WINDOW_STEPS..=130).collect();
+        assert_eq!(left, want);
         std::fs::remove_dir_all(&root).ok();
     }
 }
