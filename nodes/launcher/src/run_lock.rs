@@ -82,10 +82,35 @@ pub struct FolderLock {
     _file: File,
 }
 
+/// How long a launcher waits for a folder lock whose holder is exiting (killed, its files
+/// not yet closed by the kernel) or gone.
+pub const DYING_HOLDER_WAIT: Duration = Duration::from_secs(10);
+
+/// Whether process `pid` (as the lock file gives it) is gone or on its way out: no such
+/// process, a zombie, or one whose command line is already empty (the kernel releases a
+/// killed process's memory before its files, and its locks with them).
+fn dying(pid: &str) -> bool {
+    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+        return true;
+    };
+    let state = stat
+        .rsplit(')')
+        .next()
+        .and_then(|s| s.split_whitespace().next());
+    let cmdline_empty =
+        std::fs::read(format!("/proc/{pid}/cmdline")).map_or(true, |c| c.is_empty());
+    matches!(state, Some("Z" | "X" | "x")) || cmdline_empty
+}
+
 impl FolderLock {
     /// Takes the lock of `dir` (which must exist) at once, or fails naming the live
-    /// process that holds it.
+    /// process that holds it. A holder that is exiting (a launcher just killed) is waited
+    /// for, up to [`DYING_HOLDER_WAIT`].
     pub fn acquire(dir: &Path) -> Result<Self> {
+        Self::acquire_waiting(dir, DYING_HOLDER_WAIT)
+    }
+
+    fn acquire_waiting(dir: &Path, dying_wait: Duration) -> Result<Self> {
         use std::io::{Read, Seek, Write};
         let path = dir.join(FOLDER_LOCK);
         let mut file = std::fs::OpenOptions::new()
@@ -95,9 +120,20 @@ impl FolderLock {
             .write(true)
             .open(&path)
             .with_context(|| format!("opening {}", path.display()))?;
-        if !try_lock(&file).with_context(|| format!("locking {}", path.display()))? {
-            let mut holder = String::new();
+        let locked = |f: &File| try_lock(f).with_context(|| format!("locking {}", path.display()));
+        let mut taken = locked(&file)?;
+        let mut holder = String::new();
+        if !taken {
             let _ = file.read_to_string(&mut holder);
+            if dying(holder.trim()) {
+                let t0 = std::time::Instant::now();
+                while !taken && t0.elapsed() < dying_wait {
+                    std::thread::sleep(Duration::from_millis(50));
+                    taken = locked(&file)?;
+                }
+            }
+        }
+        if !taken {
             let pid = holder.trim();
             let what = std::fs::read(format!("/proc/{pid}/cmdline"))
                 .map(|c| {
@@ -145,6 +181,60 @@ mod tests {
         drop(held);
         let again = FolderLock::acquire(&dir).unwrap();
         drop(again);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A holder that is on its way out (here: the lock file names a zombie, as it names a
+    /// launcher just killed whose files the kernel has not closed yet) is waited for, and
+    /// the folder taken once it lets go; a live holder is refused at once.
+    #[test]
+    fn a_dying_holder_is_waited_for_and_a_live_one_refused() {
+        let dir = std::env::temp_dir().join(format!("ff-folder-dying-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut zombie = std::process::Command::new("true").spawn().unwrap();
+        let zpid = zombie.id();
+        // not waited for yet: a zombie
+        let zombie_state = || {
+            std::fs::read_to_string(format!("/proc/{zpid}/stat")).is_ok_and(|s| {
+                s.rsplit(')')
+                    .next()
+                    .is_some_and(|r| r.trim_start().starts_with('Z'))
+            })
+        };
+        let t0 = std::time::Instant::now();
+        while !zombie_state() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(5),
+                "the child never exited"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert!(
+            !dying(&std::process::id().to_string()),
+            "this process is alive"
+        );
+        let held = FolderLock::acquire(&dir).unwrap();
+        std::fs::write(dir.join(FOLDER_LOCK), zpid.to_string()).unwrap();
+        let letting_go = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            drop(held);
+        });
+        let t0 = std::time::Instant::now();
+        let taken = FolderLock::acquire_waiting(&dir, Duration::from_secs(10));
+        assert!(taken.is_ok(), "{taken:?}");
+        assert!(
+            t0.elapsed() >= Duration::from_millis(250),
+            "it waited for the holder"
+        );
+        letting_go.join().unwrap();
+        drop(taken);
+        // a live holder: refused without waiting
+        let held = FolderLock::acquire(&dir).unwrap();
+        let t0 = std::time::Instant::now();
+        assert!(FolderLock::acquire_waiting(&dir, Duration::from_secs(10)).is_err());
+        assert!(t0.elapsed() < Duration::from_secs(2));
+        drop(held);
+        zombie.wait().unwrap();
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
