@@ -164,3 +164,56 @@ fn a_worker_keeps_the_step_the_head_resumes_from() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A worker started with `--resume` waits for the head to say where the run starts again;
+/// SIGTERM (as Ctrl-C) ends that wait at once and says so, instead of after the step
+/// timeout (60 s here).
+#[test]
+fn a_worker_waiting_for_the_head_stops_on_sigterm() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("faults-worker-sigterm");
+    let file = two_host_launch(&dir, "worker", "");
+    let sets = ["run.step_timeout_s=60"];
+    let worker_dir = dir.join("worker");
+    // a worker folder as a killed worker leaves it (no head ever came)
+    let mut first = launch_host(&file, "worker", &worker_dir, &sets);
+    let t0 = Instant::now();
+    while !worker_dir.join("launch.toml").exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the worker never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    kill_host(&mut first, &worker_dir);
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(&file)
+        .args(["--host", "worker", "--resume"])
+        .arg(&worker_dir);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    let resumed = c
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(2));
+    let t0 = Instant::now();
+    // SAFETY: plain syscall on a child this test started
+    unsafe { libc::kill(resumed.id() as i32, libc::SIGTERM) };
+    let o = resumed.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(
+        t0.elapsed() < Duration::from_secs(5),
+        "took {:?} to stop:\n{said}",
+        t0.elapsed()
+    );
+    assert!(!o.status.success());
+    assert!(
+        said.contains("waiting for the flow node") && said.contains("interrupted"),
+        "{said}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -15,6 +15,7 @@ use fiberflow_bus::Inbox;
 use fiberflow_messages::checkpoints::{piece, step_dir, step_of, REMOTE_PIECE};
 use fiberflow_messages::{lifecycle, Heartbeat};
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// The part a launcher plays in its run.
@@ -65,10 +66,17 @@ impl Role {
     }
 
     /// Points `base` at the step to start again from: the newest complete checkpoint
-    /// (head, one host) or the step the flow node announces (worker).
-    pub fn roll_back(&self, base: &mut NodeSpec, pieces: &[String], digest: &str) -> Result<()> {
+    /// (head, one host) or the step the flow node announces (worker; `stop`, set by
+    /// Ctrl-C or SIGTERM, ends the wait).
+    pub fn roll_back(
+        &self,
+        base: &mut NodeSpec,
+        pieces: &[String],
+        digest: &str,
+        stop: &AtomicBool,
+    ) -> Result<()> {
         match self {
-            Self::Worker => follow(base, pieces),
+            Self::Worker => follow(base, pieces, stop),
             _ => crate::launch::roll_back(base, pieces, digest),
         }
     }
@@ -95,17 +103,36 @@ pub fn prune_worker(root: &Path) -> Result<()> {
 
 /// A worker host's restart: waits (up to the run's step timeout) for the flow node to
 /// say READY and points `base` at this host's checkpoint of the step it says, which must
-/// hold every one of `pieces`, and a recorder here at a new segment.
-fn follow(base: &mut NodeSpec, pieces: &[String]) -> Result<()> {
+/// hold every one of `pieces`, and a recorder here at a new segment. Ctrl-C or SIGTERM
+/// (`stop`) ends the wait at once.
+fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Result<()> {
     let mut spec = base.clone();
     spec.node = "launcher".into();
-    let bus = crate::nodes::open_bus(&spec).context("joining the run to learn where it resumes")?;
-    let t = fiberflow_messages::topics::Topics::new(&base.launch.run.id);
-    let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("flow"))?);
     let wait_s = base.launch.run.step_timeout_s;
     println!("waiting for the flow node to say which step the run starts again from");
     let t0 = Instant::now();
+    // joining blocks while the head's router is away: on a thread of its own, so that a
+    // stop is heard meanwhile (a thread left behind ends with the process)
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(crate::nodes::open_bus(&spec));
+    });
+    let bus = loop {
+        if stop.load(Ordering::SeqCst) {
+            bail!("interrupted while waiting for the flow node to start the run again");
+        }
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(b) => break b.context("joining the run to learn where it resumes")?,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+            Err(e) => bail!("joining the run to learn where it resumes: {e}"),
+        }
+    };
+    let t = fiberflow_messages::topics::Topics::new(&base.launch.run.id);
+    let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("flow"))?);
     let k = loop {
+        if stop.load(Ordering::SeqCst) {
+            bail!("interrupted while waiting for the flow node to start the run again");
+        }
         if t0.elapsed().as_secs_f64() > wait_s {
             bail!(
                 "the flow node did not start the run again within {wait_s:.0} s \

@@ -154,7 +154,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     let role = crate::hosts::Role::of(&base)?;
     let pieces = role.pieces(&nodes);
     if resume.is_some() {
-        role.roll_back(&mut base, &pieces, &digest)?;
+        role.roll_back(&mut base, &pieces, &digest, &stop)?;
         let segment = if records_here {
             format!(
                 " (segment {})",
@@ -597,7 +597,7 @@ fn supervise_restarts(
                 }
                 let t0 = Instant::now();
                 let started_at = base.start_step;
-                role.roll_back(base, pieces, digest)?;
+                role.roll_back(base, pieces, digest, &stop)?;
                 // a node that exits with an error (not killed by a signal) before the run
                 // has a newer checkpoint would fail the same way again: the steps are
                 // deterministic, and so is a configuration error (a worker host's nodes
