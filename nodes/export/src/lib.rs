@@ -494,7 +494,7 @@ mod tests {
             centre: (0..3 * segs)
                 .map(|i| (first as usize * 6 + i) as f64)
                 .collect(),
-            axis: vec![1.0, 0.0, 0.0].repeat(segs),
+            axis: [1.0, 0.0, 0.0].repeat(segs),
             velocity: vec![0.5; 3 * segs],
             angular_velocity: vec![0.0; 3 * segs],
             hydro_force: vec![],

@@ -41,7 +41,7 @@ pub enum FiberNodeError {
     Protocol(String),
 }
 
-/// How often a fibre node whose flow node lives on another host looks for its restart
+/// How often a fibre node looks at the flow node's heartbeats (its restart, its failure)
 /// while it waits for samples.
 const FLOW_HEARTBEAT_POLL: Duration = Duration::from_millis(500);
 
@@ -377,11 +377,8 @@ impl Served {
         let name = cfg.group.clone();
         let samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
         let ann_in = Inbox::new(bus.subscribe(&t.announce())?);
-        let flow_hb = if ck.flow_elsewhere {
-            Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?))
-        } else {
-            None
-        };
+        // the flow node's restart (on another host) or failure ends this node's wait
+        let flow_hb = Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?));
         let state_msg = Encode(FiberGroupState {
             schema_version: SCHEMA_VERSION,
             group: name.clone(),
@@ -860,7 +857,9 @@ impl Served {
     }
 }
 
-/// Fails when the flow node (on another host) has started the run again: it says READY
+/// Fails when the flow node has failed (FAILED: the run is over; waiting for samples that
+/// will not come would only hold the run until the step timeout), or (on another host)
+/// has started the run again: it says READY
 /// only while it waits for the nodes to join, so a READY read once node `node` (which
 /// started at step `start`) is past its first step comes from a restarted flow node (those
 /// of the first step are the join's, sent before the announcement, and are read and let
@@ -876,6 +875,12 @@ fn flow_restarted(
         return Ok(());
     };
     while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
+        if hb.state == lifecycle::FAILED {
+            return Err(FiberNodeError::Protocol(format!(
+                "node {node}: the flow node failed at step {} (see its log): this node stops",
+                hb.step
+            )));
+        }
         if hb.state == lifecycle::READY && k > start {
             return Err(FiberNodeError::Protocol(format!(
                 "node {node}: the flow node started the run again from step {} while this \

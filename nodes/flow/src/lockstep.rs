@@ -58,6 +58,23 @@ impl Peers {
         while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
             wait = Duration::ZERO;
             self.heard.insert(hb.node.clone(), Instant::now());
+            // a node of the run that gave up ends the run now, not after the step timeout
+            if hb.state == lifecycle::FAILED
+                && hb.node != "flow"
+                && run.expected_nodes.iter().any(|n| n == &hb.node)
+            {
+                heartbeat(
+                    bus,
+                    &Topics::new(&run.run_id),
+                    lifecycle::FAILED,
+                    hb.step,
+                    0,
+                )?;
+                return Err(FlowError::Protocol(format!(
+                    "node {} failed at step {} (see its log): the run stops",
+                    hb.node, hb.step
+                )));
+            }
             if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
                 self.recorded = self.recorded.max(hb.step);
             }

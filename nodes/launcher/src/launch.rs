@@ -432,7 +432,12 @@ fn run_inproc_on(
                 .spawn(move || {
                     // a panic is this process's failure at once, like an error
                     let what = format!("node process {}", spec.node);
-                    let r = crate::panics::catching(&what, || run_nodes(&spec, bus, stop));
+                    let r = crate::panics::catching(&what, || run_nodes(&spec, bus.clone(), stop));
+                    if r.is_err() {
+                        // said for it (a node that returned an error may not have): the
+                        // flow node ends the run at once, and with it the fibre nodes
+                        said_failed(&bus, &spec);
+                    }
                     let _ = done.send(r);
                 })?,
         );
@@ -462,6 +467,22 @@ fn run_inproc_on(
         bail!(f);
     }
     Ok(())
+}
+
+/// Publishes a FAILED heartbeat for each node of the in-process "process" `spec`.
+fn said_failed(bus: &BusHandle, spec: &NodeSpec) {
+    use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
+    let t = fiberflow_messages::topics::Topics::new(&spec.launch.run.id);
+    for node in std::iter::once(&spec.node).chain(&spec.co_nodes) {
+        let hb = Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: node.clone(),
+            state: lifecycle::FAILED,
+            step: 0,
+            dropped: 0,
+        };
+        let _ = bus.publish(&t.heartbeat(node), &encode(&hb));
+    }
 }
 
 struct Node {
@@ -1033,6 +1054,73 @@ mod tests {
         nodes.push("recorder".into());
         run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
         std::fs::read(out.join("run.mcap")).unwrap()
+    }
+
+    /// A bus whose publishes on one topic fail after the first `after` (a node whose
+    /// transport broke: it returns an error mid-run).
+    struct BreaksAfter {
+        inner: BusHandle,
+        topic: String,
+        after: usize,
+        count: std::sync::atomic::AtomicUsize,
+    }
+
+    impl fiberflow_bus::Bus for BreaksAfter {
+        fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), fiberflow_bus::BusError> {
+            if topic == self.topic && self.count.fetch_add(1, Ordering::SeqCst) >= self.after {
+                return Err(fiberflow_bus::BusError::Transport(
+                    "broken on purpose".into(),
+                ));
+            }
+            self.inner.publish(topic, payload)
+        }
+        fn subscribe(
+            &self,
+            pattern: &str,
+        ) -> Result<fiberflow_bus::Subscription, fiberflow_bus::BusError> {
+            self.inner.subscribe(pattern)
+        }
+        fn name(&self) -> &'static str {
+            "breaks-after"
+        }
+    }
+
+    /// An in-process run (analytic shear, step timeout 60 s) whose fibre node `stiff`
+    /// fails at its 20th state: the run ends within seconds with its error, not after the
+    /// other nodes' step timeout (the flow node hears the failure and ends the run; the
+    /// other fibre node hears the flow node's).
+    #[test]
+    fn a_failed_in_process_run_stops_at_once() {
+        let dir = std::env::temp_dir().join(format!("ff-inproc-fail-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../launch/validation/analytic-shear.toml");
+        let sets = ["run.steps=4000".to_string(), "run.step_timeout_s=60".into()];
+        let (lf, text) = LaunchFile::load_with(&file, &sets).unwrap();
+        let base = NodeSpec::inproc(lf.clone(), text, dir.clone());
+        let bus: BusHandle = Arc::new(BreaksAfter {
+            inner: Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            topic: fiberflow_messages::topics::Topics::new(&lf.run.id).fiber_state("stiff"),
+            after: 20,
+            count: Default::default(),
+        });
+        let mut nodes = vec!["flow".to_string()];
+        nodes.extend(lf.fibre_nodes().unwrap());
+        nodes.push("recorder".into());
+        let t0 = std::time::Instant::now();
+        let r = run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false)));
+        let e = format!("{:#}", r.expect_err("the run fails"));
+        assert!(
+            e.contains("stiff") && e.contains("broken on purpose"),
+            "{e}"
+        );
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(15),
+            "took {:?}",
+            t0.elapsed()
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A recorder that takes 4 ms over every message (a slow disk) holds the run back
