@@ -1,19 +1,57 @@
 //! A node's pulse: a thread that says every [`PULSE_PERIOD`] that each node of this
-//! process is alive (a RUNNING heartbeat with its step), whatever the node is doing — a
-//! long fibre step, a wait for samples, a long write. The fibre nodes show the step they
-//! work on, the recorder the step it has recorded through. The flow node takes a node
-//! silent for `run.liveness_s` as gone (a hung process, a host or link that vanished) and
+//! process is alive (a RUNNING heartbeat with its step) — as long as the node's loop shows
+//! it advances: the loop stamps its [`Watch`] as it goes (every wait for samples polls at
+//! least twice a second, the recorder's loop twenty times), and a node whose loop has not
+//! stamped for [`LOOP_STALE`] (deadlocked, spinning somewhere it should not, blocked in a
+//! call that never returns) gets no pulse. The fibre nodes show the step they work on,
+//! the recorder the step it has recorded through. The flow node takes a node silent for
+//! `run.liveness_s` as gone (a hung loop or process, a host or link that vanished) and
 //! fails the step at once, naming it, instead of waiting out the step timeout
-//! (docs/architecture.md, "Runs that survive").
+//! (docs/architecture.md, "Runs that survive"). A single step that computes for longer
+//! than `run.liveness_s` looks the same: the setting must allow for the longest step.
 
 use crate::BusHandle;
 use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
-use std::time::Duration;
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
 
 /// How often each node's pulse goes out.
 pub const PULSE_PERIOD: Duration = Duration::from_secs(1);
+
+/// A node whose loop has not stamped its [`Watch`] for this long gets no pulse.
+pub const LOOP_STALE: Duration = Duration::from_secs(2);
+
+/// When a node's loop last showed that it advances (nanoseconds after this process's
+/// first use of a watch, plus one; 0: not yet). Nodes stepped in turn on one thread share
+/// one watch.
+#[derive(Debug, Default)]
+pub struct Watch(AtomicU64);
+
+fn epoch() -> Instant {
+    static EPOCH: OnceLock<Instant> = OnceLock::new();
+    *EPOCH.get_or_init(Instant::now)
+}
+
+impl Watch {
+    /// The loop advances: stamped now.
+    pub fn touch(&self) {
+        let t = epoch().elapsed().as_nanos() as u64 + 1;
+        self.0.store(t, Ordering::Relaxed);
+    }
+
+    /// How long ago the loop last stamped (None: never).
+    pub fn age(&self) -> Option<Duration> {
+        match self.0.load(Ordering::Relaxed) {
+            0 => None,
+            t => Some(
+                epoch()
+                    .elapsed()
+                    .saturating_sub(Duration::from_nanos(t - 1)),
+            ),
+        }
+    }
+}
 
 /// What a node shows in its pulse: the step it works on and the messages it dropped.
 #[derive(Debug, Default)]
@@ -29,15 +67,26 @@ pub struct Pulse {
 }
 
 impl Pulse {
-    /// Starts pulsing for `nodes`: (heartbeat topic, node name, what it shows).
-    pub fn start(bus: BusHandle, nodes: Vec<(String, String, Arc<Beat>)>) -> std::io::Result<Self> {
+    /// Starts pulsing for `nodes`: (heartbeat topic, node name, what it shows, the watch
+    /// its loop stamps). Every watch counts as stamped now.
+    pub fn start(
+        bus: BusHandle,
+        nodes: Vec<(String, String, Arc<Beat>, Arc<Watch>)>,
+    ) -> std::io::Result<Self> {
+        for (_, _, _, w) in &nodes {
+            w.touch();
+        }
         let stop = Arc::new(AtomicBool::new(false));
         let halt = stop.clone();
         let thread = std::thread::Builder::new()
             .name("pulse".into())
             .spawn(move || {
                 while !halt.load(Ordering::Relaxed) {
-                    for (topic, node, beat) in &nodes {
+                    for (topic, node, beat, watch) in &nodes {
+                        if watch.age().is_none_or(|a| a > LOOP_STALE) {
+                            // the loop is stuck: no pulse, so the flow node finds it silent
+                            continue;
+                        }
                         let hb = Heartbeat {
                             schema_version: SCHEMA_VERSION,
                             node: node.clone(),
@@ -86,9 +135,10 @@ mod tests {
         let sub = bus.subscribe("p/hb/**").unwrap();
         let beat = Arc::new(Beat::default());
         beat.step.store(7, Ordering::Relaxed);
+        let watch = Arc::new(Watch::default());
         let pulse = Pulse::start(
             bus.clone(),
-            vec![("p/hb/a".into(), "a".into(), beat.clone())],
+            vec![("p/hb/a".into(), "a".into(), beat.clone(), watch.clone())],
         )
         .unwrap();
         let (topic, first) = sub.rx.recv_timeout(Duration::from_secs(5)).unwrap();
@@ -99,11 +149,37 @@ mod tests {
             ("a", lifecycle::RUNNING, 7)
         );
         beat.step.store(8, Ordering::Relaxed);
+        watch.touch();
         let (_, next) = sub.rx.recv_timeout(Duration::from_secs(5)).unwrap();
         let hb: Heartbeat = fiberflow_messages::decode(&next).unwrap();
         assert_eq!(hb.step, 8);
         drop(pulse);
         while sub.rx.try_recv().is_ok() {}
         assert!(sub.rx.recv_timeout(Duration::from_millis(1500)).is_err());
+    }
+
+    /// A node whose loop stops stamping its watch gets no pulse once the stamp is older
+    /// than [`LOOP_STALE`], and pulses again when its loop stamps again.
+    #[test]
+    fn a_stuck_loop_gets_no_pulse() {
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let sub = bus.subscribe("q/hb/**").unwrap();
+        let beat = Arc::new(Beat::default());
+        let watch = Arc::new(Watch::default());
+        let _pulse = Pulse::start(
+            bus.clone(),
+            vec![("q/hb/a".into(), "a".into(), beat, watch.clone())],
+        )
+        .unwrap();
+        assert!(sub.rx.recv_timeout(Duration::from_secs(5)).is_ok());
+        // not stamped: silent from LOOP_STALE on
+        std::thread::sleep(LOOP_STALE + PULSE_PERIOD);
+        while sub.rx.try_recv().is_ok() {}
+        assert!(
+            sub.rx.recv_timeout(2 * PULSE_PERIOD).is_err(),
+            "a stuck loop pulsed"
+        );
+        watch.touch();
+        assert!(sub.rx.recv_timeout(2 * PULSE_PERIOD).is_ok());
     }
 }

@@ -143,26 +143,34 @@ pub fn serve_many(
             s.start(a)?;
         }
     }
-    // every node of this process says it is alive once a second until it returns
+    // groups large enough to step on the thread pool run a thread each: their serial
+    // parts (the samples' check, the state arrays, publishing) then overlap; shards that
+    // exchange their free steps within a step must not wait for each other on one thread
+    let on_threads = served.len() > 1
+        && served
+            .iter()
+            .any(|s| s.group.segment_count() >= PARALLEL_MIN_SEGMENTS || s.exchange.is_some());
+    if !on_threads {
+        // one loop steps them all: one watch of its progress
+        let shared = std::sync::Arc::new(fiberflow_bus::pulse::Watch::default());
+        for s in served.iter_mut() {
+            s.watch = shared.clone();
+        }
+    }
+    // every node of this process says it is alive once a second while its loop advances
     let _pulse = fiberflow_bus::pulse::Pulse::start(
         bus.clone(),
         served
             .iter()
-            .map(|s| (s.t.heartbeat(&s.node), s.node.clone(), s.beat.clone()))
+            .map(|s| {
+                let topic = s.t.heartbeat(&s.node);
+                (topic, s.node.clone(), s.beat.clone(), s.watch.clone())
+            })
             .collect(),
     )
     .map_err(|e| FiberNodeError::Protocol(format!("starting the pulse thread: {e}")))?;
     let step_timeout = Duration::from_secs_f64(timeout_s);
-    // groups large enough to step on the thread pool run a thread each: their serial
-    // parts (the samples' check, the state arrays, publishing) then overlap (stepped in
-    // turn at 6 × 10⁴ fibres, the flow node waited 3–5 ms longer per step)
-    // shards that exchange their free steps within a step must not wait for each other
-    // on one thread
-    if served.len() > 1
-        && served
-            .iter()
-            .any(|s| s.group.segment_count() >= PARALLEL_MIN_SEGMENTS || s.exchange.is_some())
-    {
+    if on_threads {
         tracing::info!(nodes = served.len(), "fibre nodes on a thread each");
         return serve_on_threads(served, step_timeout, timeout_s, ck.start_step);
     }
@@ -306,6 +314,8 @@ struct Served {
     cpu_from: f64,
     /// What this node's pulse shows (`fiberflow_bus::pulse`).
     beat: std::sync::Arc<fiberflow_bus::pulse::Beat>,
+    /// Stamped by this node's loop as it goes: no stamp for a while, no pulse.
+    watch: std::sync::Arc<fiberflow_bus::pulse::Watch>,
 }
 
 impl Served {
@@ -455,6 +465,7 @@ impl Served {
             longest_wait: Duration::ZERO,
             cpu_from: 0.0,
             beat: Default::default(),
+            watch: Default::default(),
         })
     }
 
@@ -582,6 +593,7 @@ impl Served {
         // the wait ends with the samples checked (checking counts as the fibre step); the
         // step reads them where they arrived (a transport's shared memory), not copied
         let (checking, samples) = loop {
+            self.watch.touch();
             self.flow_restarted(k)?;
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
@@ -695,7 +707,8 @@ impl Served {
         let Some(mut x) = self.exchange.take() else {
             return Ok(());
         };
-        let (flow_hb, node, start) = (&mut self.flow_hb, &self.node, self.start);
+        let (flow_hb, node, start, watch) =
+            (&mut self.flow_hb, &self.node, self.start, &self.watch);
         let result = x.contact(
             &self.bus,
             node,
@@ -705,7 +718,10 @@ impl Served {
             k as f64 * self.dt,
             self.dt,
             step_timeout,
-            &mut || flow_restarted(flow_hb.as_mut(), node, start, k),
+            &mut || {
+                watch.touch();
+                flow_restarted(flow_hb.as_mut(), node, start, k)
+            },
         );
         self.exchange = Some(x);
         result

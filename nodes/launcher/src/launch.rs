@@ -1057,17 +1057,20 @@ mod tests {
     }
 
     /// A bus whose publishes on one topic fail after the first `after` (a node whose
-    /// transport broke: it returns an error mid-run).
+    /// transport broke: it returns an error mid-run), after hanging for `hang` (a node
+    /// whose loop is stuck in a call while its process lives).
     struct BreaksAfter {
         inner: BusHandle,
         topic: String,
         after: usize,
+        hang: std::time::Duration,
         count: std::sync::atomic::AtomicUsize,
     }
 
     impl fiberflow_bus::Bus for BreaksAfter {
         fn publish(&self, topic: &str, payload: &[u8]) -> Result<(), fiberflow_bus::BusError> {
             if topic == self.topic && self.count.fetch_add(1, Ordering::SeqCst) >= self.after {
+                std::thread::sleep(self.hang);
                 return Err(fiberflow_bus::BusError::Transport(
                     "broken on purpose".into(),
                 ));
@@ -1103,6 +1106,7 @@ mod tests {
             inner: Arc::new(fiberflow_bus::inproc::InprocBus::new()),
             topic: fiberflow_messages::topics::Topics::new(&lf.run.id).fiber_state("stiff"),
             after: 20,
+            hang: std::time::Duration::ZERO,
             count: Default::default(),
         });
         let mut nodes = vec!["flow".to_string()];
@@ -1120,6 +1124,41 @@ mod tests {
             "took {:?}",
             t0.elapsed()
         );
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// An in-process run whose fibre nodes' loop hangs (stuck for 15 s in a publish of
+    /// `stiff`'s state at its 20th step) while the process and its pulse thread live: the
+    /// loop stops stamping its watch, the pulse stops, and the flow node finds the nodes
+    /// silent after `run.liveness_s` (3 s) and ends the run naming them — before, the pulse
+    /// beat on and the run waited for the stuck call.
+    #[test]
+    fn a_fibre_node_whose_loop_hangs_is_found_silent() {
+        let dir = std::env::temp_dir().join(format!("ff-inproc-hang-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(dir.join("config")).unwrap();
+        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../launch/validation/analytic-shear.toml");
+        let sets = [
+            "run.steps=4000".to_string(),
+            "run.step_timeout_s=60".into(),
+            "run.liveness_s=3".into(),
+            "recorder.enabled=false".into(),
+        ];
+        let (lf, text) = LaunchFile::load_with(&file, &sets).unwrap();
+        let base = NodeSpec::inproc(lf.clone(), text, dir.clone());
+        let bus: BusHandle = Arc::new(BreaksAfter {
+            inner: Arc::new(fiberflow_bus::inproc::InprocBus::new()),
+            topic: fiberflow_messages::topics::Topics::new(&lf.run.id).fiber_state("stiff"),
+            after: 20,
+            hang: std::time::Duration::from_secs(15),
+            count: Default::default(),
+        });
+        let mut nodes = vec!["flow".to_string()];
+        nodes.extend(lf.fibre_nodes().unwrap());
+        let r = run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false)));
+        let e = format!("{:#}", r.expect_err("the run fails"));
+        assert!(e.contains("silent") && e.contains("stiff"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -14,7 +14,7 @@ pub mod pointcloud;
 pub mod recover;
 pub mod ros;
 
-use fiberflow_bus::pulse::{Beat, Pulse};
+use fiberflow_bus::pulse::{Beat, Pulse, Watch};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::topics::{type_of, Topics};
@@ -653,15 +653,22 @@ pub fn record(
     beat.step.store(plan.start_step, Ordering::Relaxed);
     let mut reported = plan.start_step;
     let mut said_committed: Option<u64> = None;
+    let watch = Arc::new(Watch::default());
     let _pulse = Pulse::start(
         bus.clone(),
-        vec![(t.heartbeat("recorder"), "recorder".into(), beat.clone())],
+        vec![(
+            t.heartbeat("recorder"),
+            "recorder".into(),
+            beat.clone(),
+            watch.clone(),
+        )],
     )
     .map_err(|source| RecorderError::Io {
         path: "the recorder's pulse thread".into(),
         source,
     })?;
     loop {
+        watch.touch();
         if stop.load(Ordering::SeqCst) {
             // what has already arrived is still recorded (`finish`)
             tracing::info!("recorder stopping on signal");
