@@ -41,9 +41,10 @@ pub enum FiberNodeError {
     Protocol(String),
 }
 
-/// How often a fibre node looks at the flow node's heartbeats (its restart, its failure)
-/// while it waits for samples.
-const FLOW_HEARTBEAT_POLL: Duration = Duration::from_millis(500);
+/// How often a fibre node's wait for samples wakes (without samples): to stamp its watch
+/// (the pulse beats only while the loop advances), look for a stop, and read the flow
+/// node's heartbeats when it lives on another host.
+const WAIT_POLL: Duration = Duration::from_millis(500);
 
 /// Where a group starts, where it saves coupled checkpoints, which run it belongs to, and
 /// what its states carry (complete at which steps; the forces of two-way coupling).
@@ -86,7 +87,7 @@ pub fn serve(
     timeout_s: f64,
     ck: &Checkpointing,
 ) -> Result<DropCounter, FiberNodeError> {
-    let mut drops = serve_many(&[(cfg, shard)], bus, run_id, box_plus, timeout_s, ck)?;
+    let mut drops = serve_many(&[(cfg, shard)], bus, run_id, box_plus, timeout_s, ck, None)?;
     Ok(drops.pop().map(|(_, d)| d).unwrap_or_default())
 }
 
@@ -98,6 +99,8 @@ pub fn serve(
 /// samples are late sends the states of the nodes after it again with its own, since the
 /// flow node answers none before it holds them all). If any group is
 /// larger, each node gets a thread of its own. Returns each node's name and drop counts.
+/// `stop` (in-process runs): set by the launcher when another node of the run failed; the
+/// nodes' waits then end at once.
 pub fn serve_many(
     nodes: &[(&FiberNodeConfig, u32)],
     bus: BusHandle,
@@ -105,11 +108,15 @@ pub fn serve_many(
     box_plus: [f64; 3],
     timeout_s: f64,
     ck: &Checkpointing,
+    stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 ) -> Result<Vec<(String, DropCounter)>, FiberNodeError> {
     let mut served = nodes
         .iter()
         .map(|(cfg, shard)| Served::prepare(cfg, *shard, bus.clone(), run_id, box_plus, ck))
         .collect::<Result<Vec<_>, _>>()?;
+    for s in served.iter_mut() {
+        s.stop = stop.clone();
+    }
     // readiness until every node's run is announced
     let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
     let mut announced: Vec<Option<RunAnnouncement>> = vec![None; served.len()];
@@ -316,6 +323,8 @@ struct Served {
     beat: std::sync::Arc<fiberflow_bus::pulse::Beat>,
     /// Stamped by this node's loop as it goes: no stamp for a while, no pulse.
     watch: std::sync::Arc<fiberflow_bus::pulse::Watch>,
+    /// In-process runs: set when another node of the run failed.
+    stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 impl Served {
@@ -387,8 +396,11 @@ impl Served {
         let name = cfg.group.clone();
         let samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
         let ann_in = Inbox::new(bus.subscribe(&t.announce())?);
-        // the flow node's restart (on another host) or failure ends this node's wait
-        let flow_hb = Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?));
+        let flow_hb = if ck.flow_elsewhere {
+            Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?))
+        } else {
+            None
+        };
         let state_msg = Encode(FiberGroupState {
             schema_version: SCHEMA_VERSION,
             group: name.clone(),
@@ -466,6 +478,7 @@ impl Served {
             cpu_from: 0.0,
             beat: Default::default(),
             watch: Default::default(),
+            stop: None,
         })
     }
 
@@ -480,6 +493,21 @@ impl Served {
                 dropped: self.samples_in.drops.total(),
             }),
         )
+    }
+
+    /// Fails when the launcher of an in-process run said another node failed.
+    fn stopped(&self) -> Result<(), FiberNodeError> {
+        if self
+            .stop
+            .as_ref()
+            .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
+        {
+            return Err(FiberNodeError::Protocol(format!(
+                "node {}: stopped: the run is stopping (another node failed, or Ctrl-C)",
+                self.node
+            )));
+        }
+        Ok(())
     }
 
     /// Fails when the flow node has started the run again ([`flow_restarted`]).
@@ -594,6 +622,7 @@ impl Served {
         // step reads them where they arrived (a transport's shared memory), not copied
         let (checking, samples) = loop {
             self.watch.touch();
+            self.stopped()?;
             self.flow_restarted(k)?;
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
@@ -625,11 +654,9 @@ impl Served {
                 resend_after = (2 * resend_after).min(resend_cap);
                 resend_at = now + resend_after;
             }
-            let mut wait = left.min(resend_at.saturating_duration_since(now));
-            if self.flow_hb.is_some() {
-                // the flow node's heartbeats are looked at between waits
-                wait = wait.min(FLOW_HEARTBEAT_POLL);
-            }
+            let wait = left
+                .min(resend_at.saturating_duration_since(now))
+                .min(WAIT_POLL);
             let Some((topic, bytes)) = self.samples_in.recv_raw(wait) else {
                 continue;
             };
@@ -707,8 +734,13 @@ impl Served {
         let Some(mut x) = self.exchange.take() else {
             return Ok(());
         };
-        let (flow_hb, node, start, watch) =
-            (&mut self.flow_hb, &self.node, self.start, &self.watch);
+        let (flow_hb, node, start, watch, stop) = (
+            &mut self.flow_hb,
+            &self.node,
+            self.start,
+            &self.watch,
+            &self.stop,
+        );
         let result = x.contact(
             &self.bus,
             node,
@@ -720,6 +752,14 @@ impl Served {
             step_timeout,
             &mut || {
                 watch.touch();
+                if stop
+                    .as_ref()
+                    .is_some_and(|s| s.load(std::sync::atomic::Ordering::SeqCst))
+                {
+                    return Err(FiberNodeError::Protocol(format!(
+                        "node {node}: stopped: the run is stopping (another node failed, or Ctrl-C)"
+                    )));
+                }
                 flow_restarted(flow_hb.as_mut(), node, start, k)
             },
         );
@@ -873,9 +913,7 @@ impl Served {
     }
 }
 
-/// Fails when the flow node has failed (FAILED: the run is over; waiting for samples that
-/// will not come would only hold the run until the step timeout), or (on another host)
-/// has started the run again: it says READY
+/// Fails when the flow node (on another host) has started the run again: it says READY
 /// only while it waits for the nodes to join, so a READY read once node `node` (which
 /// started at step `start`) is past its first step comes from a restarted flow node (those
 /// of the first step are the join's, sent before the announcement, and are read and let
@@ -891,12 +929,6 @@ fn flow_restarted(
         return Ok(());
     };
     while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
-        if hb.state == lifecycle::FAILED {
-            return Err(FiberNodeError::Protocol(format!(
-                "node {node}: the flow node failed at step {} (see its log): this node stops",
-                hb.step
-            )));
-        }
         if hb.state == lifecycle::READY && k > start {
             return Err(FiberNodeError::Protocol(format!(
                 "node {node}: the flow node started the run again from step {} while this \

@@ -54,27 +54,18 @@ impl Peers {
         run: &RunInfo,
         first_wait: Duration,
     ) -> Result<(), FlowError> {
+        // an in-process run whose other node failed: the launcher says so (a heartbeat
+        // saying FAILED could be anyone's on the bus)
+        if run.stop.as_ref().is_some_and(|s| s.is_set()) {
+            heartbeat(bus, &Topics::new(&run.run_id), lifecycle::FAILED, 0, 0)?;
+            return Err(FlowError::Protocol(
+                "stopped: the run is stopping (another node failed, or Ctrl-C)".into(),
+            ));
+        }
         let mut wait = first_wait;
         while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
             wait = Duration::ZERO;
             self.heard.insert(hb.node.clone(), Instant::now());
-            // a node of the run that gave up ends the run now, not after the step timeout
-            if hb.state == lifecycle::FAILED
-                && hb.node != "flow"
-                && run.expected_nodes.iter().any(|n| n == &hb.node)
-            {
-                heartbeat(
-                    bus,
-                    &Topics::new(&run.run_id),
-                    lifecycle::FAILED,
-                    hb.step,
-                    0,
-                )?;
-                return Err(FlowError::Protocol(format!(
-                    "node {} failed at step {} (see its log): the run stops",
-                    hb.node, hb.step
-                )));
-            }
             if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
                 self.recorded = self.recorded.max(hb.step);
             }
@@ -408,6 +399,7 @@ pub(crate) fn one_piece_run() -> RunInfo {
         step_times: None,
         two_way: false,
         remote_pieces: vec![],
+        stop: None,
     }
 }
 

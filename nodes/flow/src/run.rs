@@ -40,6 +40,25 @@ pub struct RunInfo {
     /// whose checkpoints are written there; the flow node confirms them in its own
     /// ([`fiberflow_messages::checkpoints::REMOTE_PIECE`]).
     pub remote_pieces: Vec<(String, String)>,
+    /// In-process runs: set by the launcher when another node of the run failed; the
+    /// flow node's waits then end at once.
+    pub stop: Option<Stop>,
+}
+
+/// A stop flag shared with the launcher (equal when it is the same flag).
+#[derive(Debug, Clone)]
+pub struct Stop(pub std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl Stop {
+    pub fn is_set(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::SeqCst)
+    }
+}
+
+impl PartialEq for Stop {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 /// What the loop did.

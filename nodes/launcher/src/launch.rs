@@ -432,11 +432,10 @@ fn run_inproc_on(
                 .spawn(move || {
                     // a panic is this process's failure at once, like an error
                     let what = format!("node process {}", spec.node);
-                    let r = crate::panics::catching(&what, || run_nodes(&spec, bus.clone(), stop));
+                    let r = crate::panics::catching(&what, || run_nodes(&spec, bus, stop.clone()));
                     if r.is_err() {
-                        // said for it (a node that returned an error may not have): the
-                        // flow node ends the run at once, and with it the fibre nodes
-                        said_failed(&bus, &spec);
+                        // the others' waits end at once (not after the step timeout)
+                        stop.store(true, Ordering::SeqCst);
                     }
                     let _ = done.send(r);
                 })?,
@@ -467,22 +466,6 @@ fn run_inproc_on(
         bail!(f);
     }
     Ok(())
-}
-
-/// Publishes a FAILED heartbeat for each node of the in-process "process" `spec`.
-fn said_failed(bus: &BusHandle, spec: &NodeSpec) {
-    use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
-    let t = fiberflow_messages::topics::Topics::new(&spec.launch.run.id);
-    for node in std::iter::once(&spec.node).chain(&spec.co_nodes) {
-        let hb = Heartbeat {
-            schema_version: SCHEMA_VERSION,
-            node: node.clone(),
-            state: lifecycle::FAILED,
-            step: 0,
-            dropped: 0,
-        };
-        let _ = bus.publish(&t.heartbeat(node), &encode(&hb));
-    }
 }
 
 struct Node {

@@ -257,6 +257,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 step_times: Some(spec.out_dir.join("logs").join("flow-steps.csv")),
                 two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
                 remote_pieces: remote_pieces(spec)?,
+                stop: in_process_stop(spec, &stop).map(fiberflow_flow::run::Stop),
             };
             // on a multi-host run the flow node is the zenoh router: everything the other
             // nodes send after its last step (final states, DONE) passes through it, so it
@@ -336,7 +337,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             );
             report_drops("recorder", &s.drops);
         }
-        node => run_fibre_nodes(spec, &[node.to_string()], &pieces, bus)?,
+        node => run_fibre_nodes(spec, &[node.to_string()], &pieces, bus, &stop)?,
     }
     Ok(())
 }
@@ -344,11 +345,19 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
 /// Runs fibre nodes of the launch file (`pieces`: its fibre nodes) until the run ends
 /// (`fiberflow_fiber::serve::serve_many`: small groups stepped in turn on this thread,
 /// large ones a thread each).
+/// The launcher's stop flag for the nodes of an in-process run (set when one of them
+/// failed, or on Ctrl-C): their waits end at once. Separate processes are stopped by the
+/// launcher instead.
+fn in_process_stop(spec: &NodeSpec, stop: &Arc<AtomicBool>) -> Option<Arc<AtomicBool>> {
+    (spec.transport == "inproc").then(|| stop.clone())
+}
+
 fn run_fibre_nodes(
     spec: &NodeSpec,
     names: &[String],
     pieces: &[fiberflow_messages::pieces::Piece],
     bus: BusHandle,
+    stop: &Arc<AtomicBool>,
 ) -> Result<()> {
     let lf = &spec.launch;
     let mut nodes = Vec::new();
@@ -385,6 +394,7 @@ fn run_fibre_nodes(
         lf.box_plus(),
         lf.run.step_timeout_s,
         &ck,
+        in_process_stop(spec, stop),
     )?;
     for (node, drops) in &served {
         report_drops(node, drops);
@@ -408,7 +418,7 @@ pub(crate) fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) 
     // (the pieces are built once: each build places every fibre of every group)
     if let Ok(pieces) = spec.launch.pieces() {
         if names.iter().all(|n| pieces.iter().any(|p| &p.node() == n)) {
-            return run_fibre_nodes(spec, &names, &pieces, bus)
+            return run_fibre_nodes(spec, &names, &pieces, bus, &stop)
                 .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
         }
     }
