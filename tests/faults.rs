@@ -43,6 +43,45 @@ fn kill_host(child: &mut std::process::Child, out: &Path) {
     }
 }
 
+/// `fiberflow launch FILE --host worker --resume DIR` with `sets`, its output captured.
+fn resume_worker(file: &Path, worker_dir: &Path, sets: &[&str]) -> std::process::Child {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(file)
+        .args(["--host", "worker", "--resume"])
+        .arg(worker_dir);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    c.stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Asserts that `recording` holds every state of the analytic-shear launch with `sets`
+/// (4000 steps) exactly once, bit for bit those of the run in one process.
+fn assert_every_state_once(recording: &Path, sets: &[&str], dir: &Path) {
+    let (b, _) = states_by_step(recording);
+    let one = dir.join("one");
+    launch_with(
+        &root().join("launch/validation/analytic-shear.toml"),
+        &one,
+        "inproc",
+        sets,
+    );
+    let (a, _) = states_by_step(&one);
+    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
+    assert_eq!(
+        a.keys().collect::<Vec<_>>(),
+        b.keys().collect::<Vec<_>>(),
+        "the recording lost or gained steps"
+    );
+    for (k, v) in &a {
+        assert!(v == &b[k], "{k:?}: the resumed run's state differs");
+    }
+}
+
 /// The recorder on the worker: once the head has a complete checkpoint, the worker's
 /// launcher and all its nodes are killed (`kill -9`) and the worker is started again with
 /// `--resume`. The head rolls back to its newest complete checkpoint, which it completed
@@ -67,19 +106,7 @@ fn a_recorder_on_a_killed_worker_keeps_every_step_once() {
     let mut worker = launch_host(&file, "worker", &worker_dir, &sets);
     wait_for_checkpoint(&head_dir, 300);
     kill_host(&mut worker, &worker_dir);
-    let mut c = Command::new(fiberflow());
-    c.arg("launch")
-        .arg(&file)
-        .args(["--host", "worker", "--resume"])
-        .arg(&worker_dir);
-    for s in sets {
-        c.arg("--set").arg(s);
-    }
-    let resumed = c
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let resumed = resume_worker(&file, &worker_dir, &sets);
     let o = head.wait_with_output().unwrap();
     let said = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "head failed:\n{said}");
@@ -88,25 +115,12 @@ fn a_recorder_on_a_killed_worker_keeps_every_step_once() {
         "no restart:\n{said}"
     );
     assert_all_succeed(vec![("the resumed worker", resumed)]);
-    let (b, segments) = states_by_step(&worker_dir);
-    assert!(segments >= 2, "the resumed recorder writes a new segment");
-    let one = dir.join("one");
-    launch_with(
-        &root().join("launch/validation/analytic-shear.toml"),
-        &one,
-        "inproc",
-        &sets,
+    let segments = fiberflow_messages::segments::segment_paths(&worker_dir).unwrap();
+    assert!(
+        segments.len() >= 2,
+        "the resumed recorder writes a new segment"
     );
-    let (a, _) = states_by_step(&one);
-    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
-    assert_eq!(
-        a.keys().collect::<Vec<_>>(),
-        b.keys().collect::<Vec<_>>(),
-        "the worker's recording lost or gained steps"
-    );
-    for (k, v) in &a {
-        assert!(v == &b[k], "{k:?}: the resumed run's state differs");
-    }
+    assert_every_state_once(&worker_dir, &sets, &dir);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -134,34 +148,9 @@ fn a_worker_keeps_the_step_the_head_resumes_from() {
     wait_for_checkpoint(&head_dir, 300);
     std::thread::sleep(Duration::from_millis(300));
     kill_host(&mut worker, &worker_dir);
-    let mut c = Command::new(fiberflow());
-    c.arg("launch")
-        .arg(&file)
-        .args(["--host", "worker", "--resume"])
-        .arg(&worker_dir);
-    for s in sets {
-        c.arg("--set").arg(s);
-    }
-    let resumed = c
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let resumed = resume_worker(&file, &worker_dir, &sets);
     assert_all_succeed(vec![("head", head), ("the resumed worker", resumed)]);
-    let (b, _) = states_by_step(&worker_dir);
-    let one = dir.join("one");
-    launch_with(
-        &root().join("launch/validation/analytic-shear.toml"),
-        &one,
-        "inproc",
-        &sets,
-    );
-    let (a, _) = states_by_step(&one);
-    assert_eq!(a.len(), 2 * 4001, "two groups, steps 0..=4000");
-    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
-    for (k, v) in &a {
-        assert!(v == &b[k], "{k:?}: the resumed run's state differs");
-    }
+    assert_every_state_once(&worker_dir, &sets, &dir);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -186,19 +175,7 @@ fn a_worker_waiting_for_the_head_stops_on_sigterm() {
         std::thread::sleep(Duration::from_millis(50));
     }
     kill_host(&mut first, &worker_dir);
-    let mut c = Command::new(fiberflow());
-    c.arg("launch")
-        .arg(&file)
-        .args(["--host", "worker", "--resume"])
-        .arg(&worker_dir);
-    for s in sets {
-        c.arg("--set").arg(s);
-    }
-    let resumed = c
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let resumed = resume_worker(&file, &worker_dir, &sets);
     std::thread::sleep(Duration::from_secs(2));
     let t0 = Instant::now();
     // SAFETY: plain syscall on a child this test started

@@ -16,14 +16,26 @@
 //! - correction: per fibre its memories of the held modes read and written once (what
 //!   carries from step to step), and per pair of segments the pair shares' arithmetic of
 //!   the long-wave path (u = Σ_b c_b r_b², a degree-5 polynomial in u) over the held lanes
-//!   in single precision (no square root, range reduction or division).
+//!   in single precision (no square root, range reduction or division);
+//! - fibre step (a fibre node's `FibreGroup::step`, viscous + inertial drag, no contact):
+//!   per segment its state as the group stores it (six 3-vectors: centre, axis, velocity,
+//!   angular velocity, normal, force; 144 bytes) read and written once and its fluid
+//!   sample (12 values) read once, with one add per value;
+//! - state out (the group's full state arrays gathered and its message encoded as CDR into
+//!   a buffer of the message's size, as a fibre node sends it): per segment the message's
+//!   12 values copied once from a flat array into the buffer.
 
 use anyhow::{Context, Result};
 use fiberflow_dns::sample::Interpolation;
 use fiberflow_dns::spread::{spread, BodyForce};
 use fiberflow_dns::{DnsConfig, Grid, InitialField, Solver};
+use fiberflow_fiber_model::fibre::Fibre;
+use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::{DragModel, FluidSample, ModelParams};
 use fiberflow_flow::sampling::{Field, PieceSamples};
 use fiberflow_flow::self_induced::{History, Widths, PER_FIBRE};
+use fiberflow_messages::FiberGroupState;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -151,6 +163,64 @@ struct Case {
     plane_start: Vec<usize>,
     floor_field: Vec<f64>,
     floor_memory: Vec<f64>,
+    /// The fibre step: the case's fibres as a group, a fluid sample per segment, and the
+    /// floor's state (18 values per segment) and samples (12).
+    group: FibreGroup,
+    fluid: Vec<FluidSample>,
+    floor_state: Vec<f64>,
+    floor_samples: Vec<f64>,
+    /// State out: the message (its arrays reused), its bytes, and the floor's flat copy.
+    state_msg: FiberGroupState,
+    state_bytes: Vec<u8>,
+    floor_src: Vec<f64>,
+    floor_dst: Vec<f64>,
+}
+
+/// The case's fibres as a group of case-1 fibres (N = 7, l+ 3, d+ 0.232, ρ 1150) with the
+/// fibre nodes' drag, and a fluid sample per segment (a shear and a gradient).
+fn fibre_group(centre: &[f64]) -> Result<(FibreGroup, Vec<FluidSample>)> {
+    let params = ModelParams {
+        drag: DragModel {
+            viscosity: 1.0,
+            fluid_density: 1.0,
+            drag_coefficient: 1.0,
+        },
+        gravity: Vector3::zeros(),
+        bending_stiffness: 0.0,
+        twisting_stiffness: 0.0,
+        tikhonov: 0.0,
+        wall_half_height: Some(RE_TAU),
+    };
+    let fibres = centre
+        .chunks_exact(3 * SEGMENTS)
+        .map(|c| {
+            let first = Vector3::new(c[0], c[1], c[2]);
+            let last = Vector3::new(
+                c[3 * SEGMENTS - 3],
+                c[3 * SEGMENTS - 2],
+                c[3 * SEGMENTS - 1],
+            );
+            let mid = 0.5 * (first + last);
+            Fibre::straight(
+                mid,
+                last - first,
+                &[3.0; SEGMENTS],
+                &[0.232; SEGMENTS],
+                1150.0,
+            )
+            .context("a case fibre")
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let group = FibreGroup::new(params, fibres);
+    let fluid = group
+        .segment_centres()
+        .iter()
+        .map(|r| FluidSample {
+            vel: Vector3::new(0.1 * r.y + 10.0, 0.3, -0.2),
+            grad: Matrix3::new(0.01, 0.1, 0.0, 0.0, -0.02, 0.03, 0.01, 0.0, 0.01),
+        })
+        .collect();
+    Ok((group, fluid))
 }
 
 impl Case {
@@ -212,7 +282,28 @@ impl Case {
             plane_start[k + 1] += plane_start[k];
         }
         let widths = Widths::new(&g, RE_TAU);
+        let (group, fluid) = fibre_group(&centre)?;
+        let segments = SEGMENTS * n;
+        let state_msg = FiberGroupState {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            group: "case1".into(),
+            group_fibers: n as u32,
+            segments_per_fiber: vec![SEGMENTS as u32; n],
+            segment_length: vec![3.0; n],
+            diameter: vec![0.232; n],
+            density_ratio: vec![1150.0; n],
+            layer: vec![0; n],
+            ..Default::default()
+        };
         Ok(Self {
+            group,
+            fluid,
+            floor_state: (0..18 * segments).map(|i| (i % 89) as f64).collect(),
+            floor_samples: (0..12 * segments).map(|i| (i % 83) as f64 * 1e-3).collect(),
+            state_msg,
+            state_bytes: Vec::new(),
+            floor_src: (0..12 * segments).map(|i| (i % 79) as f64).collect(),
+            floor_dst: vec![0.0; 12 * segments],
             body: BodyForce::zeros(&g),
             floor_field: vec![0.0; 3 * g.padded_len()],
             floor_out: vec![0.0; 12 * points.len()],
@@ -300,6 +391,56 @@ impl Case {
             &self.force,
             &mut self.velocity,
         );
+    }
+
+    fn fibre_step(&mut self) {
+        // a failed step (it cannot fail for these straight fibres) would show as no time
+        let _ = self.group.step(&self.fluid[..], 0.2);
+    }
+
+    fn fibre_step_floor(&mut self) {
+        let chunk = 7 * 64;
+        self.floor_state
+            .par_chunks_mut(18 * chunk)
+            .zip(self.floor_samples.par_chunks(12 * chunk))
+            .for_each(|(state, samples)| {
+                for (s, q) in state.chunks_exact_mut(18).zip(samples.chunks_exact(12)) {
+                    let a: f64 = q.iter().sum();
+                    for x in s.iter_mut() {
+                        *x = 0.999 * *x + 1e-9 * a;
+                    }
+                }
+            });
+    }
+
+    fn state_out(&mut self) {
+        let m = &mut self.state_msg;
+        for v in [
+            &mut m.centre,
+            &mut m.axis,
+            &mut m.velocity,
+            &mut m.angular_velocity,
+        ] {
+            v.clear();
+        }
+        self.group.extend_state(
+            true,
+            &mut m.centre,
+            &mut m.axis,
+            &mut m.velocity,
+            &mut m.angular_velocity,
+        );
+        self.state_bytes
+            .resize(fiberflow_messages::encoded_len(&self.state_msg), 0);
+        let _ = fiberflow_messages::encode_into(&self.state_msg, &mut self.state_bytes);
+    }
+
+    fn state_out_floor(&mut self) {
+        let chunk = 12 * 7 * 64;
+        self.floor_dst
+            .par_chunks_mut(chunk)
+            .zip(self.floor_src.par_chunks(chunk))
+            .for_each(|(d, s)| d.copy_from_slice(s));
     }
 
     fn correction_floor(&mut self) {
@@ -397,10 +538,12 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
     );
     let mut case = Case::new(opts.fibres)?;
     let segments = (opts.fibres * SEGMENTS) as f64;
-    let stages: [(&str, Stage, Stage); 3] = [
+    let stages: [(&str, Stage, Stage); 5] = [
         ("sampling", Case::sampling, Case::sampling_floor),
         ("spreading", Case::spreading, Case::spreading_floor),
         ("correction", Case::correction, Case::correction_floor),
+        ("fibre step", Case::fibre_step, Case::fibre_step_floor),
+        ("state out", Case::state_out, Case::state_out_floor),
     ];
     let pools: Vec<(usize, rayon::ThreadPool)> = opts
         .threads

@@ -181,30 +181,27 @@ mod tests {
     fn a_worker_keeps_its_three_newest_checkpoints_and_a_window() {
         let root = std::env::temp_dir().join(format!("ff-worker-ck-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
-        for k in [20u64, 40, 60, 80, 100] {
-            std::fs::create_dir_all(step_dir(&root, k)).unwrap();
-        }
-        prune_worker(&root).unwrap();
-        let mut left: Vec<u64> = std::fs::read_dir(&root)
-            .unwrap()
-            .flatten()
-            .filter_map(|e| step_of(&e.file_name().to_string_lossy()))
-            .collect();
-        left.sort();
-        assert_eq!(left, [60, 80, 100]);
+        // the checkpoint folders of `steps` made, the worker pruned: what is left
+        let prune = |steps: &mut dyn Iterator<Item = u64>| -> Vec<u64> {
+            for k in steps {
+                std::fs::create_dir_all(step_dir(&root, k)).unwrap();
+            }
+            prune_worker(&root).unwrap();
+            let mut left: Vec<u64> = std::fs::read_dir(&root)
+                .unwrap()
+                .flatten()
+                .filter_map(|e| step_of(&e.file_name().to_string_lossy()))
+                .collect();
+            left.sort();
+            left
+        };
+        assert_eq!(
+            prune(&mut [20u64, 40, 60, 80, 100].into_iter()),
+            [60, 80, 100]
+        );
         // a checkpoint every step: the window
-        for k in 101..=130u64 {
-            std::fs::create_dir_all(step_dir(&root, k)).unwrap();
-        }
-        prune_worker(&root).unwrap();
-        let mut left: Vec<u64> = std::fs::read_dir(&root)
-            .unwrap()
-            .flatten()
-            .filter_map(|e| step_of(&e.file_name().to_string_lossy()))
-            .collect();
-        left.sort();
         let want: Vec<u64> = (130 - WORKER_WINDOW_STEPS..=130).collect();
-        assert_eq!(left, want);
+        assert_eq!(prune(&mut (101..=130u64)), want);
         std::fs::remove_dir_all(&root).ok();
     }
 }

@@ -1071,78 +1071,69 @@ mod tests {
         }
     }
 
-    /// An in-process run (analytic shear, step timeout 60 s) whose fibre node `stiff`
-    /// fails at its 20th state: the run ends within seconds with its error, not after the
-    /// other nodes' step timeout (the flow node hears the failure and ends the run; the
-    /// other fibre node hears the flow node's).
-    #[test]
-    fn a_failed_in_process_run_stops_at_once() {
-        let dir = std::env::temp_dir().join(format!("ff-inproc-fail-{}", std::process::id()));
+    /// The analytic-shear launch in process with `sets` (a 60 s step timeout, 4000 steps,
+    /// no recorder) on a bus whose 21st publish of `stiff`'s state hangs for `hang` and
+    /// then fails; returns the run's error and how long it took.
+    fn breaking_run(name: &str, sets: &[&str], hang: std::time::Duration) -> (String, f64) {
+        let dir = std::env::temp_dir().join(format!("ff-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("config")).unwrap();
         let file = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../launch/validation/analytic-shear.toml");
-        let sets = ["run.steps=4000".to_string(), "run.step_timeout_s=60".into()];
+        let sets: Vec<String> = [
+            "run.steps=4000",
+            "run.step_timeout_s=60",
+            "recorder.enabled=false",
+        ]
+        .iter()
+        .chain(sets)
+        .map(|s| s.to_string())
+        .collect();
         let (lf, text) = LaunchFile::load_with(&file, &sets).unwrap();
         let base = NodeSpec::inproc(lf.clone(), text, dir.clone());
         let bus: BusHandle = Arc::new(BreaksAfter {
             inner: Arc::new(fiberflow_bus::inproc::InprocBus::new()),
             topic: fiberflow_messages::topics::Topics::new(&lf.run.id).fiber_state("stiff"),
             after: 20,
-            hang: std::time::Duration::ZERO,
+            hang,
             count: Default::default(),
         });
         let mut nodes = vec!["flow".to_string()];
         nodes.extend(lf.fibre_nodes().unwrap());
-        nodes.push("recorder".into());
         let t0 = std::time::Instant::now();
         let r = run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false)));
         let e = format!("{:#}", r.expect_err("the run fails"));
+        std::fs::remove_dir_all(&dir).ok();
+        (e, t0.elapsed().as_secs_f64())
+    }
+
+    /// An in-process run (analytic shear, step timeout 60 s) whose fibre node `stiff`
+    /// fails at its 21st state: the run ends within seconds with its error, not after the
+    /// other nodes' step timeout (the launcher's stop flag ends the flow and fibre nodes'
+    /// waits).
+    #[test]
+    fn a_failed_in_process_run_stops_at_once() {
+        let (e, took_s) = breaking_run("inproc-fail", &[], std::time::Duration::ZERO);
         assert!(
             e.contains("stiff") && e.contains("broken on purpose"),
             "{e}"
         );
-        assert!(
-            t0.elapsed() < std::time::Duration::from_secs(15),
-            "took {:?}",
-            t0.elapsed()
-        );
-        std::fs::remove_dir_all(&dir).ok();
+        assert!(took_s < 15.0, "took {took_s:.1} s");
     }
 
     /// An in-process run whose fibre nodes' loop hangs (stuck for 15 s in a publish of
-    /// `stiff`'s state at its 20th step) while the process and its pulse thread live: the
+    /// `stiff`'s state at its 21st step) while the process and its pulse thread live: the
     /// loop stops stamping its watch, the pulse stops, and the flow node finds the nodes
     /// silent after `run.liveness_s` (3 s) and ends the run naming them — before, the pulse
     /// beat on and the run waited for the stuck call.
     #[test]
     fn a_fibre_node_whose_loop_hangs_is_found_silent() {
-        let dir = std::env::temp_dir().join(format!("ff-inproc-hang-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(dir.join("config")).unwrap();
-        let file = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../launch/validation/analytic-shear.toml");
-        let sets = [
-            "run.steps=4000".to_string(),
-            "run.step_timeout_s=60".into(),
-            "run.liveness_s=3".into(),
-            "recorder.enabled=false".into(),
-        ];
-        let (lf, text) = LaunchFile::load_with(&file, &sets).unwrap();
-        let base = NodeSpec::inproc(lf.clone(), text, dir.clone());
-        let bus: BusHandle = Arc::new(BreaksAfter {
-            inner: Arc::new(fiberflow_bus::inproc::InprocBus::new()),
-            topic: fiberflow_messages::topics::Topics::new(&lf.run.id).fiber_state("stiff"),
-            after: 20,
-            hang: std::time::Duration::from_secs(15),
-            count: Default::default(),
-        });
-        let mut nodes = vec!["flow".to_string()];
-        nodes.extend(lf.fibre_nodes().unwrap());
-        let r = run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false)));
-        let e = format!("{:#}", r.expect_err("the run fails"));
+        let (e, _) = breaking_run(
+            "inproc-hang",
+            &["run.liveness_s=3"],
+            std::time::Duration::from_secs(15),
+        );
         assert!(e.contains("silent") && e.contains("stiff"), "{e}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A recorder that takes 4 ms over every message (a slow disk) holds the run back
