@@ -285,7 +285,14 @@ fn main() -> Result<()> {
                 resume,
             },
         ),
-        Cmd::Node { spec } => nodes::node_cmd(&spec),
+        Cmd::Node { spec } => match nodes::node_cmd(&spec) {
+            // a lost peer: a status the launcher restarts for (the error said first)
+            Err(e) if nodes::node_exit_code(&e) != 1 => {
+                eprintln!("Error: {e:?}");
+                std::process::exit(nodes::node_exit_code(&e));
+            }
+            r => r,
+        },
         Cmd::Spinup { config, out } => spinup_cmd::run(&config, &out).context("spin-up failed"),
         Cmd::Export { mcap, out, what } => commands::export_cmd(&mcap, out, what.as_deref()),
         Cmd::Inspect { mcap, recover } => recording::inspect_cmd(&mcap, recover),

@@ -166,7 +166,7 @@ impl States {
                     .map(|p| p.node())
                     .collect();
                 heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
-                return Err(FlowError::Protocol(format!(
+                return Err(FlowError::PeerLost(format!(
                     "step {k}: no state from fibre node(s) {} within {:.0} s",
                     missing.join(", "),
                     run.step_timeout_s
@@ -175,7 +175,7 @@ impl States {
             self.peers.listen(bus, hb_in, served, run, Duration::ZERO)?;
             if let Some(silent) = self.silent(run) {
                 heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
-                return Err(FlowError::Protocol(format!(
+                return Err(FlowError::PeerLost(format!(
                     "step {k}: fibre node(s) {silent} silent for more than run.liveness_s = {:.0} s \
                      (no state, no heartbeat: the process hung, or its host or the link to it is gone)",
                     run.liveness_s
@@ -258,7 +258,7 @@ impl States {
             };
             if silent_s > limit_s || wait_from.elapsed().as_secs_f64() > run.step_timeout_s {
                 heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
-                return Err(FlowError::Protocol(format!(
+                return Err(FlowError::PeerLost(format!(
                     "step {k}: the recorder has recorded only through step {through} and was \
                      silent for {silent_s:.0} s (run.liveness_s = {:.0} s, run.step_timeout_s = \
                      {:.0} s): the process hung, or its host or the link to it is gone",

@@ -641,7 +641,9 @@ enum Ended {
     Finished,
     Interrupted,
     /// A node exited with a failure (the message names it, its status and its log);
-    /// `signalled`: it was killed by a signal rather than exiting with an error.
+    /// `signalled`: it was killed by a signal (or, the flow node, it lost another node:
+    /// [`fiberflow_flow::error::PEER_LOST_EXIT`]) rather than exiting with an error of its
+    /// own, which would repeat itself.
     NodeDied {
         why: String,
         signalled: bool,
@@ -684,6 +686,17 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         );
         "iceoryx2".to_string()
     };
+    // an earlier incarnation's "last step served" is not this one's
+    let flow_done = base
+        .out_dir
+        .join("logs")
+        .join(crate::nodes::FLOW_DONE_MARKER);
+    match std::fs::remove_file(&flow_done) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("removing {}", flow_done.display()))
+        }
+        _ => {}
+    }
     let endpoint_file = base.out_dir.join("endpoint.txt");
     let loopback_zenoh = zenoh && rendezvous.is_empty();
     if loopback_zenoh {
@@ -781,7 +794,15 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
     } else {
         None
     };
-    let result = supervise(&mut children, pgid, &stop);
+    let result = supervise(
+        &mut children,
+        pgid,
+        &stop,
+        &base
+            .out_dir
+            .join("logs")
+            .join(crate::nodes::FLOW_DONE_MARKER),
+    );
     finished.store(true, Ordering::SeqCst);
     if let Some(p) = prog {
         let _ = p.join();
@@ -841,7 +862,15 @@ fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, Vec<String>
 }
 
 /// Waits for the children; on a signal or a failed node, stops the rest (TERM, then KILL).
-fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ended> {
+/// Watches the node processes until all have exited: the first failure (or a stop) ends
+/// the others. A flow node killed after it wrote `flow_done` (the run's last step served)
+/// is not a failure: the others finish as usual.
+fn supervise(
+    children: &mut [Node],
+    pgid: i32,
+    stop: &AtomicBool,
+    flow_done: &Path,
+) -> Result<Ended> {
     let mut ended: Option<Ended> = None;
     let mut exited = vec![false; children.len()];
     loop {
@@ -855,13 +884,20 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ende
             }
             if let Some(st) = n.child.try_wait()? {
                 exited[i] = true;
+                if !st.success() && n.name == "flow" && flow_done.is_file() {
+                    tracing::warn!(status = %st, "the flow node ended after the run's last step: the run is complete");
+                    continue;
+                }
                 if !st.success() && ended.is_none() {
                     let why = format!(
                         "node {} exited with {st}; its log: {}",
                         n.name,
                         n.log.display()
                     );
-                    let signalled = std::os::unix::process::ExitStatusExt::signal(&st).is_some();
+                    // killed by a signal, or a flow node that lost another node: not a
+                    // failure that would repeat itself
+                    let signalled = std::os::unix::process::ExitStatusExt::signal(&st).is_some()
+                        || st.code() == Some(fiberflow_flow::error::PEER_LOST_EXIT);
                     ended = Some(Ended::NodeDied { why, signalled });
                     signal_group(pgid, libc::SIGTERM);
                 }
@@ -896,6 +932,64 @@ fn supervise(children: &mut [Node], pgid: i32, stop: &AtomicBool) -> Result<Ende
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A flow node killed after it wrote the "last step served" marker is not a failure:
+    /// the other node finishes and the run is done; without the marker the same kill is a
+    /// death that ends the others at once.
+    #[test]
+    fn a_flow_node_killed_after_its_last_step_is_not_restarted() {
+        let dir = std::env::temp_dir().join(format!("ff-flow-done-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let marker = dir.join(crate::nodes::FLOW_DONE_MARKER);
+        for done in [true, false] {
+            let _ = std::fs::remove_file(&marker);
+            if !done {
+                // a flow node that lost another node (status 75) may be restarted like a
+                // killed one; an error of its own (status 1) may not
+                for (code, restartable) in [(75, true), (1, false)] {
+                    let mut c = Command::new("sh");
+                    c.args(["-c", &format!("exit {code}")]).process_group(0);
+                    let child = c.spawn().unwrap();
+                    let pgid = child.id() as i32;
+                    let mut one = vec![Node {
+                        name: "flow".into(),
+                        child,
+                        log: dir.join("flow.log"),
+                    }];
+                    match supervise(&mut one, pgid, &AtomicBool::new(false), &marker).unwrap() {
+                        Ended::NodeDied { signalled, .. } => assert_eq!(signalled, restartable),
+                        _ => panic!("status {code}: not a death"),
+                    }
+                }
+            }
+            let node = |name: &str, script: &str| {
+                let mut c = Command::new("sh");
+                c.args(["-c", script]).process_group(0);
+                Node {
+                    name: name.into(),
+                    child: c.spawn().unwrap(),
+                    log: dir.join(format!("{name}.log")),
+                }
+            };
+            let flow_script = if done {
+                format!("echo 7 > {}; kill -9 $$", marker.display())
+            } else {
+                "kill -9 $$".to_string()
+            };
+            let flow = node("flow", &flow_script);
+            let pgid = flow.child.id() as i32;
+            let mut children = vec![flow, node("case1", "sleep 0.5")];
+            let t0 = Instant::now();
+            let ended = supervise(&mut children, pgid, &AtomicBool::new(false), &marker).unwrap();
+            match (done, ended) {
+                (true, Ended::Finished) => assert!(t0.elapsed() >= Duration::from_millis(400)),
+                (false, Ended::NodeDied { signalled, .. }) => assert!(signalled),
+                (done, _) => panic!("marker {done}: wrong ending"),
+            }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     /// A child whose launcher is not its parent any more (it died before the parent-death
     /// signal was set) ends at once with status 1; one whose launcher lives goes on.

@@ -149,6 +149,11 @@ pub fn zenoh_settings(spec: &NodeSpec) -> Result<ZenohSettings> {
     Ok(s)
 }
 
+/// The file (in the run folder's `logs/`) the flow node writes once it has served the
+/// run's last step: a flow node killed after it (while it stays up as a multi-host run's
+/// router) has finished the run, and the launcher does not restart it.
+pub const FLOW_DONE_MARKER: &str = "flow.done";
+
 /// Does the flow node of a multi-host run live on another host than the spec's?
 pub fn flow_elsewhere(spec: &NodeSpec) -> Result<bool> {
     let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
@@ -275,6 +280,12 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             let expected_done = info.expected_nodes.clone();
             let s = fiberflow_flow::serve::serve(&lf.flow, bus, &info, |_| {})?;
             tracing::info!(steps = s.steps, dropped = s.drops.total(), "flow node done");
+            // the run's last step is served: a kill from here on (lingering as the router)
+            // ends nothing that needs a restart ([`FLOW_DONE_MARKER`])
+            let marker = spec.out_dir.join("logs").join(FLOW_DONE_MARKER);
+            if let Err(e) = std::fs::write(&marker, format!("{}\n", s.steps)) {
+                tracing::warn!(error = %e, "could not write {}", marker.display());
+            }
             report_drops("flow", &s.drops);
             if let Some(hb) = hb.as_mut() {
                 linger_until_done(hb, &expected_done, lf.run.step_timeout_s);
@@ -468,6 +479,23 @@ fn linger_until_done(hb: &mut Inbox, expected: &[String], timeout_s: f64) {
 fn report_drops(node: &str, d: &fiberflow_bus::DropCounter) {
     for (topic, n) in &d.by_topic {
         println!("dropped {node} {topic} {n}");
+    }
+}
+
+/// The exit status `fiberflow node` ends with after `e`: the flow node's
+/// [`fiberflow_flow::error::PEER_LOST_EXIT`] when it failed because another node was lost
+/// (the launcher may restart the run for it), else 1.
+pub fn node_exit_code(e: &anyhow::Error) -> i32 {
+    let lost = e.chain().any(|c| {
+        matches!(
+            c.downcast_ref::<fiberflow_flow::FlowError>(),
+            Some(fiberflow_flow::FlowError::PeerLost(_))
+        )
+    });
+    if lost {
+        fiberflow_flow::error::PEER_LOST_EXIT
+    } else {
+        1
     }
 }
 
