@@ -38,18 +38,11 @@ impl Rng {
 
 /// The two-host launch with the recorder on `recorder_host`.
 fn launch_file(dir: &Path, recorder_host: &str) -> PathBuf {
-    let file = two_host_launch(dir, "worker", "");
     if recorder_host == "worker" {
-        let text = std::fs::read_to_string(&file).unwrap();
-        let moved = text
-            .replace(
-                r#"nodes = ["flow", "recorder", "case1"]"#,
-                r#"nodes = ["flow", "case1"]"#,
-            )
-            .replace(r#"nodes = ["stiff"]"#, r#"nodes = ["recorder", "stiff"]"#);
-        std::fs::write(&file, moved).unwrap();
+        recorder_on_worker(dir)
+    } else {
+        two_host_launch(dir, "worker", "")
     }
-    file
 }
 
 /// One host's launcher: started fresh or with `--resume`, its output to a log file.

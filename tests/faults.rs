@@ -3,45 +3,9 @@
 //! SIGKILL mid-run; nothing recorded may be lost or recorded twice.
 
 use fiberflow_e2e::*;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
-
-/// The two-host analytic-shear launch on loopback with the recorder on the worker (flow
-/// and case1 on the head; recorder and stiff on the worker): a user whose disk is on the
-/// worker.
-fn recorder_on_worker(dir: &Path) -> PathBuf {
-    let file = two_host_launch(dir, "worker", "");
-    let text = std::fs::read_to_string(&file).unwrap();
-    let moved = text
-        .replace(
-            r#"nodes = ["flow", "recorder", "case1"]"#,
-            r#"nodes = ["flow", "case1"]"#,
-        )
-        .replace(r#"nodes = ["stiff"]"#, r#"nodes = ["recorder", "stiff"]"#);
-    assert_ne!(moved, text, "the launch file's hosts changed shape");
-    std::fs::write(&file, moved).unwrap();
-    file
-}
-
-/// Kills (SIGKILL) the launcher `child` and every process whose command line names
-/// `out` (its nodes), and waits until they are gone.
-fn kill_host(child: &mut std::process::Child, out: &Path) {
-    // SAFETY: plain syscalls on processes this test started
-    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
-    for pid in pids_with(&out.display().to_string()) {
-        unsafe { libc::kill(pid, libc::SIGKILL) };
-    }
-    let _ = child.wait();
-    let t0 = Instant::now();
-    while !pids_with(&out.display().to_string()).is_empty() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(5),
-            "nodes outlived the kill"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 /// `fiberflow launch FILE --host worker --resume DIR` with `sets`, its output captured.
 fn resume_worker(file: &Path, worker_dir: &Path, sets: &[&str]) -> std::process::Child {
@@ -57,6 +21,25 @@ fn resume_worker(file: &Path, worker_dir: &Path, sets: &[&str]) -> std::process:
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap()
+}
+
+/// Starts the head and the worker of `file` (in `dir/head`, `dir/worker`), kills the
+/// worker's launcher and nodes (`kill -9`) `after` the head's first complete checkpoint,
+/// and starts the worker again with `--resume`: (head, resumed worker).
+fn kill_and_resume_the_worker(
+    file: &Path,
+    dir: &Path,
+    sets: &[&str],
+    after: Duration,
+) -> (std::process::Child, std::process::Child) {
+    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
+    let head = launch_host(file, "head", &head_dir, sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let mut worker = launch_host(file, "worker", &worker_dir, sets);
+    wait_for_checkpoint(&head_dir, 300);
+    std::thread::sleep(after);
+    kill_host(&mut worker, &worker_dir);
+    (head, resume_worker(file, &worker_dir, sets))
 }
 
 /// Asserts that `recording` holds every state of the analytic-shear launch with `sets`
@@ -100,13 +83,8 @@ fn a_recorder_on_a_killed_worker_keeps_every_step_once() {
         "run.checkpoint_every_plus=100",
         "run.liveness_s=4",
     ];
-    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
-    let head = launch_host(&file, "head", &head_dir, &sets);
-    std::thread::sleep(Duration::from_millis(500));
-    let mut worker = launch_host(&file, "worker", &worker_dir, &sets);
-    wait_for_checkpoint(&head_dir, 300);
-    kill_host(&mut worker, &worker_dir);
-    let resumed = resume_worker(&file, &worker_dir, &sets);
+    let worker_dir = dir.join("worker");
+    let (head, resumed) = kill_and_resume_the_worker(&file, &dir, &sets, Duration::ZERO);
     let o = head.wait_with_output().unwrap();
     let said = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "head failed:\n{said}");
@@ -141,14 +119,9 @@ fn a_worker_keeps_the_step_the_head_resumes_from() {
         "run.checkpoint_every_plus=0.5",
         "run.liveness_s=4",
     ];
-    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
-    let head = launch_host(&file, "head", &head_dir, &sets);
-    std::thread::sleep(Duration::from_millis(500));
-    let mut worker = launch_host(&file, "worker", &worker_dir, &sets);
-    wait_for_checkpoint(&head_dir, 300);
-    std::thread::sleep(Duration::from_millis(300));
-    kill_host(&mut worker, &worker_dir);
-    let resumed = resume_worker(&file, &worker_dir, &sets);
+    let worker_dir = dir.join("worker");
+    let (head, resumed) =
+        kill_and_resume_the_worker(&file, &dir, &sets, Duration::from_millis(300));
     assert_all_succeed(vec![("head", head), ("the resumed worker", resumed)]);
     assert_every_state_once(&worker_dir, &sets, &dir);
     std::fs::remove_dir_all(&dir).ok();

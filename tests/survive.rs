@@ -185,19 +185,7 @@ fn killed_nodes_and_launcher_lose_nothing() {
     let mut child = spawn(&out, "iceoryx2");
     wait_for_checkpoint(&out, 90);
     std::thread::sleep(random_delay(KILL_WITHIN_MS));
-    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
-    for pid in pids_with(&out.display().to_string()) {
-        unsafe { libc::kill(pid, libc::SIGKILL) };
-    }
-    let _ = child.wait();
-    let t0 = Instant::now();
-    while !pids_with(&out.display().to_string()).is_empty() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(5),
-            "nodes outlived the launcher"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    kill_host(&mut child, &out);
     let o = launch_cmd(&out, "iceoryx2", &["--resume", out.to_str().unwrap()])
         .stdin(Stdio::null())
         .output()

@@ -494,3 +494,39 @@ pub fn assert_two_hosts_match_one_process(recording: &Path, sets: &[&str], what:
     assert_eq!(b.keys().collect::<Vec<_>>(), vec!["case1", "stiff"]);
     assert_same_states(&a, &b, what);
 }
+
+/// The two-host analytic-shear launch on loopback with the recorder on the worker (flow
+/// and case1 on the head; recorder and stiff on the worker): a user whose disk is on the
+/// worker.
+pub fn recorder_on_worker(dir: &Path) -> PathBuf {
+    let file = two_host_launch(dir, "worker", "");
+    let text = std::fs::read_to_string(&file).unwrap();
+    let moved = text
+        .replace(
+            r#"nodes = ["flow", "recorder", "case1"]"#,
+            r#"nodes = ["flow", "case1"]"#,
+        )
+        .replace(r#"nodes = ["stiff"]"#, r#"nodes = ["recorder", "stiff"]"#);
+    assert_ne!(moved, text, "the launch file's hosts changed shape");
+    std::fs::write(&file, moved).unwrap();
+    file
+}
+
+/// Kills (SIGKILL) the launcher `child` and every process whose command line names
+/// `out` (its nodes), and waits until they are gone.
+pub fn kill_host(child: &mut std::process::Child, out: &Path) {
+    // SAFETY: plain syscalls on processes this test started
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    for pid in pids_with(&out.display().to_string()) {
+        unsafe { libc::kill(pid, libc::SIGKILL) };
+    }
+    let _ = child.wait();
+    let t0 = std::time::Instant::now();
+    while !pids_with(&out.display().to_string()).is_empty() {
+        assert!(
+            t0.elapsed() < std::time::Duration::from_secs(5),
+            "nodes outlived the kill"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
