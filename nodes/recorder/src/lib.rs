@@ -653,6 +653,8 @@ pub fn record(
     beat.step.store(plan.start_step, Ordering::Relaxed);
     let mut reported = plan.start_step;
     let mut said_committed: Option<u64> = None;
+    // stopped (a signal, or the launcher after a failure) rather than run to its end
+    let mut stopped = false;
     let watch = Arc::new(Watch::default());
     let _pulse = Pulse::start(
         bus.clone(),
@@ -672,6 +674,7 @@ pub fn record(
         if stop.load(Ordering::SeqCst) {
             // what has already arrived is still recorded (`finish`)
             tracing::info!("recorder stopping on signal");
+            stopped = true;
             break;
         }
         if let Some(f) = finish_at {
@@ -758,7 +761,7 @@ pub fn record(
         }
         sess.summary.busy_s += busy_from.elapsed().as_secs_f64();
     }
-    finish(sess, &mut inbox, &bus, &t)
+    finish(sess, &mut inbox, &bus, &t, stopped)
 }
 
 /// How long a finishing recorder keeps taking the messages that already arrived.
@@ -860,11 +863,25 @@ fn finish(
     inbox: &mut Inbox,
     bus: &BusHandle,
     t: &Topics,
+    stopped: bool,
 ) -> Result<RecordSummary, RecorderError> {
     // what already arrived is kept, also when stopped (a Ctrl-C must not lose it)
     let kept = drain(inbox, &mut sess, STOP_DRAIN)?;
     tracing::info!(messages = kept, "recorded what had arrived before the end");
-    sess.release_held()?;
+    if stopped {
+        // a held state of step 0 may still have been replaced (a fluid-velocity start
+        // sends it twice): the run's restart records step 0 again, and this one, written
+        // now, would be taken for it
+        let n = sess.held_first.len();
+        if n > 0 {
+            tracing::info!(
+                states = n,
+                "stopped at step 0: its held states are left to the restart"
+            );
+        }
+    } else {
+        sess.release_held()?;
+    }
     let mut drops = sess.drops.clone();
     for (k, v) in &inbox.drops.by_topic {
         *drops.by_topic.entry(k.clone()).or_insert(0) += v;
@@ -1125,6 +1142,54 @@ mod tests {
         let want: BTreeSet<(u64, u32)> = (0..=3).flat_map(|k| [(k, 0), (k, 1)]).collect();
         assert_eq!(metrics, want);
         assert_eq!(samples, want);
+        std::fs::remove_file(&path).ok();
+    }
+
+    /// A recorder stopped (a signal, or the launcher after a failure) while it holds a
+    /// group's state of step 0 — which a fluid-velocity start sends twice, the second
+    /// replacing the first — does not write it: the run's restart records step 0 again,
+    /// and the held one would be taken for it (a chaos trial recorded the first version so).
+    #[test]
+    fn a_stopped_recorder_leaves_a_held_step_zero_to_the_restart() {
+        let bus: BusHandle = Arc::new(InprocBus::new());
+        let t = Topics::new("held");
+        let path = std::env::temp_dir().join(format!("ff-rec-held-{}.mcap", std::process::id()));
+        let mut hb = Inbox::new(bus.subscribe(&t.heartbeat("recorder")).unwrap());
+        let plan = RecordPlan {
+            groups: vec!["g".into()],
+            steps: 10,
+            ..Default::default()
+        };
+        let stop = Arc::new(AtomicBool::new(false));
+        let (b2, p2, s2) = (bus.clone(), path.clone(), stop.clone());
+        let h = std::thread::spawn(move || {
+            record(
+                b2,
+                "held",
+                &p2,
+                &RunMetadata::default(),
+                &["flow".to_string()],
+                &plan,
+                s2,
+            )
+        });
+        assert!(hb.recv::<Heartbeat>(Duration::from_secs(10)).is_some());
+        bus.publish(&t.fiber_state("g"), &encode(&tidy_state("g", 0)))
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        stop.store(true, Ordering::SeqCst);
+        h.join()
+            .expect("recorder panicked")
+            .expect("recorder failed");
+        let bytes = std::fs::read(&path).unwrap();
+        let states = mcap::MessageStream::new(&bytes)
+            .unwrap()
+            .filter(|m| {
+                m.as_ref()
+                    .is_ok_and(|m| m.channel.topic == t.fiber_state("g"))
+            })
+            .count();
+        assert_eq!(states, 0, "the held step 0 was written");
         std::fs::remove_file(&path).ok();
     }
 
