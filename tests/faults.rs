@@ -167,3 +167,95 @@ fn a_worker_waiting_for_the_head_stops_on_sigterm() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `fiberflow launch FILE --host HOST --resume DIR` with `sets`: (success, what it said).
+fn resume_host(file: &Path, host: &str, dir: &Path, sets: &[&str]) -> (bool, String) {
+    let mut c = Command::new(fiberflow());
+    c.arg("launch")
+        .arg(file)
+        .args(["--host", host, "--resume"])
+        .arg(dir);
+    for s in sets {
+        c.arg("--set").arg(s);
+    }
+    let o = c.output().unwrap();
+    let said = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    (o.status.success(), said)
+}
+
+/// A two-host run that completed, resumed on either host (a user who resumes a finished
+/// folder, or a chaos kill after the last step): each launcher knows the run is complete
+/// (`logs/run.complete`, written once every node of the run said DONE) and ends at once,
+/// adding no segment. Before, the worker waited for a head that had gone (failing after
+/// the step timeout) and the head rolled back and waited for a worker that had gone.
+#[test]
+fn a_complete_run_resumed_on_either_host_ends_at_once() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("faults-complete-resumed");
+    let file = two_host_launch(&dir, "worker", "");
+    let sets = ["run.steps=200", "run.step_timeout_s=20"];
+    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
+    let head = launch_host(&file, "head", &head_dir, &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let worker = launch_host(&file, "worker", &worker_dir, &sets);
+    assert_all_succeed(vec![("head", head), ("worker", worker)]);
+    let segments = fiberflow_messages::segments::segment_paths(&head_dir).unwrap();
+    for (host, d) in [("worker", &worker_dir), ("head", &head_dir)] {
+        assert!(
+            d.join("logs/run.complete").is_file(),
+            "{host} has no run.complete"
+        );
+        let t0 = Instant::now();
+        let (ok, said) = resume_host(&file, host, d, &sets);
+        assert!(ok, "{host} resumed failed:\n{said}");
+        assert!(said.contains("is complete: nothing to resume"), "{said}");
+        assert!(t0.elapsed() < Duration::from_secs(10), "{host}: {said}");
+    }
+    assert_eq!(
+        fiberflow_messages::segments::segment_paths(&head_dir).unwrap(),
+        segments
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The recorder on the head; the head's launcher and nodes killed (`kill -9`) as soon as
+/// its flow node has served the last step, while the recorder finishes, then resumed.
+/// The worker, whose node had finished, has not left: it waits until the run is
+/// complete, hears the head start again from its newest complete checkpoint and follows.
+/// Both complete and the recording holds every state once, bit for bit the one-process
+/// run's. (Before, the worker left once its node finished; the resumed head waited for it
+/// in vain: "join timeout … no heartbeat from stiff".)
+#[test]
+fn a_worker_whose_node_finished_follows_a_head_restarted_at_the_end() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("faults-worker-after-end");
+    let file = two_host_launch(&dir, "worker", "");
+    let sets = [
+        "run.steps=4000",
+        "run.checkpoint_every_plus=100",
+        "run.liveness_s=4",
+    ];
+    let (head_dir, worker_dir) = (dir.join("head"), dir.join("worker"));
+    let mut head = launch_host(&file, "head", &head_dir, &sets);
+    std::thread::sleep(Duration::from_millis(500));
+    let worker = launch_host(&file, "worker", &worker_dir, &sets);
+    let t0 = Instant::now();
+    while !head_dir.join("logs/flow.done").exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(300),
+            "the run never ended"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    kill_host(&mut head, &head_dir);
+    assert!(
+        !head_dir.join("logs/run.complete").exists(),
+        "the run completed before the kill: nothing tested"
+    );
+    let (ok, said) = resume_host(&file, "head", &head_dir, &sets);
+    assert!(ok, "the resumed head failed:\n{said}");
+    assert!(said.contains("resuming"), "{said}");
+    assert_all_succeed(vec![("worker", worker)]);
+    assert_every_state_once(&head_dir, &sets, &dir);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -379,7 +379,7 @@ impl Sane for FiberGroupMetrics {
 
 impl Sane for Heartbeat {
     fn check(&self) -> Result<(), String> {
-        if self.node.is_empty() || self.state > lifecycle::COMMITTED {
+        if self.node.is_empty() || self.state > lifecycle::COMPLETE {
             return Err(format!(
                 "heartbeat of {:?} with unknown state {}",
                 self.node, self.state

@@ -242,7 +242,7 @@ pub struct FiberGroupMetrics {
 pub struct Heartbeat {
     pub schema_version: u32,
     pub node: String,
-    /// 0 starting, 1 ready, 2 running, 3 done, 4 failed.
+    /// 0 starting, 1 ready, 2 running, 3 done, 4 failed, and the states of [`lifecycle`].
     pub state: u8,
     pub step: u64,
     /// Messages dropped so far (undecodable or wrong version).
@@ -269,6 +269,11 @@ pub mod lifecycle {
     /// report, so a lost one is made good: a head whose recorder runs on another host
     /// completes a checkpoint only once it has heard this for it.
     pub const COMMITTED: u8 = 7;
+    /// The run is complete: every node of every host said DONE. A multi-host run's flow
+    /// node (its router) says it until each worker host's launcher answers with its own
+    /// COMPLETE, so a worker waits for it (and follows a restart instead) rather than
+    /// leaving while the head may still roll back to a step that needs it.
+    pub const COMPLETE: u8 = 8;
     /// How far the run may get ahead of its recorder: the flow node serves step k only
     /// once the recorder's RUNNING heartbeats say it holds every piece's state through
     /// step k − `RECORDER_LAG_STEPS`. A slow recorder (a slow disk, a busy host) slows the

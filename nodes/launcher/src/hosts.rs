@@ -67,19 +67,122 @@ impl Role {
 
     /// Points `base` at the step to start again from: the newest complete checkpoint
     /// (head, one host) or the step the flow node announces (worker; `stop`, set by
-    /// Ctrl-C or SIGTERM, ends the wait).
+    /// Ctrl-C or SIGTERM, ends the wait). A worker may instead hear that the run is
+    /// complete ([`Next::Complete`]).
     pub fn roll_back(
         &self,
         base: &mut NodeSpec,
         pieces: &[String],
         digest: &str,
         stop: &AtomicBool,
-    ) -> Result<()> {
+    ) -> Result<Next> {
         match self {
             Self::Worker => follow(base, pieces, stop),
-            _ => crate::launch::roll_back(base, pieces, digest),
+            _ => crate::launch::roll_back(base, pieces, digest).map(|_| Next::Run),
         }
     }
+}
+
+/// What a launcher does after a roll-back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Next {
+    /// Start its nodes from `base.start_step`.
+    Run,
+    /// Nothing: every node of the run has finished.
+    Complete,
+}
+
+/// Written to a host's `logs/` once it knows every node of the run finished (on the head
+/// by the flow node, on a worker by its launcher): `--resume` of that folder has nothing
+/// to do. A fresh run removes it.
+pub const RUN_COMPLETE_MARKER: &str = "run.complete";
+
+/// Whether the run in `out_dir` is known complete ([`RUN_COMPLETE_MARKER`]).
+pub fn known_complete(out_dir: &Path) -> bool {
+    out_dir.join("logs").join(RUN_COMPLETE_MARKER).is_file()
+}
+
+/// The line [`RUN_COMPLETE_MARKER`] ends with on the head once every worker host has
+/// answered the flow node's COMPLETE.
+const EVERY_HOST_KNOWS: &str = "every host knows";
+
+/// Marks the run in `out_dir` complete.
+pub fn mark_complete(out_dir: &Path) -> Result<()> {
+    let p = out_dir.join("logs").join(RUN_COMPLETE_MARKER);
+    std::fs::write(&p, "complete\n").with_context(|| format!("writing {}", p.display()))
+}
+
+/// Says the run is complete ([`lifecycle::COMPLETE`], as the flow node, on `bus`) until
+/// every worker host's launcher has answered, or for at most the run's step timeout;
+/// notes in the head's [`RUN_COMPLETE_MARKER`] that every host knows.
+pub fn say_complete(bus: &fiberflow_bus::BusHandle, spec: &NodeSpec) -> Result<()> {
+    let lf = &spec.launch;
+    let t = fiberflow_messages::topics::Topics::new(&lf.run.id);
+    let mut answers = Inbox::new(bus.subscribe(&format!("{}/control/heartbeat/**", t.prefix()))?);
+    let mut waiting: std::collections::BTreeSet<String> =
+        worker_hosts(lf).iter().map(|h| host_beat_name(h)).collect();
+    let beat = fiberflow_messages::encode(&Heartbeat {
+        schema_version: fiberflow_messages::SCHEMA_VERSION,
+        node: "flow".into(),
+        state: lifecycle::COMPLETE,
+        step: lf.run.steps,
+        dropped: 0,
+    });
+    let deadline = Instant::now() + Duration::from_secs_f64(lf.run.step_timeout_s);
+    let mut said: Option<Instant> = None;
+    while !waiting.is_empty() && Instant::now() < deadline {
+        if said.is_none_or(|t| t.elapsed() >= Duration::from_millis(200)) {
+            bus.publish(&t.heartbeat("flow"), &beat)?;
+            said = Some(Instant::now());
+        }
+        if let Some((_, h)) = answers.recv::<Heartbeat>(Duration::from_millis(50)) {
+            if h.state == lifecycle::COMPLETE {
+                waiting.remove(&h.node);
+            }
+        }
+    }
+    if !waiting.is_empty() {
+        let missing: Vec<_> = waiting.into_iter().collect();
+        tracing::warn!(hosts = %missing.join(", "), "no answer to \"the run is complete\" from these hosts");
+        return Ok(());
+    }
+    let p = spec.out_dir.join("logs").join(RUN_COMPLETE_MARKER);
+    std::fs::write(&p, format!("complete\n{EVERY_HOST_KNOWS}\n"))
+        .with_context(|| format!("writing {}", p.display()))
+}
+
+/// On a head whose run is complete but whose flow node did not hear every worker host
+/// answer (it was killed, or the head's launcher was): says it from a router of its own
+/// (the flow node's endpoint), so a worker waiting to learn whether the run starts again
+/// hears that it is complete. Anything else: nothing to do.
+pub fn tell_workers_complete(base: &NodeSpec, role: Role) -> Result<()> {
+    let marker = base.out_dir.join("logs").join(RUN_COMPLETE_MARKER);
+    let told = std::fs::read_to_string(&marker).is_ok_and(|m| m.contains(EVERY_HOST_KNOWS));
+    if role != (Role::Head { remote: true }) || !known_complete(&base.out_dir) || told {
+        return Ok(());
+    }
+    println!("telling the other hosts that the run is complete");
+    let mut spec = base.clone();
+    spec.node = "flow".into();
+    spec.zenoh_endpoint_file = None;
+    let bus = crate::nodes::open_bus(&spec).context("opening the run's router")?;
+    say_complete(&bus, &spec)
+}
+
+/// The heartbeat name under which a worker host's launcher answers the flow node's
+/// COMPLETE.
+pub fn host_beat_name(host: &str) -> String {
+    format!("host-{host}")
+}
+
+/// The hosts of a multi-host launch that do not run the flow node.
+pub fn worker_hosts(lf: &crate::launchfile::LaunchFile) -> Vec<String> {
+    lf.network
+        .iter()
+        .flat_map(|n| &n.hosts)
+        .filter(|h| !h.nodes.iter().any(|n| n == "flow"))
+        .map(|h| h.name.clone())
+        .collect()
 }
 
 /// Removes a worker host's checkpoint folders but its [`WORKER_KEEPS`] newest and those
@@ -101,15 +204,16 @@ pub fn prune_worker(root: &Path) -> Result<()> {
     Ok(())
 }
 
-/// A worker host's restart: waits (up to the run's step timeout) for the flow node to
-/// say READY and points `base` at this host's checkpoint of the step it says, which must
-/// hold every one of `pieces`, and a recorder here at a new segment. Ctrl-C or SIGTERM
-/// (`stop`) ends the wait at once.
-fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Result<()> {
+/// A worker host's restart, or its wait once its nodes have finished: waits (up to the
+/// run's step timeout) for the flow node to say READY, and points `base` at this host's
+/// checkpoint of the step it says, which must hold every one of `pieces`, and a recorder
+/// here at a new segment; or to say COMPLETE, which this host marks and answers. Ctrl-C or
+/// SIGTERM (`stop`) ends the wait at once.
+pub fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Result<Next> {
     let mut spec = base.clone();
     spec.node = "launcher".into();
     let wait_s = base.launch.run.step_timeout_s;
-    println!("waiting for the flow node to say which step the run starts again from");
+    println!("waiting for the flow node to say which step the run starts again from, or that it is complete");
     let t0 = Instant::now();
     // joining blocks while the head's router is away: on a thread of its own, so that a
     // stop is heard meanwhile (a thread left behind ends with the process)
@@ -143,6 +247,21 @@ fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Result<(
             if h.state == lifecycle::READY {
                 break h.step;
             }
+            if h.state == lifecycle::COMPLETE {
+                // marked before it is answered: a launcher killed after answering finds
+                // the mark on --resume (the head closes once every worker answered)
+                mark_complete(&base.out_dir)?;
+                let host = base.host.clone().unwrap_or_default();
+                let ack = Heartbeat {
+                    schema_version: fiberflow_messages::SCHEMA_VERSION,
+                    node: host_beat_name(&host),
+                    state: lifecycle::COMPLETE,
+                    step: h.step,
+                    dropped: 0,
+                };
+                bus.publish(&t.heartbeat(&ack.node), &fiberflow_messages::encode(&ack))?;
+                return Ok(Next::Complete);
+            }
         }
     };
     base.start_step = k;
@@ -168,7 +287,7 @@ fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Result<(
         }
         base.resume_dir = Some(dir);
     }
-    Ok(())
+    Ok(Next::Run)
 }
 
 #[cfg(test)]

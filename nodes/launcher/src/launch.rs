@@ -154,7 +154,22 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     let role = crate::hosts::Role::of(&base)?;
     let pieces = role.pieces(&nodes);
     if resume.is_some() {
-        role.roll_back(&mut base, &pieces, &digest, &stop)?;
+        let next = if crate::hosts::known_complete(&out_dir) {
+            for s in crate::coupled::finish_segments(&out_dir)? {
+                println!("finished the interrupted segment {}", s.display());
+            }
+            crate::hosts::Next::Complete
+        } else {
+            role.roll_back(&mut base, &pieces, &digest, &stop)?
+        };
+        if next == crate::hosts::Next::Complete {
+            crate::hosts::tell_workers_complete(&base, role)?;
+            println!(
+                "the run in {} is complete: nothing to resume",
+                out_dir.display()
+            );
+            return finish_launch(lf, &out_dir, records_here);
+        }
         let segment = if records_here {
             format!(
                 " (segment {})",
@@ -202,12 +217,17 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
         );
     }
     result?;
-    let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.clone());
+    finish_launch(lf, &out_dir, records_here)
+}
+
+/// What a launch ends with once the run is complete: the summary of a recording here.
+fn finish_launch(lf: LaunchFile, out_dir: &Path, records_here: bool) -> Result<LaunchOutcome> {
+    let mcap = (lf.recorder.enabled && records_here).then(|| out_dir.to_path_buf());
     if let Some(m) = &mcap {
-        after_the_run(&lf, m, &out_dir)?;
+        after_the_run(&lf, m, out_dir)?;
     }
     Ok(LaunchOutcome {
-        out_dir,
+        out_dir: out_dir.to_path_buf(),
         mcap,
         launch: Some(lf),
     })
@@ -491,7 +511,10 @@ fn clear_previous_run(out_dir: &Path) -> Result<()> {
     if let Ok(logs) = std::fs::read_dir(out_dir.join("logs")) {
         for e in logs.flatten() {
             let p = e.path();
-            if p.extension().is_some_and(|x| x == "log") || p.ends_with("flow-steps.csv") {
+            if p.extension().is_some_and(|x| x == "log")
+                || p.ends_with("flow-steps.csv")
+                || p.ends_with(crate::hosts::RUN_COMPLETE_MARKER)
+            {
                 std::fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
             }
         }
@@ -589,8 +612,28 @@ fn supervise_restarts(
     let max = policy.max_restarts;
     let mut restarts = 0u32;
     loop {
-        match run_processes(base, nodes, stop.clone())? {
-            Ended::Finished => return Ok(()),
+        let started_at = base.start_step;
+        let t0;
+        let (why, signalled) = match run_processes(base, nodes, stop.clone())? {
+            Ended::Finished if role != crate::hosts::Role::Worker => {
+                // a flow node killed after it marked the run complete may not have heard
+                // every worker answer: the launcher tells them in its place
+                return crate::hosts::tell_workers_complete(base, role);
+            }
+            // a worker's nodes are done, but the head may still roll the run back (say,
+            // its recorder killed before the end): the worker waits until the run is
+            // complete, and follows a restart meanwhile
+            Ended::Finished => {
+                t0 = Instant::now();
+                if role.roll_back(base, pieces, digest, &stop)? == crate::hosts::Next::Complete {
+                    return Ok(());
+                }
+                let why = "the head started the run again after this host's last step";
+                if !can_restart || restarts >= max {
+                    bail!("{why}; not restarting (run.restart)");
+                }
+                (why.to_string(), true)
+            }
             Ended::Interrupted => bail!("interrupted"),
             Ended::NodeDied { why, signalled } => {
                 if !can_restart {
@@ -599,40 +642,41 @@ fn supervise_restarts(
                 if restarts >= max {
                     bail!("{why}; gave up after {max} restart(s) (run.restart.max_restarts)");
                 }
-                let t0 = Instant::now();
-                let started_at = base.start_step;
-                role.roll_back(base, pieces, digest, &stop)?;
-                // a node that exits with an error (not killed by a signal) before the run
-                // has a newer checkpoint would fail the same way again: the steps are
-                // deterministic, and so is a configuration error (a worker host's nodes
-                // fail when the head restarts the run, and follow it)
-                if !signalled && base.start_step <= started_at && role != crate::hosts::Role::Worker
-                {
-                    bail!("{why}; not restarting: it failed with an error before any new checkpoint (see its log)");
+                t0 = Instant::now();
+                if role.roll_back(base, pieces, digest, &stop)? == crate::hosts::Next::Complete {
+                    return Ok(());
                 }
-                restarts += 1;
-                let recording = if nodes.iter().any(|n| n == "recorder") {
-                    format!(
-                        ", recording into {}",
-                        fiberflow_messages::segments::segment_name(base.segment)
-                    )
-                } else {
-                    String::new()
-                };
-                let msg = format!(
-                    "{why}; restarting every node from step {} (restart {restarts} of {max}){recording}",
-                    base.start_step,
-                );
-                eprintln!("{msg}");
-                let log = base.out_dir.join("logs").join("launcher.log");
-                let line = format!("{msg} (roll-back took {} ms)\n", t0.elapsed().as_millis());
-                let _ = std::fs::OpenOptions::new()
-                    .create(true)
-                    .append(true)
-                    .open(&log)
-                    .and_then(|mut f| std::io::Write::write_all(&mut f, line.as_bytes()));
+                (why, signalled)
             }
+        };
+        // a node that exits with an error (not killed by a signal) before the run
+        // has a newer checkpoint would fail the same way again: the steps are
+        // deterministic, and so is a configuration error (a worker host's nodes
+        // fail when the head restarts the run, and follow it)
+        if !signalled && base.start_step <= started_at && role != crate::hosts::Role::Worker {
+            bail!("{why}; not restarting: it failed with an error before any new checkpoint (see its log)");
         }
+        restarts += 1;
+        let recording = if nodes.iter().any(|n| n == "recorder") {
+            format!(
+                ", recording into {}",
+                fiberflow_messages::segments::segment_name(base.segment)
+            )
+        } else {
+            String::new()
+        };
+        let msg = format!(
+            "{why}; restarting every node from step {} (restart {restarts} of {max}){recording}",
+            base.start_step,
+        );
+        eprintln!("{msg}");
+        let log = base.out_dir.join("logs").join("launcher.log");
+        let line = format!("{msg} (roll-back took {} ms)\n", t0.elapsed().as_millis());
+        let _ = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log)
+            .and_then(|mut f| std::io::Write::write_all(&mut f, line.as_bytes()));
     }
 }
 
@@ -801,7 +845,7 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
         &base
             .out_dir
             .join("logs")
-            .join(crate::nodes::FLOW_DONE_MARKER),
+            .join(crate::hosts::RUN_COMPLETE_MARKER),
     );
     finished.store(true, Ordering::SeqCst);
     if let Some(p) = prog {
@@ -863,13 +907,14 @@ fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, Vec<String>
 
 /// Waits for the children; on a signal or a failed node, stops the rest (TERM, then KILL).
 /// Watches the node processes until all have exited: the first failure (or a stop) ends
-/// the others. A flow node killed after it wrote `flow_done` (the run's last step served)
-/// is not a failure: the others finish as usual.
+/// the others. A flow node killed after it wrote `run_complete` (every node of the run
+/// said DONE: [`crate::hosts::RUN_COMPLETE_MARKER`]) is not a failure: the others finish
+/// as usual.
 fn supervise(
     children: &mut [Node],
     pgid: i32,
     stop: &AtomicBool,
-    flow_done: &Path,
+    run_complete: &Path,
 ) -> Result<Ended> {
     let mut ended: Option<Ended> = None;
     let mut exited = vec![false; children.len()];
@@ -884,8 +929,8 @@ fn supervise(
             }
             if let Some(st) = n.child.try_wait()? {
                 exited[i] = true;
-                if !st.success() && n.name == "flow" && flow_done.is_file() {
-                    tracing::warn!(status = %st, "the flow node ended after the run's last step: the run is complete");
+                if !st.success() && n.name == "flow" && run_complete.is_file() {
+                    tracing::warn!(status = %st, "the flow node ended once the run was complete");
                     continue;
                 }
                 if !st.success() && ended.is_none() {
@@ -937,11 +982,11 @@ mod tests {
     /// the other node finishes and the run is done; without the marker the same kill is a
     /// death that ends the others at once.
     #[test]
-    fn a_flow_node_killed_after_its_last_step_is_not_restarted() {
-        let dir = std::env::temp_dir().join(format!("ff-flow-done-{}", std::process::id()));
+    fn a_flow_node_killed_once_the_run_is_complete_is_not_restarted() {
+        let dir = std::env::temp_dir().join(format!("ff-run-complete-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let marker = dir.join(crate::nodes::FLOW_DONE_MARKER);
+        let marker = dir.join(crate::hosts::RUN_COMPLETE_MARKER);
         for done in [true, false] {
             let _ = std::fs::remove_file(&marker);
             if !done {

@@ -3,6 +3,8 @@
 //! manifests, the run lock, and the analysis a run ends with. The `fiberflow` binary is
 //! argument parsing over this crate.
 
+#[cfg(test)]
+mod access_tests;
 pub mod analyze;
 pub mod coupled;
 #[cfg(test)]

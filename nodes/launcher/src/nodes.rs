@@ -278,17 +278,19 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 None
             };
             let expected_done = info.expected_nodes.clone();
-            let s = fiberflow_flow::serve::serve(&lf.flow, bus, &info, |_| {})?;
+            let s = fiberflow_flow::serve::serve(&lf.flow, bus.clone(), &info, |_| {})?;
             tracing::info!(steps = s.steps, dropped = s.drops.total(), "flow node done");
-            // the run's last step is served: a kill from here on (lingering as the router)
-            // ends nothing that needs a restart ([`FLOW_DONE_MARKER`])
+            // the run's last step is served (what a test times a kill by; the launcher
+            // goes by the run being complete, [`crate::hosts::RUN_COMPLETE_MARKER`])
             let marker = spec.out_dir.join("logs").join(FLOW_DONE_MARKER);
             if let Err(e) = std::fs::write(&marker, format!("{}\n", s.steps)) {
                 tracing::warn!(error = %e, "could not write {}", marker.display());
             }
             report_drops("flow", &s.drops);
             if let Some(hb) = hb.as_mut() {
-                linger_until_done(hb, &expected_done, lf.run.step_timeout_s);
+                linger_until_done(hb, &expected_done, lf.run.liveness_s, lf.run.step_timeout_s)?;
+                crate::hosts::mark_complete(&spec.out_dir)?;
+                crate::hosts::say_complete(&bus, spec)?;
             }
         }
         "recorder" => {
@@ -449,30 +451,51 @@ pub(crate) fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) 
     crate::panics::first_failure(tasks)
 }
 
-/// Waits until every node in `expected` has sent a DONE or FAILED heartbeat, at most
-/// `timeout_s`, and gives up earlier once no heartbeat has arrived for 10 s (a DONE lost
-/// in transit must not hold the run open); logs the nodes it did not hear from.
-fn linger_until_done(hb: &mut Inbox, expected: &[String], timeout_s: f64) {
+/// Waits until every node in `expected` has sent a DONE or FAILED heartbeat. A node
+/// silent for `liveness_s` (killed after its last step, say, or the recorder while it
+/// finishes) is lost ([`fiberflow_flow::FlowError::PeerLost`]: the launcher restarts the
+/// run from its newest complete checkpoint); one still beating but not done after
+/// `timeout_s` is an error.
+fn linger_until_done(
+    hb: &mut Inbox,
+    expected: &[String],
+    liveness_s: f64,
+    timeout_s: f64,
+) -> Result<()> {
     use fiberflow_messages::{lifecycle, Heartbeat};
     use std::time::{Duration, Instant};
-    let mut waiting: std::collections::BTreeSet<String> = expected.iter().cloned().collect();
-    let deadline = Instant::now() + Duration::from_secs_f64(timeout_s);
-    let mut last = Instant::now();
-    while !waiting.is_empty()
-        && Instant::now() < deadline
-        && last.elapsed() < Duration::from_secs(10)
-    {
+    let t0 = Instant::now();
+    let mut waiting: std::collections::BTreeMap<String, Instant> =
+        expected.iter().map(|n| (n.clone(), t0)).collect();
+    while !waiting.is_empty() {
         if let Some((_, h)) = hb.recv::<Heartbeat>(Duration::from_millis(100)) {
-            last = Instant::now();
             if h.state == lifecycle::DONE || h.state == lifecycle::FAILED {
                 waiting.remove(&h.node);
+            } else if let Some(seen) = waiting.get_mut(&h.node) {
+                *seen = Instant::now();
             }
         }
+        let silent: Vec<&str> = waiting
+            .iter()
+            .filter(|(_, seen)| seen.elapsed().as_secs_f64() > liveness_s)
+            .map(|(n, _)| n.as_str())
+            .collect();
+        if !silent.is_empty() {
+            return Err(fiberflow_flow::FlowError::PeerLost(format!(
+                "{} went silent for {liveness_s} s (run.liveness_s) after the run's last step, before saying DONE",
+                silent.join(", ")
+            ))
+            .into());
+        }
+        if t0.elapsed().as_secs_f64() > timeout_s {
+            let missing: Vec<&str> = waiting.keys().map(|n| n.as_str()).collect();
+            bail!(
+                "{} did not say DONE within {timeout_s:.0} s (run.step_timeout_s) of the run's last step",
+                missing.join(", ")
+            );
+        }
     }
-    if !waiting.is_empty() {
-        let missing: Vec<_> = waiting.into_iter().collect();
-        tracing::warn!(nodes = %missing.join(", "), "router closing without their DONE");
-    }
+    Ok(())
 }
 
 /// Prints drop counts as `dropped <node> <topic> <count>` lines (parsed by tests).
