@@ -7,8 +7,8 @@
 //! exactly once, bit for bit those of the run in one process. A failing trial prints its
 //! seed; `FIBERFLOW_CHAOS_SEED=<seed> FIBERFLOW_CHAOS_TRIALS=1` replays it.
 //!
-//! `cargo test --release -p fiberflow --test chaos -- --ignored` runs
-//! `FIBERFLOW_CHAOS_TRIALS` trials (default 10).
+//! The suite runs 10 trials (seeds 1–10); `tests/scripts/chaos-soak.sh [TRIALS] [FIRST]`
+//! runs a longer soak (`FIBERFLOW_CHAOS_TRIALS`, `FIBERFLOW_CHAOS_SEED`).
 
 use fiberflow_e2e::*;
 use std::collections::BTreeMap;
@@ -191,6 +191,28 @@ fn trial(seed: u64, reference: &BTreeMap<(String, u64), Vec<u8>>) -> Result<Stri
     if let Some(k) = reference.keys().find(|k| got[*k] != reference[*k]) {
         return Err(format!("{story}: state {k:?} differs ({})", dir.display()));
     }
+    // and the user's own check says so
+    let o = Command::new(fiberflow())
+        .arg("inspect")
+        .arg(recording)
+        .output()
+        .map_err(|e| format!("{story}: fiberflow inspect: {e}"))?;
+    let said = String::from_utf8_lossy(&o.stdout);
+    let lines: Vec<&str> = said
+        .lines()
+        .filter(|l| l.starts_with("states of "))
+        .collect();
+    if !o.status.success()
+        || lines.len() != 2
+        || !lines
+            .iter()
+            .all(|l| l.ends_with("steps 0..=3000, 3001 recorded, every step once"))
+    {
+        return Err(format!(
+            "{story}: fiberflow inspect says {lines:?} ({})",
+            dir.display()
+        ));
+    }
     std::fs::remove_dir_all(&dir).ok();
     Ok(story)
 }
@@ -198,7 +220,6 @@ fn trial(seed: u64, reference: &BTreeMap<(String, u64), Vec<u8>>) -> Result<Stri
 /// `FIBERFLOW_CHAOS_TRIALS` seeded trials (default 10), from `FIBERFLOW_CHAOS_SEED` on
 /// (default 1): every one ends with every state recorded once, bit for bit the clean run's.
 #[test]
-#[ignore = "a soak: minutes per trial; run with --ignored"]
 fn chaos_soak_loses_nothing() {
     let _one = one_run_at_a_time();
     let env = |k: &str, d: u64| {

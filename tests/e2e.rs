@@ -403,6 +403,34 @@ fn inject_into_a_run(name: &str, structured: bool) {
     }
 }
 
+/// kill -9 of the launcher alone mid-run: its nodes (processes it started, its children)
+/// end within 3 s instead of running on as orphans (the parent-death signal each node
+/// sets before it starts).
+#[test]
+fn a_launcher_killed_outright_takes_its_nodes_with_it() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("kill-launcher");
+    let file = long_launch(&dir, UNTIL_STOPPED);
+    let out = dir.join("run");
+    let (mut child, _) = spawn_launch(&file, &out);
+    wait_for_recording_bytes(&out, 1 << 20, 60);
+    let nodes = pids_with(&out.display().to_string());
+    assert!(nodes.len() >= 3, "nodes running: {nodes:?}");
+    // SAFETY: plain syscall on the launcher this test started
+    unsafe { libc::kill(child.id() as i32, libc::SIGKILL) };
+    let _ = child.wait();
+    let t0 = Instant::now();
+    while !pids_with(&out.display().to_string()).is_empty() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(3),
+            "nodes outlived their launcher by 3 s: {:?}",
+            pids_with(&out.display().to_string())
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// kill -9 of the recorder mid-run (with restarts off): `inspect --recover` gets back
 /// everything up to at most the last second before the kill (by the wall-clock receipt
 /// times in the file).

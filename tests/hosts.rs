@@ -9,12 +9,21 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-/// True when run as root; otherwise says the test is skipped, and why.
+/// True when run as root. Otherwise the test is skipped, and says so on the terminal
+/// past the test harness's capture (a passing test's output is hidden); with
+/// `FIBERFLOW_REQUIRE_ROOT_TESTS=1` (as `.ci/run` sets when it runs as root) a skip fails.
 fn as_root() -> bool {
     // SAFETY: geteuid has no preconditions
     let root = unsafe { libc::geteuid() } == 0;
     if !root {
-        eprintln!("SKIPPED: network namespaces need root (run the end-to-end tests as root)");
+        let why = "SKIPPED: network-namespace tests need root, iproute2 and nftables \
+                   (run the end-to-end tests as root)";
+        assert!(
+            std::env::var("FIBERFLOW_REQUIRE_ROOT_TESTS").as_deref() != Ok("1"),
+            "{why}, but FIBERFLOW_REQUIRE_ROOT_TESTS=1"
+        );
+        use std::io::Write;
+        let _ = writeln!(std::io::stderr().lock(), "\n{why}");
     }
     root
 }

@@ -28,7 +28,96 @@ pub fn inspect_cmd(path: &Path, recover: bool) -> Result<()> {
             println!("{t:<60} {n:>8}");
         }
     }
+    let mut steps = StateSteps::default();
+    for seg in &segs {
+        fiberflow_messages::reading::for_each_message(seg, |m| steps.add(m.topic, m.data))
+            .with_context(|| format!("reading {}", seg.display()))?;
+    }
+    for line in steps.report() {
+        println!("{line}");
+    }
     Ok(())
+}
+
+/// The steps of the fibre states a recording holds, per group piece (a group, or one
+/// shard's slice of it), over all segments.
+#[derive(Default)]
+struct StateSteps {
+    by_piece: std::collections::BTreeMap<(String, u32), Vec<u64>>,
+}
+
+impl StateSteps {
+    fn add(&mut self, topic: &str, data: &[u8]) {
+        if !topic.ends_with("/state") || !topic.contains("/fibers/") {
+            return;
+        }
+        if let Ok(h) = fiberflow_messages::peek_group_header(data) {
+            self.by_piece
+                .entry((h.group, h.first_fiber))
+                .or_default()
+                .push(h.step);
+        }
+    }
+
+    /// One line per piece: its first and last step, how many states, and whether every
+    /// step is there once — steps recorded twice, and steps missing from the piece's
+    /// usual stride (the most common step between recorded states, so a decimated
+    /// recording is judged by its own spacing).
+    fn report(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for ((group, first), steps) in &self.by_piece {
+            let mut s = steps.clone();
+            s.sort_unstable();
+            let n = s.len();
+            let twice: Vec<u64> = s
+                .windows(2)
+                .filter(|w| w[0] == w[1])
+                .map(|w| w[0])
+                .collect();
+            s.dedup();
+            let mut gaps: std::collections::BTreeMap<u64, usize> = Default::default();
+            for w in s.windows(2) {
+                *gaps.entry(w[1] - w[0]).or_insert(0) += 1;
+            }
+            let stride = gaps
+                .iter()
+                .max_by_key(|(gap, count)| (**count, std::cmp::Reverse(**gap)))
+                .map_or(1, |(gap, _)| *gap);
+            let mut missing = 0u64;
+            let mut first_missing = None;
+            for w in s.windows(2) {
+                if w[1] - w[0] > stride {
+                    missing += (w[1] - w[0]).div_ceil(stride) - 1;
+                    first_missing.get_or_insert(w[0] + stride);
+                }
+            }
+            let (lo, hi) = (
+                s.first().copied().unwrap_or(0),
+                s.last().copied().unwrap_or(0),
+            );
+            let every = if stride == 1 {
+                "step".to_string()
+            } else {
+                format!("{stride}th step")
+            };
+            let verdict = if twice.is_empty() && missing == 0 {
+                format!("every {every} once")
+            } else {
+                let mut v = Vec::new();
+                if let Some(k) = twice.first() {
+                    v.push(format!("{} recorded twice (first: step {k})", twice.len()));
+                }
+                if let Some(k) = first_missing {
+                    v.push(format!("{missing} missing (first: step {k})"));
+                }
+                v.join(", ")
+            };
+            out.push(format!(
+                "states of {group} from fibre {first}: steps {lo}..={hi}, {n} recorded, {verdict}"
+            ));
+        }
+        out
+    }
 }
 
 fn inspect_one(path: &Path, recover: bool) -> Result<(u64, Vec<(String, u64)>)> {
@@ -350,4 +439,36 @@ pub fn echo_cmd(
         println!("total {t} {c}");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn steps_of(pieces: &[(&str, u32, &[u64])]) -> Vec<String> {
+        let mut s = StateSteps::default();
+        for (g, first, steps) in pieces {
+            s.by_piece.insert((g.to_string(), *first), steps.to_vec());
+        }
+        s.report()
+    }
+
+    /// Every step once, a decimated recording judged by its own stride, a step twice and
+    /// steps missing, each piece of a sharded group on its own line.
+    #[test]
+    fn the_steps_report_says_what_is_twice_or_missing() {
+        let r = steps_of(&[
+            ("case1", 0, &[0, 1, 2, 3, 4]),
+            ("case1", 25, &[0, 10, 20, 30]),
+            ("stiff", 0, &[0, 1, 1, 2, 6, 7]),
+        ]);
+        assert_eq!(
+            r,
+            vec![
+                "states of case1 from fibre 0: steps 0..=4, 5 recorded, every step once",
+                "states of case1 from fibre 25: steps 0..=30, 4 recorded, every 10th step once",
+                "states of stiff from fibre 0: steps 0..=7, 6 recorded, 1 recorded twice (first: step 1), 3 missing (first: step 3)",
+            ]
+        );
+    }
 }

@@ -914,11 +914,11 @@ impl Served {
 }
 
 /// Fails when the flow node (on another host) has started the run again: it says READY
-/// only while it waits for the nodes to join, so a READY read once node `node` (which
-/// started at step `start`) is past its first step comes from a restarted flow node (those
-/// of the first step are the join's, sent before the announcement, and are read and let
-/// go at that step). `flow_hb`: the flow node's heartbeats (None: the flow node runs
-/// beside this node and cannot restart alone).
+/// (with the step it starts from) only while it waits for the nodes to join, so a READY
+/// read once node `node` (which started at step `start`) is past its first step comes
+/// from a restarted flow node, and so does one at the first step that names another step
+/// (the join's own, of step `start`, are read and let go there). `flow_hb`: the flow
+/// node's heartbeats (None: the flow node runs beside this node and cannot restart alone).
 fn flow_restarted(
     flow_hb: Option<&mut Inbox>,
     node: &str,
@@ -929,7 +929,7 @@ fn flow_restarted(
         return Ok(());
     };
     while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
-        if hb.state == lifecycle::READY && k > start {
+        if hb.state == lifecycle::READY && (k > start || hb.step != start) {
             return Err(FiberNodeError::Protocol(format!(
                 "node {node}: the flow node started the run again from step {} while this \
                  node was at step {k} (it was restarted): this node is restarted from \
@@ -939,4 +939,36 @@ fn flow_restarted(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fiberflow_bus::{inproc::InprocBus, Bus};
+
+    /// A READY of the flow node: let go at the node's first step when it names that step
+    /// (the join's), taken as a restart past the first step or when it names another step
+    /// (a head restarted again while this node, restarted itself, was at its first step:
+    /// before, it waited for samples the new flow node never sent, and the run burnt a
+    /// restart on its liveness).
+    #[test]
+    fn a_ready_of_another_step_at_the_first_step_is_a_restart() {
+        let bus = InprocBus::new();
+        let mut inbox = Inbox::new(bus.subscribe("hb").unwrap());
+        let ready = |step: u64| {
+            let hb = Heartbeat {
+                schema_version: fiberflow_messages::SCHEMA_VERSION,
+                node: "flow".into(),
+                state: lifecycle::READY,
+                step,
+                dropped: 0,
+            };
+            bus.publish("hb", &fiberflow_messages::encode(&hb)).unwrap();
+        };
+        for (said, k, restart) in [(200, 200, false), (100, 200, true), (200, 201, true)] {
+            ready(said);
+            let r = flow_restarted(Some(&mut inbox), "stiff", 200, k);
+            assert_eq!(r.is_err(), restart, "READY {said} at step {k}: {r:?}");
+        }
+    }
 }

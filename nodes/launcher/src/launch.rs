@@ -1037,9 +1037,11 @@ mod tests {
     }
 
     /// A child whose launcher is not its parent any more (it died before the parent-death
-    /// signal was set) ends at once with status 1; one whose launcher lives goes on.
+    /// signal was set) ends at once with status 1; one whose launcher lives goes on. (A
+    /// launcher killed while its nodes run: tests/e2e.rs,
+    /// `a_launcher_killed_outright_takes_its_nodes_with_it`.)
     #[test]
-    fn a_child_of_a_dead_launcher_ends_at_once() {
+    fn a_child_whose_launcher_is_not_its_parent_ends_at_once() {
         // (the launcher it was started by is its parent, status 0; is not, status 1)
         for (launcher_is_parent, status) in [(true, 0), (false, 1)] {
             // SAFETY: the child calls only async-signal-safe functions, then _exit
