@@ -113,6 +113,28 @@ impl Pulse {
     }
 }
 
+impl Pulse {
+    /// A pulse that says only that the process lives and its link holds (a RUNNING
+    /// heartbeat of `node` on `topic` every [`PULSE_PERIOD`], with no step): what the
+    /// nodes on other hosts watch of a multi-host run's flow node, whose session is their
+    /// router, to find it gone.
+    pub fn alive(bus: BusHandle, topic: String, node: String) -> std::io::Result<Self> {
+        let watch = Arc::new(Watch::default());
+        let stamp = watch.clone();
+        let pulse = Self::start(bus, vec![(topic, node, Arc::new(Beat::default()), watch)])?;
+        let halt = pulse.stop.clone();
+        std::thread::Builder::new()
+            .name("alive".into())
+            .spawn(move || {
+                while !halt.load(Ordering::Relaxed) {
+                    stamp.touch();
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+            })?;
+        Ok(pulse)
+    }
+}
+
 impl Drop for Pulse {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);

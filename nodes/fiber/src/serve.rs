@@ -74,7 +74,28 @@ pub struct Checkpointing {
     /// run over from a checkpoint, and this node fails so that its launcher restarts it
     /// from the same step.
     pub flow_elsewhere: bool,
+    /// With the flow node elsewhere: once it has been heard, a flow node silent this long
+    /// (`run.liveness_s`) is gone (its host or its router), and this node fails so that its
+    /// launcher joins the run afresh and follows the restart.
+    pub flow_liveness_s: f64,
 }
+
+/// The heartbeats of a flow node on another host: whether it started the run again, or
+/// went silent ([`flow_restarted`]).
+struct FlowWatch {
+    inbox: Inbox,
+    /// When a heartbeat of the flow node last arrived (None: not yet).
+    heard: Option<Instant>,
+    silent_after: Duration,
+    /// When this node took the run's announcement (None: not yet).
+    announced: Option<Instant>,
+}
+
+/// The flow node says READY while the nodes join, before it announces the run: a READY of
+/// this node's own first step that arrives this long after the announcement comes from a
+/// flow node started again (one whose host was lost while this node waited at its first
+/// step), not from the join.
+const JOIN_READY_GRACE: Duration = Duration::from_secs(2);
 
 /// Runs shard `shard` of a group (0 for an unsharded group) to the end of the run;
 /// returns the drop counts.
@@ -284,7 +305,7 @@ struct Served {
     samples_in: Inbox,
     ann_in: Inbox,
     /// The flow node's heartbeats, when it lives on another host ([`Checkpointing::flow_elsewhere`]).
-    flow_hb: Option<Inbox>,
+    flow_hb: Option<FlowWatch>,
     /// Contact across pieces (the group's other shards, its suspension's other groups): the
     /// free step this piece sends to the suspension's first piece and the part of the
     /// solve it takes back, or (on the first piece) the others' free steps and their parts.
@@ -397,7 +418,12 @@ impl Served {
         let samples_in = Inbox::new(bus.subscribe(&piece.samples_topic(&t))?);
         let ann_in = Inbox::new(bus.subscribe(&t.announce())?);
         let flow_hb = if ck.flow_elsewhere {
-            Some(Inbox::new(bus.subscribe(&t.heartbeat("flow"))?))
+            Some(FlowWatch {
+                inbox: Inbox::new(bus.subscribe(&t.heartbeat("flow"))?),
+                heard: None,
+                silent_after: Duration::from_secs_f64(ck.flow_liveness_s.max(0.1)),
+                announced: None,
+            })
         } else {
             None
         };
@@ -537,6 +563,9 @@ impl Served {
     fn start(&mut self, ann: RunAnnouncement) -> Result<(), FiberNodeError> {
         self.dt = ann.dt_plus;
         self.steps = ann.steps;
+        if let Some(w) = self.flow_hb.as_mut() {
+            w.announced = Some(Instant::now());
+        }
         let start = self.start;
         self.publish_state(start)?;
         if start == 0 || start.is_multiple_of(self.metrics_every_steps) {
@@ -917,24 +946,38 @@ impl Served {
 /// (with the step it starts from) only while it waits for the nodes to join, so a READY
 /// read once node `node` (which started at step `start`) is past its first step comes
 /// from a restarted flow node, and so does one at the first step that names another step
-/// (the join's own, of step `start`, are read and let go there). `flow_hb`: the flow
+/// or arrives [`JOIN_READY_GRACE`] after the announcement (the join's own, of step `start`,
+/// are read and let go there). Fails too when the flow
+/// node, once heard, has been silent for the run's liveness: its host or its router is
+/// gone, and a restarted one would not reach this node's session. `flow_hb`: the flow
 /// node's heartbeats (None: the flow node runs beside this node and cannot restart alone).
 fn flow_restarted(
-    flow_hb: Option<&mut Inbox>,
+    flow_hb: Option<&mut FlowWatch>,
     node: &str,
     start: u64,
     k: u64,
 ) -> Result<(), FiberNodeError> {
-    let Some(inbox) = flow_hb else {
+    let Some(w) = flow_hb else {
         return Ok(());
     };
-    while let Some((_, hb)) = inbox.recv::<Heartbeat>(Duration::ZERO) {
-        if hb.state == lifecycle::READY && (k > start || hb.step != start) {
+    while let Some((_, hb)) = w.inbox.recv::<Heartbeat>(Duration::ZERO) {
+        w.heard = Some(Instant::now());
+        let late = w.announced.is_some_and(|t| t.elapsed() > JOIN_READY_GRACE);
+        if hb.state == lifecycle::READY && (k > start || hb.step != start || late) {
             return Err(FiberNodeError::Protocol(format!(
                 "node {node}: the flow node started the run again from step {} while this \
                  node was at step {k} (it was restarted): this node is restarted from \
                  that step too",
                 hb.step
+            )));
+        }
+    }
+    if let Some(t) = w.heard {
+        if t.elapsed() > w.silent_after {
+            return Err(FiberNodeError::Protocol(format!(
+                "node {node}: the flow node has been silent for {:.0} s (run.liveness_s) at \
+                 step {k}: its host or its router is gone; this node follows the run's restart",
+                w.silent_after.as_secs_f64()
             )));
         }
     }
@@ -947,14 +990,20 @@ mod tests {
     use fiberflow_bus::{inproc::InprocBus, Bus};
 
     /// A READY of the flow node: let go at the node's first step when it names that step
-    /// (the join's), taken as a restart past the first step or when it names another step
+    /// and comes with the announcement (the join's), taken as a restart past the first
+    /// step, when it names another step, or when it comes well after the announcement
     /// (a head restarted again while this node, restarted itself, was at its first step:
     /// before, it waited for samples the new flow node never sent, and the run burnt a
     /// restart on its liveness).
     #[test]
     fn a_ready_of_another_step_at_the_first_step_is_a_restart() {
         let bus = InprocBus::new();
-        let mut inbox = Inbox::new(bus.subscribe("hb").unwrap());
+        let mut watch = FlowWatch {
+            inbox: Inbox::new(bus.subscribe("hb").unwrap()),
+            heard: None,
+            silent_after: Duration::from_secs(30),
+            announced: Some(Instant::now()),
+        };
         let ready = |step: u64| {
             let hb = Heartbeat {
                 schema_version: fiberflow_messages::SCHEMA_VERSION,
@@ -967,8 +1016,40 @@ mod tests {
         };
         for (said, k, restart) in [(200, 200, false), (100, 200, true), (200, 201, true)] {
             ready(said);
-            let r = flow_restarted(Some(&mut inbox), "stiff", 200, k);
+            let r = flow_restarted(Some(&mut watch), "stiff", 200, k);
             assert_eq!(r.is_err(), restart, "READY {said} at step {k}: {r:?}");
         }
+        // the node's own step, long after the announcement: a flow node started again
+        watch.announced = Some(Instant::now() - 2 * JOIN_READY_GRACE);
+        ready(200);
+        assert!(flow_restarted(Some(&mut watch), "stiff", 200, 200).is_err());
+    }
+
+    /// A flow node heard once and then silent for the liveness is gone (its router with
+    /// it: the node's session would not reach a restarted one), and the node fails to
+    /// follow the restart; one never heard is left to the join's timeouts.
+    #[test]
+    fn a_flow_node_silent_for_the_liveness_is_gone() {
+        let bus = InprocBus::new();
+        let mut watch = FlowWatch {
+            inbox: Inbox::new(bus.subscribe("hb").unwrap()),
+            heard: None,
+            silent_after: Duration::from_millis(200),
+            announced: None,
+        };
+        std::thread::sleep(Duration::from_millis(300));
+        assert!(flow_restarted(Some(&mut watch), "stiff", 0, 0).is_ok());
+        let hb = Heartbeat {
+            schema_version: fiberflow_messages::SCHEMA_VERSION,
+            node: "flow".into(),
+            state: lifecycle::RUNNING,
+            step: 0,
+            dropped: 0,
+        };
+        bus.publish("hb", &fiberflow_messages::encode(&hb)).unwrap();
+        assert!(flow_restarted(Some(&mut watch), "stiff", 0, 0).is_ok());
+        std::thread::sleep(Duration::from_millis(300));
+        let e = flow_restarted(Some(&mut watch), "stiff", 0, 0).unwrap_err();
+        assert!(e.to_string().contains("silent"), "{e}");
     }
 }

@@ -278,6 +278,16 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 None
             };
             let expected_done = info.expected_nodes.clone();
+            // the nodes on other hosts find the flow node (their router) gone by its silence
+            let _alive = if router {
+                Some(fiberflow_bus::pulse::Pulse::alive(
+                    bus.clone(),
+                    fiberflow_messages::topics::Topics::new(&lf.run.id).heartbeat("flow"),
+                    "flow".into(),
+                )?)
+            } else {
+                None
+            };
             let s = fiberflow_flow::serve::serve(&lf.flow, bus.clone(), &info, |_| {})?;
             tracing::info!(steps = s.steps, dropped = s.drops.total(), "flow node done");
             // the run's last step is served (what a test times a kill by; the launcher
@@ -396,6 +406,7 @@ fn run_fibre_nodes(
         full_states_every: lf.recorder.states_every_steps,
         two_way: lf.run.coupling == crate::launchfile::Coupling::TwoWay,
         flow_elsewhere: flow_elsewhere(spec)?,
+        flow_liveness_s: lf.run.liveness_s,
         suspensions: (0..lf.suspensions.len())
             .map(|i| lf.suspension_members(i))
             .collect::<Result<_>>()?,
