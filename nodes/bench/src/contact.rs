@@ -127,37 +127,33 @@ struct Round {
 }
 
 /// The contact search's floor: what any search must do with the step's segments — read
-/// each centre once (24 bytes), find its cell (side: a segment's length and a diameter)
-/// and sort the segments by cell (counting sort: a count, a prefix sum, a scatter of
-/// 4-byte indices), on one thread; the candidate pairs a search then tests near the real
-/// contacts (hundreds a step) are left out. Returns the sorted indices' checksum so the
-/// work is not optimised away.
-fn search_floor(centres: &[[f64; 3]], counts: &mut Vec<u32>, sorted: &mut Vec<u32>) -> u64 {
+/// each centre once (24 bytes) and find its cell (side: a segment's length and a
+/// diameter), counted per plane of cells across x — on one thread. A particular search
+/// adds its sort and its pair tests; the candidates near the real contacts (hundreds a
+/// step) are left out. Returns a checksum of the cells so the work is not optimised away.
+fn search_floor(centres: &[[f64; 3]], planes: &mut Vec<u32>) -> u64 {
     let side = 3.0 + 0.232;
     let dims = BOX_PLUS.map(|l| ((l / side) as usize).max(1));
-    let cell_of = |c: &[f64; 3]| -> usize {
+    let inv = BOX_PLUS.map(|l| 1.0 / l);
+    planes.clear();
+    planes.resize(dims[0], 0);
+    let mut sum = 0u64;
+    for c in centres {
+        // the fraction of the box (periodic: wrapped), by truncation rather than a
+        // library call
         let i = |k: usize| {
-            let x = (c[k] / BOX_PLUS[k] + 0.5).rem_euclid(1.0);
-            ((x * dims[k] as f64) as usize).min(dims[k] - 1)
+            let x = c[k] * inv[k] + 0.5;
+            let mut f = x - (x as i64) as f64;
+            if f < 0.0 {
+                f += 1.0;
+            }
+            ((f * dims[k] as f64) as usize).min(dims[k] - 1)
         };
-        (i(0) * dims[1] + i(1)) * dims[2] + i(2)
-    };
-    counts.clear();
-    counts.resize(dims.iter().product::<usize>() + 1, 0);
-    let cells: Vec<u32> = centres.iter().map(|c| cell_of(c) as u32).collect();
-    for &c in &cells {
-        counts[c as usize + 1] += 1;
+        let (x, y, z) = (i(0), i(1), i(2));
+        planes[x] += 1;
+        sum = sum.wrapping_add(((x * dims[1] + y) * dims[2] + z) as u64);
     }
-    for i in 1..counts.len() {
-        counts[i] += counts[i - 1];
-    }
-    sorted.resize(centres.len(), 0);
-    for (i, &c) in cells.iter().enumerate() {
-        let slot = &mut counts[c as usize];
-        sorted[*slot as usize] = i as u32;
-        *slot += 1;
-    }
-    sorted.iter().step_by(97).map(|&i| i as u64).sum()
+    sum
 }
 
 /// The process's minor page faults so far (0 where the count cannot be read).
@@ -180,7 +176,7 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
         ..Default::default()
     };
     let period = [Some(BOX_PLUS[0]), None, Some(BOX_PLUS[2])];
-    let (mut counts, mut sorted, mut sum) = (Vec::new(), Vec::new(), 0u64);
+    let (mut planes, mut sum) = (Vec::new(), 0u64);
     let mut before = group.contact_time();
     for step in 0..warmup + steps {
         if step == warmup {
@@ -205,7 +201,7 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
                     .map(|c| [c.x, c.y, c.z])
                     .collect();
                 let t = Instant::now();
-                sum = sum.wrapping_add(search_floor(&centres, &mut counts, &mut sorted));
+                sum = sum.wrapping_add(search_floor(&centres, &mut planes));
                 r.floor += t.elapsed().as_secs_f64();
             }
         }
