@@ -133,7 +133,7 @@ pub fn serve_many(
 ) -> Result<Vec<(String, DropCounter)>, FiberNodeError> {
     let mut served = nodes
         .iter()
-        .map(|(cfg, shard)| Served::prepare(cfg, *shard, bus.clone(), run_id, box_plus, ck))
+        .map(|(cfg, shard)| ServedPiece::prepare(cfg, *shard, bus.clone(), run_id, box_plus, ck))
         .collect::<Result<Vec<_>, _>>()?;
     for s in served.iter_mut() {
         s.stop = stop.clone();
@@ -242,13 +242,13 @@ pub fn serve_many(
             s.checkpoint(k + 1)?;
         }
     }
-    served.into_iter().map(Served::finish).collect()
+    served.into_iter().map(ServedPiece::finish).collect()
 }
 
 /// Runs each node on a thread of its own to the end of the run; the first failure
 /// returns at once (the process then ends, and its other nodes with it).
 fn serve_on_threads(
-    served: Vec<Served>,
+    served: Vec<ServedPiece>,
     step_timeout: Duration,
     timeout_s: f64,
     start: u64,
@@ -290,7 +290,7 @@ fn serve_on_threads(
 }
 
 /// One fibre node's group, its messages and its bookkeeping between steps.
-struct Served {
+struct ServedPiece {
     node: String,
     name: String,
     t: Topics,
@@ -348,7 +348,7 @@ struct Served {
     stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
-impl Served {
+impl ServedPiece {
     /// Builds (or restores) the node's slice of its group and subscribes to its topics.
     ///
     /// Long (≈120 lines): fresh start and restore from a checkpoint side by side, so
@@ -629,7 +629,7 @@ impl Served {
     /// Waits for the samples of step `k` (sending the state again when they are late,
     /// and the states `resend_others` sends: those of the nodes stepped after this one on
     /// its thread; it returns how many) and integrates to t_{k+1};
-    /// [`Served::publish_step`] then sends the new state.
+    /// [`ServedPiece::publish_step`] then sends the new state.
     fn step(
         &mut self,
         k: u64,

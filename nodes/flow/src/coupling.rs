@@ -7,7 +7,7 @@
 
 use crate::config::FlowNodeConfig;
 use crate::error::FlowError;
-use crate::lockstep::{Served, States};
+use crate::lockstep::{SentSamples, States};
 use crate::outgoing::{await_recorder_finishing, heartbeat, profiles_message, publish_slices};
 use crate::run::{RunInfo, ServeSummary};
 use crate::sampling::{Field, PieceSamples};
@@ -115,7 +115,7 @@ pub(crate) struct Coupling<'a> {
     states: States,
     hb_in: Inbox,
     /// The samples last published to each piece, to send again when a node waits for them.
-    served: Served,
+    served: SentSamples,
     /// Running plane/time statistics of the served field, published as FlowProfiles.
     stats: Option<RunningStats>,
     /// The loop's messages go out on the outbox's thread while the field steps on.
@@ -581,7 +581,7 @@ struct Publish<'p> {
     t: &'p Topics,
     dt_plus: f64,
     out: &'p mut Outbox,
-    served: &'p mut Served,
+    served: &'p mut SentSamples,
     timing: &'p mut Timing,
 }
 

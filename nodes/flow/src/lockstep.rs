@@ -18,7 +18,7 @@ const HEARTBEAT_POLL: Duration = Duration::from_millis(200);
 /// The samples last published to each piece: (step, topic, message). The message is
 /// encoded on the outbox's thread, straight into the transport's buffer; its arrays are
 /// sampled into again next step.
-pub(crate) type Served = BTreeMap<(String, u32), (u64, String, Arc<Encode<FlowSamples>>)>;
+pub(crate) type SentSamples = BTreeMap<(String, u32), (u64, String, Arc<Encode<FlowSamples>>)>;
 
 /// How often the run's announcement may go out again to nodes that still say READY.
 const REANNOUNCE_EVERY: Duration = Duration::from_secs(1);
@@ -50,7 +50,7 @@ impl Peers {
         &mut self,
         bus: &BusHandle,
         hb_in: &mut Inbox,
-        served: &Served,
+        served: &SentSamples,
         run: &RunInfo,
         first_wait: Duration,
     ) -> Result<(), FlowError> {
@@ -148,7 +148,7 @@ impl States {
         bus: &BusHandle,
         t: &Topics,
         hb_in: &mut Inbox,
-        served: &Served,
+        served: &SentSamples,
     ) -> Result<(), FlowError> {
         let step_timeout = Duration::from_secs_f64(run.step_timeout_s);
         let wait_from = Instant::now();
@@ -226,7 +226,7 @@ impl States {
         bus: &BusHandle,
         t: &Topics,
         hb_in: &mut Inbox,
-        served: &Served,
+        served: &SentSamples,
     ) -> Result<(), FlowError> {
         // the recorder tells how far it has recorded by the fibre states it holds: with no
         // fibre group there are none to wait for (and it would never say it got further)
@@ -433,7 +433,7 @@ mod tests {
             announcement: Some(("r/announce".into(), vec![1, 2, 3], Instant::now())),
             ..Peers::default()
         };
-        let served = Served::new();
+        let served = SentSamples::new();
         bus.publish("r/hb/case1", &ready("case1")).unwrap();
         peers
             .listen(&bus, &mut hb_in, &served, &run, Duration::from_millis(500))

@@ -5,14 +5,14 @@ states of a recording that holds every step (docs/history/contact-cost.md, "How 
         --set run.steps=30 --set recorder.states_every_steps=1 --set run.analyze=false
     fiberflow export recordings/flocs-wall-30 --what states
     pip install numpy pandas pyarrow scipy
-    python3 docs/list_lifetime.py recordings/flocs-wall-30/export
+    python3 docs/scripts/list_lifetime.py recordings/flocs-wall-30/export
 
 Per group it prints two measures:
 
 * the skin an ideal list needs (any list, however it is kept): for the pairs of segments
   of different fibres whose centres are within l + d at step t, how much farther apart their
   centres were at the build step b. A list built at b with a smaller skin misses one of them.
-* the lifetime of a list kept per region with the bound of docs/design-next.md: regions
+* the lifetime of a list kept per region with the bound of docs/history/design-contact-and-hosts.md: regions
   are cubes of side R by position at b; a region's list holds while the box of the
   displacements since b over it and its 26 neighbours, plus twice their largest turn
   h|Δẑ|, plus the same for the next step's motion, stays within the skin s.
