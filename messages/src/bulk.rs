@@ -657,11 +657,12 @@ mod tests {
     use super::*;
     use crate::codec::{serde_decode, serde_encode};
     use crate::fuzz::{random_payload, Rng};
+    use crate::kind::Kind;
 
-    const BULK: [&str; 3] = [
-        "fiberflow_msgs/msg/FlowSamples",
-        "fiberflow_msgs/msg/FiberGroupState",
-        "fiberflow_msgs/msg/FiberGroupMetrics",
+    const BULK: [Kind; 3] = [
+        Kind::FlowSamples,
+        Kind::FiberGroupState,
+        Kind::FiberGroupMetrics,
     ];
 
     /// What `encode_into` writes into a slice of `encoded_len` bytes, and whether a slice

@@ -3,6 +3,7 @@
 //! `---` after each message.
 
 use crate::codec::{decode, DecodeError, Message};
+use crate::kind::Kind;
 use crate::types::*;
 use serde_json::Value;
 
@@ -14,20 +15,19 @@ pub fn echo_text(topic: &str, bytes: &[u8], max_items: usize) -> Result<String, 
         len: bytes.len(),
         reason,
     };
-    let ty = crate::topics::type_of(topic)
+    let kind = crate::topics::kind_of(topic)
         .ok_or_else(|| malformed(format!("no message type for topic {topic}")))?;
-    let value = match ty {
-        "fiberflow_msgs/msg/RunAnnouncement" => fields::<RunAnnouncement>(bytes)?,
-        "fiberflow_msgs/msg/Heartbeat" => fields::<Heartbeat>(bytes)?,
-        "fiberflow_msgs/msg/FlowStatus" => fields::<FlowStatus>(bytes)?,
-        "fiberflow_msgs/msg/FlowProfiles" => fields::<FlowProfiles>(bytes)?,
-        "fiberflow_msgs/msg/FlowSlice" => fields::<FlowSlice>(bytes)?,
-        "fiberflow_msgs/msg/FlowSamples" => fields::<FlowSamples>(bytes)?,
-        "fiberflow_msgs/msg/FiberGroupState" => fields::<FiberGroupState>(bytes)?,
-        "fiberflow_msgs/msg/FiberGroupMetrics" => fields::<FiberGroupMetrics>(bytes)?,
-        "fiberflow_msgs/msg/FiberFreeStep" => fields::<FiberFreeStep>(bytes)?,
-        "fiberflow_msgs/msg/FiberContactSolved" => fields::<FiberContactSolved>(bytes)?,
-        other => return Err(malformed(format!("no decoder for {other}"))),
+    let value = match kind {
+        Kind::RunAnnouncement => fields::<RunAnnouncement>(bytes)?,
+        Kind::Heartbeat => fields::<Heartbeat>(bytes)?,
+        Kind::FlowStatus => fields::<FlowStatus>(bytes)?,
+        Kind::FlowProfiles => fields::<FlowProfiles>(bytes)?,
+        Kind::FlowSlice => fields::<FlowSlice>(bytes)?,
+        Kind::FlowSamples => fields::<FlowSamples>(bytes)?,
+        Kind::FiberGroupState => fields::<FiberGroupState>(bytes)?,
+        Kind::FiberGroupMetrics => fields::<FiberGroupMetrics>(bytes)?,
+        Kind::FiberFreeStep => fields::<FiberFreeStep>(bytes)?,
+        Kind::FiberContactSolved => fields::<FiberContactSolved>(bytes)?,
     };
     let mut out = String::new();
     render(&value, 0, max_items, &mut out);

@@ -3,6 +3,7 @@
 //! the checks after decoding are exercised, not only the decoder. `nonsense` makes
 //! messages that always break at least one rule a receiver can check.
 
+use crate::kind::Kind;
 use crate::types::*;
 use crate::{encode, SCHEMA_VERSION};
 
@@ -94,18 +95,18 @@ impl Rng {
     }
 }
 
-/// The message type names a payload can be made for.
-pub const TYPES: [&str; 10] = [
-    "fiberflow_msgs/msg/RunAnnouncement",
-    "fiberflow_msgs/msg/FlowSlice",
-    "fiberflow_msgs/msg/FlowStatus",
-    "fiberflow_msgs/msg/FlowProfiles",
-    "fiberflow_msgs/msg/FlowSamples",
-    "fiberflow_msgs/msg/FiberGroupState",
-    "fiberflow_msgs/msg/FiberGroupMetrics",
-    "fiberflow_msgs/msg/Heartbeat",
-    "fiberflow_msgs/msg/FiberFreeStep",
-    "fiberflow_msgs/msg/FiberContactSolved",
+/// The kinds of message a payload can be made for.
+pub const KINDS: [Kind; 10] = [
+    Kind::RunAnnouncement,
+    Kind::FlowSlice,
+    Kind::FlowStatus,
+    Kind::FlowProfiles,
+    Kind::FlowSamples,
+    Kind::FiberGroupState,
+    Kind::FiberGroupMetrics,
+    Kind::Heartbeat,
+    Kind::FiberFreeStep,
+    Kind::FiberContactSolved,
 ];
 
 fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
@@ -179,19 +180,19 @@ fn state(r: &mut Rng, groups: &[String]) -> FiberGroupState {
     }
 }
 
-/// A random, structurally valid payload of `type_name` (it may or may not make sense:
+/// A random, structurally valid payload of `kind` (it may or may not make sense:
 /// one in three is tidy — ordinary values, consistent lengths — and usually passes).
-pub fn random_payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+pub fn random_payload(kind: Kind, r: &mut Rng, groups: &[String]) -> Vec<u8> {
     r.tidy = r.chance(3);
-    let b = payload(type_name, r, groups);
+    let b = payload(kind, r, groups);
     r.tidy = false;
     b
 }
 
 /// Long (≈125 lines): one arm per message type, each a few lines.
-fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
-    match type_name {
-        "fiberflow_msgs/msg/RunAnnouncement" => encode(&RunAnnouncement {
+fn payload(kind: Kind, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+    match kind {
+        Kind::RunAnnouncement => encode(&RunAnnouncement {
             schema_version: SCHEMA_VERSION,
             run_id: r.name(&[]),
             config_digest: format!("{:x}", r.next_u64()),
@@ -203,7 +204,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 r.floats(n)
             },
         }),
-        "fiberflow_msgs/msg/FlowStatus" => encode(&FlowStatus {
+        Kind::FlowStatus => encode(&FlowStatus {
             schema_version: SCHEMA_VERSION,
             step: r.step(),
             t_plus: r.float(),
@@ -218,7 +219,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 r.floats(n)
             },
         }),
-        "fiberflow_msgs/msg/FlowProfiles" => {
+        Kind::FlowProfiles => {
             let n = r.below(40) as usize;
             let col = |r: &mut Rng| {
                 let m = r.len_near(n);
@@ -244,7 +245,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 omega_z_rms: col(r),
             })
         }
-        "fiberflow_msgs/msg/FlowSlice" => {
+        Kind::FlowSlice => {
             let (nu, nv) = (r.below(8) as usize, r.below(8) as usize);
             let m = r.len_near(nu * nv);
             // half the time increasing coordinates, so slices also pass the checks
@@ -270,7 +271,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 values: r.floats(m).into_iter().map(|x| x as f32).collect(),
             })
         }
-        "fiberflow_msgs/msg/FlowSamples" => {
+        Kind::FlowSamples => {
             let n = r.below(60) as usize;
             let (a, b) = (r.len_near(3 * n), r.len_near(9 * n));
             let (first_fiber, group_fibers) = r.piece(n);
@@ -285,8 +286,8 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 velocity_gradient: r.floats(b),
             })
         }
-        "fiberflow_msgs/msg/FiberGroupState" => encode(&state(r, groups)),
-        "fiberflow_msgs/msg/FiberGroupMetrics" => {
+        Kind::FiberGroupState => encode(&state(r, groups)),
+        Kind::FiberGroupMetrics => {
             let n = r.below(20) as usize;
             let (a, b, c) = (r.len_near(3 * n), r.len_near(n), r.len_near(n));
             let (first_fiber, group_fibers) = r.piece(n);
@@ -305,7 +306,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 mean_sigma2: r.float(),
             })
         }
-        "fiberflow_msgs/msg/FiberFreeStep" => {
+        Kind::FiberFreeStep => {
             let st = state(r, groups);
             let mut arr = || {
                 let n = r.len_near(st.centre.len());
@@ -329,7 +330,7 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
                 segments_per_fiber: st.segments_per_fiber,
             })
         }
-        "fiberflow_msgs/msg/FiberContactSolved" => {
+        Kind::FiberContactSolved => {
             let st = state(r, groups);
             let nf = st.segments_per_fiber.len();
             // moved fibres: a random ascending subset, now and then out of order or range
@@ -390,13 +391,13 @@ fn payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
     }
 }
 
-/// A payload of `type_name` that always breaks a rule a receiver checks: inconsistent
+/// A payload of `kind` that always breaks a rule a receiver checks: inconsistent
 /// arrays, a non-finite value, an unknown lifecycle state, a name outside the run, or a
 /// step beyond any run (≥ 2^40).
-pub fn nonsense_payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<u8> {
+pub fn nonsense_payload(kind: Kind, r: &mut Rng, groups: &[String]) -> Vec<u8> {
     loop {
-        let b = random_payload(type_name, r, groups);
-        let broken = match crate::sanity::check_payload(type_name, &b) {
+        let b = random_payload(kind, r, groups);
+        let broken = match crate::sanity::check_payload(kind, &b) {
             Err(_) => true,
             Ok(stamp) => {
                 stamp.step.is_some_and(|k| k >= 1 << 40)
@@ -408,7 +409,7 @@ pub fn nonsense_payload(type_name: &str, r: &mut Rng, groups: &[String]) -> Vec<
         };
         // an announcement that passes its checks still names another run ("" or
         // "intruder…" ids, a random digest): receivers compare both
-        let announce_ok = type_name == "fiberflow_msgs/msg/RunAnnouncement";
+        let announce_ok = kind == Kind::RunAnnouncement;
         if broken || announce_ok {
             return b;
         }
@@ -427,13 +428,13 @@ mod tests {
     fn checks_survive_random_structured_messages() {
         let groups = vec!["case1".to_string(), "case2".to_string()];
         let mut r = Rng::new(7);
-        let mut accepted = [0u32; TYPES.len()];
+        let mut accepted = [0u32; KINDS.len()];
         for i in 0..100_000 {
-            let t = TYPES[i % TYPES.len()];
+            let t = KINDS[i % KINDS.len()];
             let b = random_payload(t, &mut r, &groups);
             if check_payload(t, &b).is_ok() {
-                accepted[i % TYPES.len()] += 1;
-                if t == "fiberflow_msgs/msg/FiberGroupState" {
+                accepted[i % KINDS.len()] += 1;
+                if t == Kind::FiberGroupState {
                     let s: FiberGroupState = crate::decode(&b).unwrap();
                     assert!(s.check().is_ok());
                     let mut seg = 0usize;
@@ -454,11 +455,11 @@ mod tests {
             }
         }
         // the generator reaches both sides of every check
-        for (t, n) in TYPES.iter().zip(accepted) {
+        for (t, n) in KINDS.iter().zip(accepted) {
             assert!(
-                n > 100 && (n as usize) < 100_000 / TYPES.len(),
+                n > 100 && (n as usize) < 100_000 / KINDS.len(),
                 "{t}: {n} of {} accepted",
-                100_000 / TYPES.len()
+                100_000 / KINDS.len()
             );
         }
     }
@@ -468,7 +469,7 @@ mod tests {
         let groups = vec!["case1".to_string()];
         let mut r = Rng::new(3);
         for i in 0..20_000 {
-            let t = TYPES[i % TYPES.len()];
+            let t = KINDS[i % KINDS.len()];
             let b = nonsense_payload(t, &mut r, &groups);
             if let Ok(stamp) = check_payload(t, &b) {
                 let foreign = stamp.step.is_some_and(|k| k >= 1 << 40)
@@ -476,7 +477,7 @@ mod tests {
                         .owner
                         .as_ref()
                         .is_some_and(|o| o.is_empty() || o.starts_with("intruder"))
-                    || t == "fiberflow_msgs/msg/RunAnnouncement";
+                    || t == Kind::RunAnnouncement;
                 assert!(foreign, "{t} passed as sensible");
             }
         }

@@ -8,6 +8,7 @@ pub mod checkpoints;
 pub mod codec;
 pub mod echo;
 pub mod fuzz;
+pub mod kind;
 pub mod palette;
 pub mod pieces;
 pub mod reading;
@@ -21,6 +22,7 @@ pub use codec::{
     decode, decode_state_into, encode, encode_into, encode_into_uninit, encoded_len,
     peek_group_header, DecodeError, GroupHeader, Message,
 };
+pub use kind::Kind;
 pub use types::*;
 
 /// Version of every message layout in this crate; bumped on any incompatible change.

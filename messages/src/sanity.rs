@@ -3,6 +3,7 @@
 //! lifecycle state. Receivers drop and count such messages like undecodable ones, so no
 //! node indexes an array by a count it has not checked.
 
+use crate::kind::Kind;
 use crate::types::*;
 
 /// Semantic validity of a decoded message.
@@ -408,8 +409,8 @@ pub fn check_state(bytes: &[u8]) -> Result<FiberGroupState, String> {
     Ok(s)
 }
 
-/// Decodes `bytes` as `type_name` and checks it; `Err(reason)` for garbage or nonsense.
-pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
+/// Decodes `bytes` as a message of `kind` and checks it; `Err(reason)` for garbage or nonsense.
+pub fn check_payload(kind: Kind, bytes: &[u8]) -> Result<Stamp, String> {
     fn go<M: crate::Message + Sane>(b: &[u8], stamp: impl Fn(M) -> Stamp) -> Result<Stamp, String> {
         let m = crate::decode::<M>(b).map_err(|e| e.to_string())?;
         m.check()?;
@@ -420,34 +421,31 @@ pub fn check_payload(type_name: &str, bytes: &[u8]) -> Result<Stamp, String> {
         owner,
         first_fiber,
     };
-    match type_name {
-        "fiberflow_msgs/msg/RunAnnouncement" => go::<RunAnnouncement>(bytes, |m| Stamp {
+    match kind {
+        Kind::RunAnnouncement => go::<RunAnnouncement>(bytes, |m| Stamp {
             owner: Some(m.run_id),
             ..Stamp::default()
         }),
-        "fiberflow_msgs/msg/Heartbeat" => go::<Heartbeat>(bytes, |m| Stamp {
+        Kind::Heartbeat => go::<Heartbeat>(bytes, |m| Stamp {
             owner: Some(m.node),
             ..Stamp::default()
         }),
-        "fiberflow_msgs/msg/FlowStatus" => go::<FlowStatus>(bytes, |m| st(m.step, None, 0)),
-        "fiberflow_msgs/msg/FlowProfiles" => go::<FlowProfiles>(bytes, |m| st(m.step, None, 0)),
-        "fiberflow_msgs/msg/FlowSlice" => go::<FlowSlice>(bytes, |m| st(m.step, None, 0)),
-        "fiberflow_msgs/msg/FlowSamples" => {
-            go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
-        }
-        "fiberflow_msgs/msg/FiberGroupState" => {
+        Kind::FlowStatus => go::<FlowStatus>(bytes, |m| st(m.step, None, 0)),
+        Kind::FlowProfiles => go::<FlowProfiles>(bytes, |m| st(m.step, None, 0)),
+        Kind::FlowSlice => go::<FlowSlice>(bytes, |m| st(m.step, None, 0)),
+        Kind::FlowSamples => go::<FlowSamples>(bytes, |m| st(m.step, Some(m.group), m.first_fiber)),
+        Kind::FiberGroupState => {
             check_state(bytes).map(|m| st(m.step, Some(m.group), m.first_fiber))
         }
-        "fiberflow_msgs/msg/FiberGroupMetrics" => {
+        Kind::FiberGroupMetrics => {
             go::<FiberGroupMetrics>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
-        "fiberflow_msgs/msg/FiberFreeStep" => {
+        Kind::FiberFreeStep => {
             go::<FiberFreeStep>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
-        "fiberflow_msgs/msg/FiberContactSolved" => {
+        Kind::FiberContactSolved => {
             go::<FiberContactSolved>(bytes, |m| st(m.step, Some(m.group), m.first_fiber))
         }
-        other => Err(format!("unknown message type {other}")),
     }
 }
 

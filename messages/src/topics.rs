@@ -1,6 +1,8 @@
 //! Topic names: slash paths under `fiberflow/<run>/`, identical to Rerun entity paths and
 //! (with `/` kept) to iceoryx2 service names.
 
+use crate::kind::Kind;
+
 /// The flow slices the flow node publishes: the wall-parallel plane of u' near the lower
 /// wall and the y–z cross-section at x = 0.
 /// The flow slices: u' near the wall, u' across the channel, and (two-way runs only) the
@@ -71,24 +73,25 @@ impl Topics {
     }
 }
 
-/// Which message type a topic carries (by its path shape), for decoders and the recorder.
-pub fn type_of(topic: &str) -> Option<&'static str> {
+/// Which kind of message a topic carries (by its path shape), for decoders and the
+/// recorder.
+pub fn kind_of(topic: &str) -> Option<Kind> {
     let parts: Vec<&str> = topic.split('/').collect();
     if parts.len() < 4 || parts[0] != "fiberflow" {
         return None;
     }
     match (parts[2], parts.len()) {
-        ("control", 4) if parts[3] == "announce" => Some("fiberflow_msgs/msg/RunAnnouncement"),
-        ("control", 5) if parts[3] == "heartbeat" => Some("fiberflow_msgs/msg/Heartbeat"),
-        ("flow", 4) if parts[3] == "status" => Some("fiberflow_msgs/msg/FlowStatus"),
-        ("flow", 4) if parts[3] == "profiles" => Some("fiberflow_msgs/msg/FlowProfiles"),
-        ("flow", 5) if parts[3] == "slices" => Some("fiberflow_msgs/msg/FlowSlice"),
+        ("control", 4) if parts[3] == "announce" => Some(Kind::RunAnnouncement),
+        ("control", 5) if parts[3] == "heartbeat" => Some(Kind::Heartbeat),
+        ("flow", 4) if parts[3] == "status" => Some(Kind::FlowStatus),
+        ("flow", 4) if parts[3] == "profiles" => Some(Kind::FlowProfiles),
+        ("flow", 5) if parts[3] == "slices" => Some(Kind::FlowSlice),
         // flow/samples/<group>, or flow/samples/<group>/<shard> for a sharded group
-        ("flow", 5 | 6) if parts[3] == "samples" => Some("fiberflow_msgs/msg/FlowSamples"),
-        ("fibers", 5) if parts[4] == "state" => Some("fiberflow_msgs/msg/FiberGroupState"),
-        ("fibers", 5) if parts[4] == "metrics" => Some("fiberflow_msgs/msg/FiberGroupMetrics"),
-        ("contact", 5) => Some("fiberflow_msgs/msg/FiberFreeStep"),
-        ("contact", 6) if parts[5] == "solved" => Some("fiberflow_msgs/msg/FiberContactSolved"),
+        ("flow", 5 | 6) if parts[3] == "samples" => Some(Kind::FlowSamples),
+        ("fibers", 5) if parts[4] == "state" => Some(Kind::FiberGroupState),
+        ("fibers", 5) if parts[4] == "metrics" => Some(Kind::FiberGroupMetrics),
+        ("contact", 5) => Some(Kind::FiberFreeStep),
+        ("contact", 6) if parts[5] == "solved" => Some(Kind::FiberContactSolved),
         _ => None,
     }
 }

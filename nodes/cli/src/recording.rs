@@ -373,13 +373,13 @@ pub fn inject_cmd(
         })
         .collect();
     for t in &full {
-        if structured && fiberflow_messages::topics::type_of(t).is_none() {
+        if structured && fiberflow_messages::topics::kind_of(t).is_none() {
             bail!("--structured: {t} carries no message type");
         }
     }
     for i in 0..count {
         for t in &full {
-            let payload = match fiberflow_messages::topics::type_of(t) {
+            let payload = match fiberflow_messages::topics::kind_of(t) {
                 Some(ty) if structured => {
                     fiberflow_messages::fuzz::nonsense_payload(ty, &mut rng, &groups)
                 }

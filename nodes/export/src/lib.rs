@@ -13,7 +13,7 @@ pub use table::{schema, BATCH_ROWS, ROW_GROUP_ROWS};
 use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::sanity::Sane;
 use fiberflow_messages::{
-    decode, FiberGroupMetrics, FiberGroupState, FlowProfiles, FlowStatus, RunAnnouncement,
+    decode, FiberGroupMetrics, FiberGroupState, FlowProfiles, FlowStatus, Kind, RunAnnouncement,
 };
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -374,11 +374,10 @@ fn message(
     summary: &mut Summary,
     progress: &mut impl FnMut(Progress),
 ) -> Result<(), ExportError> {
-    let Some(kind) = fiberflow_messages::topics::type_of(m.topic) else {
+    let Some(kind) = fiberflow_messages::topics::kind_of(m.topic) else {
         return Ok(());
     };
     let steps = announcement.as_ref().map(|a| a.steps);
-    let kind = kind.rsplit('/').next().unwrap_or(kind);
     // decoded and checked, or dropped and counted
     fn sane<T: fiberflow_messages::Message + Sane>(data: &[u8], dropped: &mut u64) -> Option<T> {
         match decode::<T>(data) {
@@ -390,10 +389,10 @@ fn message(
         }
     }
     match kind {
-        "RunAnnouncement" if announcement.is_none() => {
+        Kind::RunAnnouncement if announcement.is_none() => {
             *announcement = sane(m.data, &mut summary.dropped);
         }
-        "FlowStatus" if w.flow.is_some() => {
+        Kind::FlowStatus if w.flow.is_some() => {
             if let Some(s) = sane::<FlowStatus>(m.data, &mut summary.dropped) {
                 if !flow_steps.insert(s.step) {
                     summary.repeated += 1;
@@ -406,7 +405,7 @@ fn message(
                 });
             }
         }
-        "FlowProfiles" if w.profiles.is_some() => {
+        Kind::FlowProfiles if w.profiles.is_some() => {
             if let Some(p) = sane::<FlowProfiles>(m.data, &mut summary.dropped) {
                 if !profile_steps.insert(p.step) {
                     summary.repeated += 1;
@@ -415,7 +414,7 @@ fn message(
                 }
             }
         }
-        "FiberGroupState" if want_states => {
+        Kind::FiberGroupState if want_states => {
             let Some(s) = sane::<FiberGroupState>(m.data, &mut summary.dropped) else {
                 return Ok(());
             };
@@ -442,7 +441,7 @@ fn message(
             w.write_states(ready)?;
             progress(Progress { step, steps });
         }
-        "FiberGroupMetrics" if w.metrics.is_some() => {
+        Kind::FiberGroupMetrics if w.metrics.is_some() => {
             let Some(mt) = sane::<FiberGroupMetrics>(m.data, &mut summary.dropped) else {
                 return Ok(());
             };

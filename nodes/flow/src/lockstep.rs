@@ -475,7 +475,7 @@ mod fuzz {
         let mut r = Rng::new(5);
         let mut taken = 0;
         for i in 0..100_000u64 {
-            let b = random_payload("fiberflow_msgs/msg/FiberGroupState", &mut r, &groups);
+            let b = random_payload(fiberflow_messages::Kind::FiberGroupState, &mut r, &groups);
             let Ok(mut s) = fiberflow_messages::decode::<FiberGroupState>(&b) else {
                 continue;
             };

@@ -17,7 +17,8 @@ pub mod ros;
 use fiberflow_bus::pulse::{Beat, Pulse, Watch};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::pieces::Tiles;
-use fiberflow_messages::topics::{type_of, Topics};
+use fiberflow_messages::topics::{kind_of, Topics};
+use fiberflow_messages::Kind;
 use fiberflow_messages::{
     checkpoints, decode, encode, lifecycle, sanity, schema, FiberGroupState, Heartbeat,
     SCHEMA_VERSION,
@@ -281,14 +282,14 @@ pub fn recorded_steps(segments: &[PathBuf]) -> Recorded {
     for p in segments {
         // streamed (recordings reach gigabytes); a damaged tail ends the file
         let _ = recover::for_each_message(p, |topic, data| {
-            let Some(type_name) = type_of(topic) else {
+            let Some(kind) = kind_of(topic) else {
                 return;
             };
             if let Ok(sanity::Stamp {
                 step: Some(step),
                 first_fiber,
                 ..
-            }) = sanity::check_payload(type_name, data)
+            }) = sanity::check_payload(kind, data)
             {
                 seen.insert(topic, step, first_fiber);
             }
@@ -328,13 +329,13 @@ struct Session<'a> {
 impl Session<'_> {
     /// Validates, de-duplicates and writes one message.
     fn handle(&mut self, topic: &str, bytes: &[u8]) -> Result<(), RecorderError> {
-        let Some(type_name) = type_of(topic) else {
+        let Some(kind) = kind_of(topic) else {
             self.drops
                 .drop_one(topic, "topic carries no known message type");
             return Ok(());
         };
-        let is_state = type_name == "fiberflow_msgs/msg/FiberGroupState";
-        let is_samples = type_name == "fiberflow_msgs/msg/FlowSamples";
+        let is_state = kind == Kind::FiberGroupState;
+        let is_samples = kind == Kind::FlowSamples;
         // states the plan leaves out are read no further than their header (a state is tens
         // of MB at scale): they only mark their node's progress. (Without samples in the
         // plan the recorder does not subscribe to them.)
@@ -376,7 +377,7 @@ impl Session<'_> {
                 (stamp, Some(s))
             })
         } else {
-            sanity::check_payload(type_name, bytes).map(|s| (s, None))
+            sanity::check_payload(kind, bytes).map(|s| (s, None))
         };
         let (stamp, state) = match checked {
             Ok(c) => c,
@@ -397,7 +398,7 @@ impl Session<'_> {
             return Ok(());
         }
         let step = stamp.step;
-        if type_name == "fiberflow_msgs/msg/FlowStatus" {
+        if kind == Kind::FlowStatus {
             self.status_step = self.status_step.max(step);
         }
         if let Some(k) = step {
@@ -420,11 +421,11 @@ impl Session<'_> {
             if is_state {
                 if let Some(first) = self.held_first.remove(&slice) {
                     let held = sanity::check_state(&first).ok();
-                    self.write_new(topic, type_name, Some(0), slice.1, &first, held)?;
+                    self.write_new(topic, kind, Some(0), slice.1, &first, held)?;
                 }
             }
         }
-        self.write_new(topic, type_name, step, stamp.first_fiber, bytes, state)?;
+        self.write_new(topic, kind, step, stamp.first_fiber, bytes, state)?;
         self.maybe_commit()
     }
 
@@ -484,7 +485,7 @@ impl Session<'_> {
     fn write_new(
         &mut self,
         topic: &str,
-        type_name: &'static str,
+        kind: Kind,
         step: Option<u64>,
         first: u32,
         bytes: &[u8],
@@ -499,11 +500,11 @@ impl Session<'_> {
         if let Some(s) = &st {
             self.sim_nanos = self.sim_nanos.max(t_plus_to_nanos(s.t_plus));
         }
-        let c = self.out.channel(topic, type_name)?;
+        let c = self.out.channel(topic, kind.type_name())?;
         self.out.write(c, self.sim_nanos, bytes)?;
         self.summary.messages += 1;
         *self.summary.by_topic.entry(topic.to_string()).or_insert(0) += 1;
-        if type_name == "fiberflow_msgs/msg/FlowSlice" {
+        if kind == Kind::FlowSlice {
             // checked before it got here
             if let Ok(sl) = decode::<fiberflow_messages::FlowSlice>(bytes) {
                 let img = image::encode(&image::from_slice(&sl));
@@ -586,14 +587,7 @@ impl Session<'_> {
     fn release_held(&mut self) -> Result<(), RecorderError> {
         for ((topic, first), bytes) in std::mem::take(&mut self.held_first) {
             let st = sanity::check_state(&bytes).ok();
-            self.write_new(
-                &topic,
-                "fiberflow_msgs/msg/FiberGroupState",
-                Some(0),
-                first,
-                &bytes,
-                st,
-            )?;
+            self.write_new(&topic, Kind::FiberGroupState, Some(0), first, &bytes, st)?;
         }
         Ok(())
     }
@@ -707,17 +701,17 @@ pub fn record(
             }
             continue;
         };
-        let kind = type_of(&topic);
+        let kind = kind_of(&topic);
         // heartbeats (a flow node repeating its DONE) are not data still arriving
-        if kind != Some("fiberflow_msgs/msg/Heartbeat") {
+        if kind != Some(Kind::Heartbeat) {
             last_message = Instant::now();
         }
         let busy_from = Instant::now();
         match kind {
-            Some("fiberflow_msgs/msg/RunAnnouncement") => {
-                started |= schema::validate("fiberflow_msgs/msg/RunAnnouncement", &bytes).is_ok()
+            Some(Kind::RunAnnouncement) => {
+                started |= schema::validate(Kind::RunAnnouncement.type_name(), &bytes).is_ok()
             }
-            Some("fiberflow_msgs/msg/Heartbeat") => {
+            Some(Kind::Heartbeat) => {
                 if let Ok(hb) = decode::<Heartbeat>(&bytes) {
                     // a node is done when it says so at the run's last step (the launcher
                     // stops the recorder when a node fails; a stray heartbeat must not)
@@ -969,7 +963,7 @@ fn write_provenance(out: &mut Out, meta: &RunMetadata) -> Result<(), RecorderErr
 mod tests {
     use super::*;
     use fiberflow_bus::inproc::InprocBus;
-    use fiberflow_messages::fuzz::{random_payload, Rng, TYPES};
+    use fiberflow_messages::fuzz::{random_payload, Rng, KINDS};
 
     type RecordResult = Result<RecordSummary, RecorderError>;
 
@@ -1193,15 +1187,15 @@ mod tests {
         std::fs::remove_file(&path).ok();
     }
 
-    fn topic_for(t: &Topics, type_name: &str, group: &str) -> String {
-        match type_name {
-            "fiberflow_msgs/msg/RunAnnouncement" => t.announce(),
-            "fiberflow_msgs/msg/FlowStatus" => t.flow_status(),
-            "fiberflow_msgs/msg/FlowProfiles" => t.flow_profiles(),
-            "fiberflow_msgs/msg/FlowSamples" => t.flow_samples(group),
-            "fiberflow_msgs/msg/FlowSlice" => t.flow_slice("streaks"),
-            "fiberflow_msgs/msg/FiberGroupState" => t.fiber_state(group),
-            "fiberflow_msgs/msg/FiberGroupMetrics" => t.fiber_metrics(group),
+    fn topic_for(t: &Topics, kind: Kind, group: &str) -> String {
+        match kind {
+            Kind::RunAnnouncement => t.announce(),
+            Kind::FlowStatus => t.flow_status(),
+            Kind::FlowProfiles => t.flow_profiles(),
+            Kind::FlowSamples => t.flow_samples(group),
+            Kind::FlowSlice => t.flow_slice("streaks"),
+            Kind::FiberGroupState => t.fiber_state(group),
+            Kind::FiberGroupMetrics => t.fiber_metrics(group),
             _ => t.heartbeat(group),
         }
     }
@@ -1254,10 +1248,8 @@ mod tests {
             "x".into(),
         ];
         for i in 0..100_000usize {
-            let ty = TYPES[i % TYPES.len()];
-            if ty == "fiberflow_msgs/msg/FiberFreeStep"
-                || ty == "fiberflow_msgs/msg/FiberContactSolved"
-            {
+            let ty = KINDS[i % KINDS.len()];
+            if ty == Kind::FiberFreeStep || ty == Kind::FiberContactSolved {
                 // the shards' contact exchange: the recorder does not subscribe to it
                 continue;
             }
@@ -1294,14 +1286,14 @@ mod tests {
         let (mut slices, mut images) = (0, 0);
         for m in mcap::MessageStream::new(&bytes).unwrap() {
             let m = m.unwrap();
-            if let Some(ty) = type_of(&m.channel.topic) {
+            if let Some(ty) = kind_of(&m.channel.topic) {
                 assert!(
                     sanity::check_payload(ty, &m.data).is_ok(),
                     "{}",
                     m.channel.topic
                 );
                 written += 1;
-                slices += usize::from(ty == "fiberflow_msgs/msg/FlowSlice");
+                slices += usize::from(ty == Kind::FlowSlice);
             }
             if m.channel.topic == t.flow_slice_image("streaks") {
                 let img: image::Image = cdr::deserialize(&m.data).unwrap();

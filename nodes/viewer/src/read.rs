@@ -5,7 +5,9 @@
 use crate::ViewerError;
 use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::sanity::Sane;
-use fiberflow_messages::{decode, FiberGroupMetrics, FiberGroupState, FlowSlice, RunAnnouncement};
+use fiberflow_messages::{
+    decode, FiberGroupMetrics, FiberGroupState, FlowSlice, Kind, RunAnnouncement,
+};
 use std::path::Path;
 
 /// One message the scene uses, whole.
@@ -33,8 +35,8 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
         // early, and what came before is used
         fiberflow_messages::reading::for_each_message(seg, |m| {
             let topic = m.topic;
-            match fiberflow_messages::topics::type_of(topic) {
-                Some("fiberflow_msgs/msg/FiberGroupState") => {
+            match fiberflow_messages::topics::kind_of(topic) {
+                Some(Kind::FiberGroupState) => {
                     if let Ok(s) = decode::<FiberGroupState>(m.data) {
                         if s.check().is_ok() && !s.is_lean() {
                             if let Some(whole) = states.add_slice(s) {
@@ -43,7 +45,7 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
                         }
                     }
                 }
-                Some("fiberflow_msgs/msg/FiberGroupMetrics") => {
+                Some(Kind::FiberGroupMetrics) => {
                     if let Ok(s) = decode::<FiberGroupMetrics>(m.data) {
                         if s.check().is_ok() {
                             if let Some(whole) = metrics.add_slice(s) {
@@ -52,14 +54,14 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
                         }
                     }
                 }
-                Some("fiberflow_msgs/msg/RunAnnouncement") => {
+                Some(Kind::RunAnnouncement) => {
                     if let Ok(a) = decode::<RunAnnouncement>(m.data) {
                         if a.check().is_ok() {
                             f(Item::Announce(a));
                         }
                     }
                 }
-                Some("fiberflow_msgs/msg/FlowSlice") => {
+                Some(Kind::FlowSlice) => {
                     if let Ok(s) = decode::<FlowSlice>(m.data) {
                         if s.check().is_ok() {
                             f(Item::Slice(s));
