@@ -242,8 +242,10 @@ pub fn matches(pattern: &str, topic: &str) -> bool {
     rest || t.next().is_none()
 }
 
-/// Which transport carries the bus.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Which transport carries the bus (in launch files and node specs: `"inproc"`,
+/// `"zenoh"`, `"iceoryx2"`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Transport {
     Inproc,
     Zenoh,

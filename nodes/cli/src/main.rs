@@ -30,7 +30,7 @@ enum Cmd {
         out: Option<PathBuf>,
         /// inproc | zenoh | iceoryx2 (default: the launch file's run.transport).
         #[arg(long)]
-        transport: Option<String>,
+        transport: Option<fiberflow_bus::Transport>,
         /// Multi-host launch files: run this host's nodes (a `[[network.hosts]]` name).
         #[arg(long)]
         host: Option<String>,

@@ -49,7 +49,7 @@ private_key = "{worker_key}"
 /// The spec of `node` on `host` of `lf`.
 fn spec(lf: &LaunchFile, text: &str, host: &str, node: &str, out: &Path) -> NodeSpec {
     let mut s = NodeSpec::inproc(lf.clone(), text.to_string(), out.to_path_buf());
-    s.transport = "zenoh".into();
+    s.transport = fiberflow_bus::Transport::Zenoh;
     s.host = Some(host.into());
     s.node = node.into();
     s

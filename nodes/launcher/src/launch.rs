@@ -10,7 +10,7 @@ use crate::launchfile::LaunchFile;
 use crate::nodes::{open_bus, run_nodes, NodeSpec};
 use crate::progress::t_plus_bar;
 use anyhow::{bail, Context, Result};
-use fiberflow_bus::{BusHandle, Inbox};
+use fiberflow_bus::{BusHandle, Inbox, Transport};
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::FlowStatus;
 use std::os::unix::process::CommandExt;
@@ -76,7 +76,7 @@ fn await_endpoint(path: &Path, flow: &mut Node, timeout: Duration) -> Result<Str
 #[derive(Debug, Clone, Default)]
 pub struct LaunchOptions {
     pub out: Option<PathBuf>,
-    pub transport: Option<String>,
+    pub transport: Option<Transport>,
     pub host: Option<String>,
     /// `--set KEY=VALUE` overrides.
     pub sets: Vec<String>,
@@ -129,7 +129,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
-    let nodes = nodes_here(&lf, host.as_deref(), &transport)?;
+    let nodes = nodes_here(&lf, host.as_deref(), transport)?;
     let records_here = nodes.iter().any(|n| n == "recorder");
     let launch_file_name = file
         .file_name()
@@ -184,7 +184,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
             base.start_step
         );
     }
-    let _run_lock = iceoryx2_run_lock(&transport, &lf.run.id, &stop)?;
+    let _run_lock = iceoryx2_run_lock(transport, &lf.run.id, &stop)?;
     println!(
         "run {} ({} steps, dt+ = {}), transport {transport}, output {}",
         lf.run.id,
@@ -197,15 +197,14 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     }
     let watcher = checkpoint_watcher(&base, role, pieces.clone(), digest.clone());
     let interrupted = stop.clone();
-    let result = match transport.as_str() {
-        "inproc" => run_inproc(&base, &nodes, stop),
-        "zenoh" | "iceoryx2" => supervise_restarts(&mut base, role, &nodes, &pieces, &digest, stop),
-        other => Err(anyhow::anyhow!(
-            "--transport must be inproc, zenoh or iceoryx2 (got {other:?})"
-        )),
+    let result = match transport {
+        Transport::Inproc => run_inproc(&base, &nodes, stop),
+        Transport::Zenoh | Transport::Iceoryx2 => {
+            supervise_restarts(&mut base, role, &nodes, &pieces, &digest, stop)
+        }
     };
     watcher.stop();
-    if result.is_err() && interrupted.load(Ordering::SeqCst) && transport != "inproc" {
+    if result.is_err() && interrupted.load(Ordering::SeqCst) && transport != Transport::Inproc {
         // what was recorded is finished and the checkpoints are kept: say how to go on
         let on_host = host.map(|h| format!(" --host {h}")).unwrap_or_default();
         bail!(
@@ -236,11 +235,11 @@ fn finish_launch(lf: LaunchFile, out_dir: &Path, records_here: bool) -> Result<L
 /// Over iceoryx2 the run's topics are services of this host, found by name: a second live
 /// run with this id would mix with it, so it waits for the id's lock (`run_lock`).
 fn iceoryx2_run_lock(
-    transport: &str,
+    transport: Transport,
     id: &str,
     stop: &AtomicBool,
 ) -> Result<Option<crate::run_lock::RunLock>> {
-    Ok(if transport == "iceoryx2" {
+    Ok(if transport == Transport::Iceoryx2 {
         let id = id.to_string();
         Some(crate::run_lock::RunLock::acquire_in(
             &crate::run_lock::default_dir(),
@@ -327,7 +326,7 @@ fn run_folder(lf: &LaunchFile, resume: Option<&Path>, out: Option<PathBuf>) -> R
 
 /// The nodes this launcher runs: the flow node, every fibre node and the recorder, or a
 /// multi-host launch file's share for `--host`.
-fn nodes_here(lf: &LaunchFile, host: Option<&str>, transport: &str) -> Result<Vec<String>> {
+fn nodes_here(lf: &LaunchFile, host: Option<&str>, transport: Transport) -> Result<Vec<String>> {
     let mut nodes = vec!["flow".to_string()];
     nodes.extend(lf.fibre_nodes()?);
     if lf.recorder.enabled {
@@ -339,7 +338,7 @@ fn nodes_here(lf: &LaunchFile, host: Option<&str>, transport: &str) -> Result<Ve
             net.host_names()
         ),
         (Some(_), Some(h)) => {
-            if transport != "zenoh" {
+            if transport != Transport::Zenoh {
                 bail!("multi-host runs use zenoh (got --transport {transport})");
             }
             let mine = &lf.host(h)?.nodes;
@@ -700,18 +699,18 @@ enum Ended {
 /// none for iceoryx2, in-process runs and `[network]` launches (their links carry TLS
 /// between hosts, where one thread would encrypt everything).
 pub fn node_zenoh_runtime(
-    transport: &str,
+    transport: Transport,
     multi_host: bool,
     user: Option<&std::ffi::OsStr>,
 ) -> Option<&'static str> {
-    (transport == "zenoh" && !multi_host && user.is_none())
+    (transport == Transport::Zenoh && !multi_host && user.is_none())
         .then_some(fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME)
 }
 
 /// Runs the nodes here as processes and supervises them until the run ends. Long (≈105
 /// lines): the supervision loop's cases (exit, failure, stop signal) in one place.
 fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Result<Ended> {
-    let zenoh = base.transport == "zenoh";
+    let zenoh = base.transport == Transport::Zenoh;
     let rendezvous = if let (Some(net), Some(h)) = (&base.launch.network, &base.host) {
         println!(
             "host {h}: nodes {}; zenoh over mutual TLS via {} (access control: {})",
@@ -793,7 +792,7 @@ fn run_processes(base: &NodeSpec, nodes: &[String], stop: Arc<AtomicBool>) -> Re
             .stderr(logf)
             .process_group(pgid);
         if let Some(rt) = node_zenoh_runtime(
-            &base.transport,
+            base.transport,
             base.launch.network.is_some(),
             std::env::var_os("ZENOH_RUNTIME").as_deref(),
         ) {
@@ -1076,13 +1075,16 @@ mod tests {
         use fiberflow_bus::zenoh_bus::ONE_THREAD_RUNTIME;
         let user = std::ffi::OsStr::new("(rx: (worker_threads: 4))");
         assert_eq!(
-            node_zenoh_runtime("zenoh", false, None),
+            node_zenoh_runtime(Transport::Zenoh, false, None),
             Some(ONE_THREAD_RUNTIME)
         );
-        assert_eq!(node_zenoh_runtime("zenoh", false, Some(user)), None);
-        assert_eq!(node_zenoh_runtime("zenoh", true, None), None);
-        assert_eq!(node_zenoh_runtime("iceoryx2", false, None), None);
-        assert_eq!(node_zenoh_runtime("inproc", false, None), None);
+        assert_eq!(
+            node_zenoh_runtime(Transport::Zenoh, false, Some(user)),
+            None
+        );
+        assert_eq!(node_zenoh_runtime(Transport::Zenoh, true, None), None);
+        assert_eq!(node_zenoh_runtime(Transport::Iceoryx2, false, None), None);
+        assert_eq!(node_zenoh_runtime(Transport::Inproc, false, None), None);
     }
 
     /// 30 steps of the analytic-shear launch on `bus` (in-process threads, recorder

@@ -2,6 +2,7 @@
 //! front with errors that name the key.
 
 use anyhow::{bail, Context, Result};
+use fiberflow_bus::Transport;
 use fiberflow_fiber::FiberNodeConfig;
 use fiberflow_flow::{FlowNodeConfig, FlowSource};
 use serde::{Deserialize, Serialize};
@@ -36,7 +37,8 @@ pub struct RunSection {
     /// Default transport when `--transport` is not given: `"inproc"`, `"zenoh"` or
     /// `"iceoryx2"`.
     #[serde(default = "default_transport")]
-    pub transport: String,
+    #[schemars(with = "String")]
+    pub transport: Transport,
     /// Run the analysis after the run (and write the .rrd scene).
     #[serde(default)]
     pub analyze: bool,
@@ -148,8 +150,8 @@ fn default_step_timeout() -> f64 {
 fn default_liveness() -> f64 {
     30.0
 }
-fn default_transport() -> String {
-    "zenoh".into()
+fn default_transport() -> Transport {
+    Transport::Zenoh
 }
 
 /// `[recorder]`.
@@ -783,7 +785,16 @@ pub(crate) mod tests {
         assert_eq!(lf.run.steps, 400);
         assert_eq!(lf.run.liveness_s, 0.0);
         assert_eq!(lf.run.checkpoint_every_steps(), 20);
-        assert_eq!(lf.run.transport, "iceoryx2");
+        assert_eq!(lf.run.transport, Transport::Iceoryx2);
+        // a transport that is none of them: the line, and the allowed values
+        let e = format!(
+            "{:#}",
+            LaunchFile::load_with(&p, &sets(&["run.transport=\"shm\""])).unwrap_err()
+        );
+        assert!(
+            e.contains("transport = \"shm\"") && e.contains("`inproc`, `zenoh`, `iceoryx2`"),
+            "{e}"
+        );
         assert_eq!(lf.run.restart.max_restarts, 1);
         assert_eq!(lf.fibers[0].density_ratio, Some(2300.0));
         // a group without a placement table keeps the default (layers) kind

@@ -25,7 +25,7 @@ pub struct NodeSpec {
     pub launch: LaunchFile,
     pub launch_file_name: String,
     pub launch_text: String,
-    pub transport: String,
+    pub transport: Transport,
     #[serde(default)]
     pub zenoh_listen: Vec<String>,
     #[serde(default)]
@@ -61,7 +61,7 @@ impl NodeSpec {
             launch,
             launch_file_name: "analytic-shear.toml".into(),
             launch_text,
-            transport: "inproc".into(),
+            transport: Transport::Inproc,
             zenoh_listen: vec![],
             zenoh_connect: vec![],
             zenoh_endpoint_file: None,
@@ -195,10 +195,7 @@ pub fn digest(text: &str) -> String {
 
 /// Opens the bus for a spec (inproc is only possible inside the launcher).
 pub fn open_bus(spec: &NodeSpec) -> Result<BusHandle> {
-    let t: Transport = spec
-        .transport
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!(e))?;
+    let t = spec.transport;
     match t {
         Transport::Zenoh => {
             let s = zenoh_settings(spec)?;
@@ -312,7 +309,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 git_commit: option_env!("FIBERFLOW_GIT_COMMIT")
                     .unwrap_or("unknown")
                     .into(),
-                transport: spec.transport.clone(),
+                transport: spec.transport.to_string(),
                 ..Default::default()
             };
             meta.node_configs
@@ -372,7 +369,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
 /// failed, or on Ctrl-C): their waits end at once. Separate processes are stopped by the
 /// launcher instead.
 fn in_process_stop(spec: &NodeSpec, stop: &Arc<AtomicBool>) -> Option<Arc<AtomicBool>> {
-    (spec.transport == "inproc").then(|| stop.clone())
+    (spec.transport == Transport::Inproc).then(|| stop.clone())
 }
 
 fn run_fibre_nodes(
@@ -560,7 +557,7 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
     }
     let bus = open_bus(&spec)?;
     let result = run_nodes(&spec, bus.clone(), stop);
-    if spec.transport == "zenoh" {
+    if spec.transport == Transport::Zenoh {
         // a node's last words (final state, DONE) are queued in the zenoh session, which
         // drops its queues when the process exits: give them time to leave
         std::thread::sleep(std::time::Duration::from_millis(300));
