@@ -125,7 +125,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     }
     std::fs::write(out_dir.join("launch.toml"), &text)
         .with_context(|| format!("writing {}", out_dir.join("launch.toml").display()))?;
-    let transport = transport.unwrap_or_else(|| lf.run.transport);
+    let transport = transport.unwrap_or(lf.run.transport);
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
