@@ -23,7 +23,11 @@
 //!   sample (12 values) read once, with one add per value;
 //! - state out (the group's full state arrays gathered and its message encoded as CDR into
 //!   a buffer of the message's size, as a fibre node sends it): per segment the message's
-//!   12 values copied once from a flat array into the buffer.
+//!   12 values copied once from a flat array into the buffer;
+//! - recording (the encoded state written as one message into a new MCAP file with the
+//!   recorder's options: zstd level 1 in 4 MB chunks, as `fiberflow_recorder::write_options`
+//!   gives them, in the system's temporary folder): the same bytes written once into a new
+//!   plain file there.
 
 use anyhow::{Context, Result};
 use fiberflow_dns::sample::Interpolation;
@@ -174,6 +178,9 @@ struct Case {
     state_bytes: Vec<u8>,
     floor_src: Vec<f64>,
     floor_dst: Vec<f64>,
+    /// Recording: where the stage's MCAP file and the floor's plain file go.
+    record_path: std::path::PathBuf,
+    floor_path: std::path::PathBuf,
 }
 
 /// The case's fibres as a group of case-1 fibres (N = 7, l+ 3, d+ 0.232, ρ 1150) with the
@@ -304,6 +311,10 @@ impl Case {
             state_bytes: Vec::new(),
             floor_src: (0..12 * segments).map(|i| (i % 79) as f64).collect(),
             floor_dst: vec![0.0; 12 * segments],
+            record_path: std::env::temp_dir()
+                .join(format!("ff-stages-record-{}.mcap", std::process::id())),
+            floor_path: std::env::temp_dir()
+                .join(format!("ff-stages-record-{}.bin", std::process::id())),
             body: BodyForce::zeros(&g),
             floor_field: vec![0.0; 3 * g.padded_len()],
             floor_out: vec![0.0; 12 * points.len()],
@@ -435,6 +446,55 @@ impl Case {
         let _ = fiberflow_messages::encode_into(&self.state_msg, &mut self.state_bytes);
     }
 
+    /// The last encoded state as a recorder writes it (the stage state out runs first in
+    /// every round, so the bytes are this round's).
+    fn recording(&mut self) {
+        let write = || -> Result<()> {
+            let file = std::fs::File::create(&self.record_path)?;
+            let mut w = fiberflow_recorder::write_options(
+                fiberflow_recorder::ChunkCompression::Zstd,
+                env!("CARGO_PKG_VERSION"),
+            )
+            .create(std::io::BufWriter::new(file))?;
+            let schema = w.add_schema(
+                "fiberflow_msgs/msg/FiberGroupState",
+                "ros2msg",
+                fiberflow_messages::schema::text("fiberflow_msgs/msg/FiberGroupState").as_bytes(),
+            )?;
+            let channel = w.add_channel(
+                schema,
+                "fiberflow/bench/fibers/case1/state",
+                "cdr",
+                &Default::default(),
+            )?;
+            w.write_to_known_channel(
+                &mcap::records::MessageHeader {
+                    channel_id: channel,
+                    sequence: 0,
+                    log_time: 0,
+                    publish_time: 0,
+                },
+                &self.state_bytes,
+            )?;
+            w.finish()?;
+            Ok(())
+        };
+        if let Err(e) = write() {
+            tracing::warn!(error = %e, "recording stage");
+        }
+    }
+
+    fn recording_floor(&mut self) {
+        let write = || -> std::io::Result<()> {
+            use std::io::Write;
+            let mut f = std::fs::File::create(&self.floor_path)?;
+            f.write_all(&self.state_bytes)
+        };
+        if let Err(e) = write() {
+            tracing::warn!(error = %e, "recording floor");
+        }
+    }
+
     fn state_out_floor(&mut self) {
         let chunk = 12 * 7 * 64;
         self.floor_dst
@@ -538,12 +598,13 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
     );
     let mut case = Case::new(opts.fibres)?;
     let segments = (opts.fibres * SEGMENTS) as f64;
-    let stages: [(&str, Stage, Stage); 5] = [
+    let stages: [(&str, Stage, Stage); 6] = [
         ("sampling", Case::sampling, Case::sampling_floor),
         ("spreading", Case::spreading, Case::spreading_floor),
         ("correction", Case::correction, Case::correction_floor),
         ("fibre step", Case::fibre_step, Case::fibre_step_floor),
         ("state out", Case::state_out, Case::state_out_floor),
+        ("recording", Case::recording, Case::recording_floor),
     ];
     let pools: Vec<(usize, rayon::ThreadPool)> = opts
         .threads
@@ -573,6 +634,8 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
         }
         tracing::info!(round, "stages: round done");
     }
+    std::fs::remove_file(&case.record_path).ok();
+    std::fs::remove_file(&case.floor_path).ok();
     let median = |v: &[(f64, f64)], cpu: bool| -> (f64, f64, f64) {
         let mut x: Vec<f64> = v.iter().map(|t| if cpu { t.1 } else { t.0 }).collect();
         x.sort_by(f64::total_cmp);

@@ -208,6 +208,21 @@ pub enum ChunkCompression {
 /// The zstd level of the chunks (1, the fastest; mcap's default would be 3).
 const ZSTD_LEVEL: u32 = 1;
 
+/// The MCAP writer's options of a recording: chunks of 4 MB compressed as `compression`
+/// says, written in file order.
+pub fn write_options(compression: ChunkCompression, software_version: &str) -> mcap::WriteOptions {
+    mcap::WriteOptions::new()
+        .compression(compression.mcap())
+        // zstd's fastest level: the numbers in these files are mostly mantissas that no
+        // level compresses much (level 3 kept 86% of the bytes at 6 × 10⁴ fibres)
+        .compression_level(ZSTD_LEVEL)
+        .chunk_size(Some(4 * 1024 * 1024))
+        // each chunk is built in memory and written after its header, in file order
+        .disable_seeking(true)
+        .profile("ros2")
+        .library(format!("fiberflow {software_version}"))
+}
+
 impl ChunkCompression {
     fn mcap(self) -> Option<mcap::Compression> {
         match self {
@@ -795,16 +810,7 @@ fn open_recording(
         path: pstr.clone(),
         source,
     })?;
-    let opts = mcap::WriteOptions::new()
-        .compression(plan.compression.mcap())
-        // zstd's fastest level: the numbers in these files are mostly mantissas that no
-        // level compresses much (level 3 kept 86% of the bytes at 6 × 10⁴ fibres)
-        .compression_level(ZSTD_LEVEL)
-        .chunk_size(Some(4 * 1024 * 1024))
-        // each chunk is built in memory and written after its header, in file order
-        .disable_seeking(true)
-        .profile("ros2")
-        .library(format!("fiberflow {}", meta.software_version));
+    let opts = write_options(plan.compression, &meta.software_version);
     let w = opts.create(file).map_err(|source| RecorderError::Mcap {
         path: pstr.clone(),
         source,
