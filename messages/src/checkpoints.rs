@@ -32,7 +32,7 @@ pub fn piece(step_dir: &Path, node: &str) -> PathBuf {
 /// the flow node writes it into its own folder once every fibre node there has sent its
 /// state of the step after, which each sends only after its own file of this step is on
 /// its disk, and a recorder there has said its segment is on disk through the step
-/// ([`crate::lifecycle::COMMITTED`]). With it, the head's checkpoint is complete for the
+/// ([`crate::Lifecycle::Committed`]). With it, the head's checkpoint is complete for the
 /// whole run.
 pub const REMOTE_PIECE: &str = "remote";
 

@@ -246,7 +246,7 @@ mod tests {
         let hb = Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: "flow".into(),
-            state: 1,
+            state: Lifecycle::Ready,
             step: 3,
             dropped: 0,
         };
@@ -340,5 +340,25 @@ mod tests {
         let b = encode(&st);
         assert!(peek_group_header(&b[..10]).is_err());
         assert!(peek_group_header(&[]).is_err());
+    }
+
+    /// A lifecycle state is one byte on the wire; a byte that names no state does not
+    /// decode (the receiver drops and counts the message).
+    #[test]
+    fn a_heartbeat_of_no_known_state_does_not_decode() {
+        let hb = Heartbeat {
+            schema_version: SCHEMA_VERSION,
+            node: "flow".into(),
+            state: Lifecycle::Complete,
+            step: 3,
+            dropped: 0,
+        };
+        let mut b = encode(&hb);
+        // encapsulation (4), schema_version (4), the node's length (4) and "flow\0" (5)
+        assert_eq!(b[17], 8);
+        assert_eq!(decode::<Heartbeat>(&b).unwrap(), hb);
+        b[17] = 9;
+        let e = decode::<Heartbeat>(&b).unwrap_err().to_string();
+        assert!(e.contains("unknown lifecycle state 9"), "{e}");
     }
 }

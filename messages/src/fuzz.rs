@@ -384,7 +384,7 @@ fn payload(kind: Kind, r: &mut Rng, groups: &[String]) -> Vec<u8> {
         _ => encode(&Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: r.name(groups),
-            state: r.below(8) as u8,
+            state: Lifecycle::ALL[r.below(8) as usize],
             step: r.step(),
             dropped: r.next_u64(),
         }),

@@ -242,38 +242,75 @@ pub struct FiberGroupMetrics {
 pub struct Heartbeat {
     pub schema_version: u32,
     pub node: String,
-    /// 0 starting, 1 ready, 2 running, 3 done, 4 failed, and the states of [`lifecycle`].
-    pub state: u8,
+    pub state: Lifecycle,
     pub step: u64,
     /// Messages dropped so far (undecodable or wrong version).
     pub dropped: u64,
 }
 
-/// Lifecycle states carried by [`Heartbeat::state`].
-pub mod lifecycle {
-    pub const STARTING: u8 = 0;
-    pub const READY: u8 = 1;
-    pub const RUNNING: u8 = 2;
-    pub const DONE: u8 = 3;
-    pub const FAILED: u8 = 4;
+/// A node's lifecycle state, as [`Heartbeat::state`] carries it (one byte on the wire:
+/// 0 starting, 1 ready, 2 running, 3 done, 4 failed, then the states below in order). A
+/// byte that names no state does not decode: the message is dropped and counted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Lifecycle {
+    Starting = 0,
+    Ready = 1,
+    Running = 2,
+    Done = 3,
+    Failed = 4,
     /// A fibre node has waited long for the samples of `step` (and has sent its state of
     /// `step` again): the flow node sends those samples again if it already served them.
     /// Lockstep survives a message the transport lost.
-    pub const WAITING: u8 = 5;
+    Waiting = 5,
     /// The recorder has the flow node's DONE of the last step and is finishing the file. The
     /// flow node sends its DONE again until it sees this, so a DONE the transport lost as
     /// the flow process exits cannot keep the recorder open.
-    pub const FINISHING: u8 = 6;
+    Finishing = 6,
     /// The recorder has flushed and synced to disk every message through its checkpoint
     /// of `step` (its `recorder.ckpt` there is written). Said again with each progress
     /// report, so a lost one is made good: a head whose recorder runs on another host
     /// completes a checkpoint only once it has heard this for it.
-    pub const COMMITTED: u8 = 7;
+    Committed = 7,
     /// The run is complete: every node of every host said DONE. A multi-host run's flow
     /// node (its router) says it until each worker host's launcher answers with its own
     /// COMPLETE, so a worker waits for it (and follows a restart instead) rather than
     /// leaving while the head may still roll back to a step that needs it.
-    pub const COMPLETE: u8 = 8;
+    Complete = 8,
+}
+
+impl Lifecycle {
+    /// Every state, in the order of their bytes.
+    pub const ALL: [Lifecycle; 9] = [
+        Lifecycle::Starting,
+        Lifecycle::Ready,
+        Lifecycle::Running,
+        Lifecycle::Done,
+        Lifecycle::Failed,
+        Lifecycle::Waiting,
+        Lifecycle::Finishing,
+        Lifecycle::Committed,
+        Lifecycle::Complete,
+    ];
+}
+
+impl Serialize for Lifecycle {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_u8(*self as u8)
+    }
+}
+
+impl<'de> Deserialize<'de> for Lifecycle {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let b = u8::deserialize(d)?;
+        Lifecycle::ALL
+            .get(usize::from(b))
+            .copied()
+            .ok_or_else(|| serde::de::Error::custom(format!("unknown lifecycle state {b}")))
+    }
+}
+
+/// What the lifecycle states leave to numbers.
+pub mod lifecycle {
     /// How far the run may get ahead of its recorder: the flow node serves step k only
     /// once the recorder's RUNNING heartbeats say it holds every piece's state through
     /// step k − `RECORDER_LAG_STEPS`. A slow recorder (a slow disk, a busy host) slows the

@@ -11,7 +11,8 @@
 //! than `run.liveness_s` looks the same: the setting must allow for the longest step.
 
 use crate::BusHandle;
-use fiberflow_messages::{encode, lifecycle, Heartbeat, SCHEMA_VERSION};
+use fiberflow_messages::Lifecycle;
+use fiberflow_messages::{encode, Heartbeat, SCHEMA_VERSION};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
@@ -90,7 +91,7 @@ impl Pulse {
                         let hb = Heartbeat {
                             schema_version: SCHEMA_VERSION,
                             node: node.clone(),
-                            state: lifecycle::RUNNING,
+                            state: Lifecycle::Running,
                             step: beat.step.load(Ordering::Relaxed),
                             dropped: beat.dropped.load(Ordering::Relaxed),
                         };
@@ -168,7 +169,7 @@ mod tests {
         let hb: Heartbeat = fiberflow_messages::decode(&first).unwrap();
         assert_eq!(
             (hb.node.as_str(), hb.state, hb.step),
-            ("a", lifecycle::RUNNING, 7)
+            ("a", Lifecycle::Running, 7)
         );
         beat.step.store(8, Ordering::Relaxed);
         watch.touch();

@@ -18,8 +18,9 @@ use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::checkpoints;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::topics::Topics;
+use fiberflow_messages::Lifecycle;
 use fiberflow_messages::{
-    encode, lifecycle, FiberGroupMetrics, FiberGroupState, Heartbeat, RunAnnouncement, SamplesView,
+    encode, FiberGroupMetrics, FiberGroupState, Heartbeat, RunAnnouncement, SamplesView,
     SCHEMA_VERSION,
 };
 use std::path::PathBuf;
@@ -156,7 +157,7 @@ pub fn serve_many(
         }
         for (s, a) in served.iter_mut().zip(announced.iter_mut()) {
             if a.is_none() {
-                s.hb(lifecycle::READY, 0)?;
+                s.hb(Lifecycle::Ready, 0)?;
             }
         }
         let wait = Duration::from_millis(200) / served.len().max(1) as u32;
@@ -508,7 +509,7 @@ impl ServedPiece {
         })
     }
 
-    fn hb(&self, state: u8, step: u64) -> Result<(), BusError> {
+    fn hb(&self, state: Lifecycle, step: u64) -> Result<(), BusError> {
         self.bus.publish(
             &self.t.heartbeat(&self.node),
             &encode(&Heartbeat {
@@ -655,7 +656,7 @@ impl ServedPiece {
             self.flow_restarted(k)?;
             let left = step_timeout.saturating_sub(wait_from.elapsed());
             if left.is_zero() {
-                self.hb(lifecycle::FAILED, k)?;
+                self.hb(Lifecycle::Failed, k)?;
                 return Err(FiberNodeError::Protocol(format!(
                     "node {}: no flow samples for step {k} within {timeout_s:.0} s",
                     self.node
@@ -671,7 +672,7 @@ impl ServedPiece {
                     x.resend(&self.bus)?;
                 }
                 let others = resend_others()?;
-                self.hb(lifecycle::WAITING, k)?;
+                self.hb(Lifecycle::Waiting, k)?;
                 tracing::info!(
                     node = %self.node,
                     step = k,
@@ -926,7 +927,7 @@ impl ServedPiece {
                 );
             }
         }
-        self.hb(lifecycle::DONE, self.steps)?;
+        self.hb(Lifecycle::Done, self.steps)?;
         let mut drops = self.samples_in.drops.clone();
         let exchanged = self.exchange.as_ref().map(|x| x.drops().by_topic.clone());
         for (k, v) in self
@@ -963,7 +964,7 @@ fn flow_restarted(
     while let Some((_, hb)) = w.inbox.recv::<Heartbeat>(Duration::ZERO) {
         w.heard = Some(Instant::now());
         let late = w.announced.is_some_and(|t| t.elapsed() > JOIN_READY_GRACE);
-        if hb.state == lifecycle::READY && (k > start || hb.step != start || late) {
+        if hb.state == Lifecycle::Ready && (k > start || hb.step != start || late) {
             return Err(FiberNodeError::Protocol(format!(
                 "node {node}: the flow node started the run again from step {} while this \
                  node was at step {k} (it was restarted): this node is restarted from \
@@ -1008,7 +1009,7 @@ mod tests {
             let hb = Heartbeat {
                 schema_version: fiberflow_messages::SCHEMA_VERSION,
                 node: "flow".into(),
-                state: lifecycle::READY,
+                state: Lifecycle::Ready,
                 step,
                 dropped: 0,
             };
@@ -1042,7 +1043,7 @@ mod tests {
         let hb = Heartbeat {
             schema_version: fiberflow_messages::SCHEMA_VERSION,
             node: "flow".into(),
-            state: lifecycle::RUNNING,
+            state: Lifecycle::Running,
             step: 0,
             dropped: 0,
         };

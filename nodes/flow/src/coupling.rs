@@ -16,9 +16,8 @@ use fiberflow_bus::{BusHandle, Encode, Inbox, Outbox};
 use fiberflow_dns::stats::RunningStats;
 use fiberflow_dns::StepReport;
 use fiberflow_messages::topics::Topics;
-use fiberflow_messages::{
-    encode, lifecycle, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION,
-};
+use fiberflow_messages::Lifecycle;
+use fiberflow_messages::{encode, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
@@ -559,7 +558,7 @@ impl<'a> Coupling<'a> {
         );
         self.step_times.flush();
         let dropped = self.states.drops().total();
-        heartbeat(&self.bus, &self.t, lifecycle::DONE, run.steps, dropped)?;
+        heartbeat(&self.bus, &self.t, Lifecycle::Done, run.steps, dropped)?;
         if run.expected_nodes.iter().any(|n| n == "recorder") {
             await_recorder_finishing(&self.bus, &self.t, &mut self.hb_in, run, dropped)?;
         }

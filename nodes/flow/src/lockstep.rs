@@ -7,6 +7,7 @@ use crate::outgoing::heartbeat;
 use crate::run::RunInfo;
 use fiberflow_bus::{BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_messages::topics::Topics;
+use fiberflow_messages::Lifecycle;
 use fiberflow_messages::{lifecycle, FiberGroupState, FlowSamples, Heartbeat};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -57,7 +58,7 @@ impl Peers {
         // an in-process run whose other node failed: the launcher says so (a heartbeat
         // saying FAILED could be anyone's on the bus)
         if run.stop.as_ref().is_some_and(|s| s.is_set()) {
-            heartbeat(bus, &Topics::new(&run.run_id), lifecycle::FAILED, 0, 0)?;
+            heartbeat(bus, &Topics::new(&run.run_id), Lifecycle::Failed, 0, 0)?;
             return Err(FlowError::Protocol(
                 "stopped: the run is stopping (another node failed, or Ctrl-C)".into(),
             ));
@@ -66,13 +67,13 @@ impl Peers {
         while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
             wait = Duration::ZERO;
             self.heard.insert(hb.node.clone(), Instant::now());
-            if hb.node == "recorder" && hb.state == lifecycle::RUNNING {
+            if hb.node == "recorder" && hb.state == Lifecycle::Running {
                 self.recorded = self.recorded.max(hb.step);
             }
-            if hb.node == "recorder" && hb.state == lifecycle::COMMITTED {
+            if hb.node == "recorder" && hb.state == Lifecycle::Committed {
                 self.committed = self.committed.max(Some(hb.step));
             }
-            if hb.state == lifecycle::READY {
+            if hb.state == Lifecycle::Ready {
                 if let Some((topic, bytes, at)) = self.announcement.as_mut() {
                     if at.elapsed() >= REANNOUNCE_EVERY {
                         tracing::info!(node = %hb.node, "node still waits for the run's announcement: announcing again");
@@ -81,7 +82,7 @@ impl Peers {
                     }
                 }
             }
-            if hb.state != lifecycle::WAITING {
+            if hb.state != Lifecycle::Waiting {
                 continue;
             }
             let Some(p) = run.pieces.iter().find(|p| p.node() == hb.node) else {
@@ -165,7 +166,7 @@ impl States {
                     .filter(|p| !self.pending.contains_key(&(p.group.clone(), p.first_fiber)))
                     .map(|p| p.node())
                     .collect();
-                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
+                heartbeat(bus, t, Lifecycle::Failed, k, self.inbox.drops.total())?;
                 return Err(FlowError::PeerLost(format!(
                     "step {k}: no state from fibre node(s) {} within {:.0} s",
                     missing.join(", "),
@@ -174,7 +175,7 @@ impl States {
             }
             self.peers.listen(bus, hb_in, served, run, Duration::ZERO)?;
             if let Some(silent) = self.silent(run) {
-                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
+                heartbeat(bus, t, Lifecycle::Failed, k, self.inbox.drops.total())?;
                 return Err(FlowError::PeerLost(format!(
                     "step {k}: fibre node(s) {silent} silent for more than run.liveness_s = {:.0} s \
                      (no state, no heartbeat: the process hung, or its host or the link to it is gone)",
@@ -257,7 +258,7 @@ impl States {
                 run.step_timeout_s
             };
             if silent_s > limit_s || wait_from.elapsed().as_secs_f64() > run.step_timeout_s {
-                heartbeat(bus, t, lifecycle::FAILED, k, self.inbox.drops.total())?;
+                heartbeat(bus, t, Lifecycle::Failed, k, self.inbox.drops.total())?;
                 return Err(FlowError::PeerLost(format!(
                     "step {k}: the recorder has recorded only through step {through} and was \
                      silent for {silent_s:.0} s (run.liveness_s = {:.0} s, run.step_timeout_s = \
@@ -413,7 +414,7 @@ mod tests {
         encode(&Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: node.into(),
-            state: lifecycle::READY,
+            state: Lifecycle::Ready,
             step: 0,
             dropped: 0,
         })

@@ -8,7 +8,8 @@ use fiberflow_bus::{BusHandle, Inbox, Outbox};
 use fiberflow_dns::stats::{ProfileRow, Profiles};
 use fiberflow_dns::Solver;
 use fiberflow_messages::topics::Topics;
-use fiberflow_messages::{encode, lifecycle, FlowProfiles, FlowSlice, Heartbeat, SCHEMA_VERSION};
+use fiberflow_messages::Lifecycle;
+use fiberflow_messages::{encode, FlowProfiles, FlowSlice, Heartbeat, SCHEMA_VERSION};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -16,7 +17,7 @@ use std::time::{Duration, Instant};
 pub(crate) fn heartbeat(
     bus: &BusHandle,
     t: &Topics,
-    state: u8,
+    state: Lifecycle,
     step: u64,
     dropped: u64,
 ) -> Result<(), FlowError> {
@@ -48,8 +49,8 @@ pub(crate) fn await_recorder_finishing(
     while from.elapsed().as_secs_f64() < run.step_timeout_s {
         if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {
             // FINISHING names the run's last step; DONE (file complete) carries step 0
-            let finishing = (hb.state == lifecycle::FINISHING && hb.step == run.steps)
-                || hb.state == lifecycle::DONE;
+            let finishing = (hb.state == Lifecycle::Finishing && hb.step == run.steps)
+                || hb.state == Lifecycle::Done;
             if hb.node == "recorder" && finishing {
                 return Ok(());
             }
@@ -57,7 +58,7 @@ pub(crate) fn await_recorder_finishing(
         // other nodes' heartbeats arriving must not hold the resend back
         if last_sent.elapsed() >= resend_after {
             tracing::info!("no word from the recorder on this node's DONE: sending it again");
-            heartbeat(bus, t, lifecycle::DONE, run.steps, dropped)?;
+            heartbeat(bus, t, Lifecycle::Done, run.steps, dropped)?;
             last_sent = Instant::now();
             resend_after *= 2;
         }

@@ -12,9 +12,8 @@ use crate::sampling::Field;
 use fiberflow_bus::{BusHandle, Inbox};
 use fiberflow_dns::Solver;
 use fiberflow_messages::topics::Topics;
-use fiberflow_messages::{
-    encode, lifecycle, FlowStatus, Heartbeat, RunAnnouncement, SCHEMA_VERSION,
-};
+use fiberflow_messages::Lifecycle;
+use fiberflow_messages::{encode, FlowStatus, Heartbeat, RunAnnouncement, SCHEMA_VERSION};
 use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
@@ -138,7 +137,7 @@ fn join(
     while !expected.is_subset(&joined) {
         if Instant::now() > deadline {
             let missing: Vec<_> = expected.difference(&joined).cloned().collect();
-            heartbeat(bus, t, lifecycle::FAILED, 0, 0)?;
+            heartbeat(bus, t, Lifecycle::Failed, 0, 0)?;
             return Err(FlowError::Protocol(format!(
                 "join timeout after {:.0} s: no heartbeat from {}",
                 cfg.join_timeout_s,
@@ -148,7 +147,7 @@ fn join(
         if last_hb.elapsed() > Duration::from_millis(200) {
             // the step it starts from: a worker host restarting its nodes after a
             // restart here resumes them from the same checkpoint
-            heartbeat(bus, t, lifecycle::READY, run.start_step, 0)?;
+            heartbeat(bus, t, Lifecycle::Ready, run.start_step, 0)?;
             last_hb = Instant::now();
         }
         // READY only: a node says RUNNING once it has this run's announcement, which goes
@@ -156,7 +155,7 @@ fn join(
         // restart (a worker host's node still stepping, about to fail on this READY), which
         // will not answer the announcement
         if let Some((_, hb)) = hb_in.recv::<Heartbeat>(Duration::from_millis(50)) {
-            if hb.state == lifecycle::READY {
+            if hb.state == Lifecycle::Ready {
                 joined.insert(hb.node);
             }
         }
@@ -213,7 +212,7 @@ mod tests {
         let t = Topics::new(&run.run_id);
         let mut cfg = crate::config::tests::dns_config();
         cfg.join_timeout_s = 1.0;
-        let say = |state: u8| {
+        let say = |state: Lifecycle| {
             let hb = Heartbeat {
                 schema_version: SCHEMA_VERSION,
                 node: "stiff".into(),
@@ -233,13 +232,13 @@ mod tests {
             bus.subscribe(&format!("{}/control/heartbeat/**", t.prefix()))
                 .unwrap(),
         );
-        let talker = say(lifecycle::RUNNING);
+        let talker = say(Lifecycle::Running);
         let e = join(&cfg, &bus, &t, &run, &mut hb_in)
             .unwrap_err()
             .to_string();
         assert!(e.contains("join timeout") && e.contains("stiff"), "{e}");
         talker.join().unwrap();
-        let talker = say(lifecycle::READY);
+        let talker = say(Lifecycle::Ready);
         join(&cfg, &bus, &t, &run, &mut hb_in).unwrap();
         talker.join().unwrap();
     }

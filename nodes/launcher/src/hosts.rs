@@ -13,6 +13,7 @@ use crate::nodes::NodeSpec;
 use anyhow::{bail, Context, Result};
 use fiberflow_bus::Inbox;
 use fiberflow_messages::checkpoints::{piece, step_dir, step_of, REMOTE_PIECE};
+use fiberflow_messages::Lifecycle;
 use fiberflow_messages::{lifecycle, Heartbeat};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -112,7 +113,7 @@ pub fn mark_complete(out_dir: &Path) -> Result<()> {
     std::fs::write(&p, "complete\n").with_context(|| format!("writing {}", p.display()))
 }
 
-/// Says the run is complete ([`lifecycle::COMPLETE`], as the flow node, on `bus`) until
+/// Says the run is complete ([`Lifecycle::Complete`], as the flow node, on `bus`) until
 /// every worker host's launcher has answered, or for at most the run's step timeout;
 /// notes in the head's [`RUN_COMPLETE_MARKER`] that every host knows.
 pub fn say_complete(bus: &fiberflow_bus::BusHandle, spec: &NodeSpec) -> Result<()> {
@@ -124,7 +125,7 @@ pub fn say_complete(bus: &fiberflow_bus::BusHandle, spec: &NodeSpec) -> Result<(
     let beat = fiberflow_messages::encode(&Heartbeat {
         schema_version: fiberflow_messages::SCHEMA_VERSION,
         node: "flow".into(),
-        state: lifecycle::COMPLETE,
+        state: Lifecycle::Complete,
         step: lf.run.steps,
         dropped: 0,
     });
@@ -136,7 +137,7 @@ pub fn say_complete(bus: &fiberflow_bus::BusHandle, spec: &NodeSpec) -> Result<(
             said = Some(Instant::now());
         }
         if let Some((_, h)) = answers.recv::<Heartbeat>(Duration::from_millis(50)) {
-            if h.state == lifecycle::COMPLETE {
+            if h.state == Lifecycle::Complete {
                 waiting.remove(&h.node);
             }
         }
@@ -244,10 +245,10 @@ pub fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Resu
             );
         }
         if let Some((_, h)) = hb.recv::<Heartbeat>(Duration::from_millis(200)) {
-            if h.state == lifecycle::READY {
+            if h.state == Lifecycle::Ready {
                 break h.step;
             }
-            if h.state == lifecycle::COMPLETE {
+            if h.state == Lifecycle::Complete {
                 // marked before it is answered: a launcher killed after answering finds
                 // the mark on --resume (the head closes once every worker answered)
                 mark_complete(&base.out_dir)?;
@@ -255,7 +256,7 @@ pub fn follow(base: &mut NodeSpec, pieces: &[String], stop: &AtomicBool) -> Resu
                 let ack = Heartbeat {
                     schema_version: fiberflow_messages::SCHEMA_VERSION,
                     node: host_beat_name(&host),
-                    state: lifecycle::COMPLETE,
+                    state: Lifecycle::Complete,
                     step: h.step,
                     dropped: 0,
                 };

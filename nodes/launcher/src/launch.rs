@@ -1367,11 +1367,11 @@ mod tests {
     /// run ends on the DONE and not on the recorder's no-DONE fallback.
     #[test]
     fn a_lost_done_is_sent_again_until_the_recorder_confirms() {
-        use fiberflow_messages::{lifecycle, Heartbeat};
+        use fiberflow_messages::{Heartbeat, Lifecycle};
         let dir = std::env::temp_dir().join(format!("ff-lost-done-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let is_done = |b: &[u8]| {
-            fiberflow_messages::decode::<Heartbeat>(b).is_ok_and(|h| h.state == lifecycle::DONE)
+            fiberflow_messages::decode::<Heartbeat>(b).is_ok_and(|h| h.state == Lifecycle::Done)
         };
         let lossy = Arc::new(LossyBus::first_matching(
             Arc::new(fiberflow_bus::inproc::InprocBus::new()),
@@ -1380,7 +1380,7 @@ mod tests {
         ));
         let bytes = run_launch_on(lossy.clone(), &dir);
         assert_eq!(lossy.lost().len(), 1, "{:?}", lossy.lost());
-        let beats = |node: &str, state: u8| {
+        let beats = |node: &str, state: Lifecycle| {
             recorded(&bytes, &format!("/heartbeat/{node}"))
                 .iter()
                 .map(|(_, b)| fiberflow_messages::decode::<Heartbeat>(b).unwrap())
@@ -1388,12 +1388,12 @@ mod tests {
                 .count()
         };
         assert_eq!(
-            beats("flow", lifecycle::DONE),
+            beats("flow", Lifecycle::Done),
             1,
             "the resent DONE is recorded"
         );
         assert!(
-            beats("recorder", lifecycle::FINISHING) >= 1,
+            beats("recorder", Lifecycle::Finishing) >= 1,
             "and confirmed"
         );
         std::fs::remove_dir_all(&dir).ok();

@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use fiberflow_bus::zenoh_bus::{AccessControl, TlsFiles, ZenohBus, ZenohMode, ZenohSettings};
 use fiberflow_bus::{inproc::InprocBus, BusHandle, Inbox, Transport};
 use fiberflow_flow::serve::RunInfo;
+use fiberflow_messages::Lifecycle;
 use fiberflow_recorder::RunMetadata;
 use serde::{Deserialize, Serialize};
 use sha2::Digest;
@@ -470,14 +471,14 @@ fn linger_until_done(
     liveness_s: f64,
     timeout_s: f64,
 ) -> Result<()> {
-    use fiberflow_messages::{lifecycle, Heartbeat};
+    use fiberflow_messages::Heartbeat;
     use std::time::{Duration, Instant};
     let t0 = Instant::now();
     let mut waiting: std::collections::BTreeMap<String, Instant> =
         expected.iter().map(|n| (n.clone(), t0)).collect();
     while !waiting.is_empty() {
         if let Some((_, h)) = hb.recv::<Heartbeat>(Duration::from_millis(100)) {
-            if h.state == lifecycle::DONE || h.state == lifecycle::FAILED {
+            if h.state == Lifecycle::Done || h.state == Lifecycle::Failed {
                 waiting.remove(&h.node);
             } else if let Some(seen) = waiting.get_mut(&h.node) {
                 *seen = Instant::now();

@@ -19,9 +19,9 @@ use fiberflow_bus::{BusHandle, DropCounter, Inbox};
 use fiberflow_messages::pieces::Tiles;
 use fiberflow_messages::topics::{kind_of, Topics};
 use fiberflow_messages::Kind;
+use fiberflow_messages::Lifecycle;
 use fiberflow_messages::{
-    checkpoints, decode, encode, lifecycle, sanity, schema, FiberGroupState, Heartbeat,
-    SCHEMA_VERSION,
+    checkpoints, decode, encode, sanity, schema, FiberGroupState, Heartbeat, SCHEMA_VERSION,
 };
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::{Path, PathBuf};
@@ -692,7 +692,7 @@ pub fn record(
             }
         }
         if !started && last_hb.elapsed() > Duration::from_millis(200) {
-            let hb = own_heartbeat(lifecycle::READY, 0, sess.drops.total());
+            let hb = own_heartbeat(Lifecycle::Ready, 0, sess.drops.total());
             bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
             last_hb = Instant::now();
         }
@@ -730,12 +730,12 @@ pub fn record(
                 if let Ok(hb) = decode::<Heartbeat>(&bytes) {
                     // a node is done when it says so at the run's last step (the launcher
                     // stops the recorder when a node fails; a stray heartbeat must not)
-                    if hb.state == lifecycle::DONE && hb.step == plan.steps {
+                    if hb.state == Lifecycle::Done && hb.step == plan.steps {
                         if hb.node == "flow" {
                             // the flow node sends its DONE until it hears this
                             flow_done = true;
                             let ack =
-                                own_heartbeat(lifecycle::FINISHING, plan.steps, sess.drops.total());
+                                own_heartbeat(Lifecycle::Finishing, plan.steps, sess.drops.total());
                             bus.publish(&t.heartbeat("recorder"), &encode(&ack))?;
                         }
                         done.insert(hb.node);
@@ -755,7 +755,7 @@ pub fn record(
             // that is a step old never holds a run the recorder keeps up with, and the
             // recording (which keeps the recorder's heartbeats too) gets half as many
             if k >= reported + REPORT_EVERY_STEPS {
-                let hb = own_heartbeat(lifecycle::RUNNING, k, sess.drops.total());
+                let hb = own_heartbeat(Lifecycle::Running, k, sess.drops.total());
                 bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
                 reported = k;
                 // said again with every report, in case one was lost
@@ -764,7 +764,7 @@ pub fn record(
         }
         // a head whose recorder is on another host completes a checkpoint only on this
         if let Some(c) = sess.committed.filter(|&c| said_committed != Some(c)) {
-            let hb = own_heartbeat(lifecycle::COMMITTED, c, sess.drops.total());
+            let hb = own_heartbeat(Lifecycle::Committed, c, sess.drops.total());
             bus.publish(&t.heartbeat("recorder"), &encode(&hb))?;
             said_committed = Some(c);
         }
@@ -901,7 +901,7 @@ fn finish(
     let mut summary = sess.summary;
     summary.drops = drops;
     // the file is complete: tell the run (a zenoh router waits for this before closing)
-    let hb = own_heartbeat(lifecycle::DONE, 0, summary.drops.total());
+    let hb = own_heartbeat(Lifecycle::Done, 0, summary.drops.total());
     if let Err(e) = bus.publish(&t.heartbeat("recorder"), &encode(&hb)) {
         tracing::warn!(error = %e, "could not announce the finished recording");
     }
@@ -914,7 +914,7 @@ fn finish(
 const REPORT_EVERY_STEPS: u64 = 2;
 
 /// A heartbeat of the recorder itself.
-fn own_heartbeat(state: u8, step: u64, dropped: u64) -> Heartbeat {
+fn own_heartbeat(state: Lifecycle, step: u64, dropped: u64) -> Heartbeat {
     Heartbeat {
         schema_version: SCHEMA_VERSION,
         node: "recorder".into(),
@@ -1116,7 +1116,7 @@ mod tests {
         let done = Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: "flow".into(),
-            state: lifecycle::DONE,
+            state: Lifecycle::Done,
             step: 3,
             dropped: 0,
         };
@@ -1269,7 +1269,7 @@ mod tests {
         let done = Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: "flow".into(),
-            state: lifecycle::DONE,
+            state: Lifecycle::Done,
             step: 400,
             dropped: 0,
         };
@@ -1372,7 +1372,7 @@ mod tests {
             let done = Heartbeat {
                 schema_version: SCHEMA_VERSION,
                 node: "flow".into(),
-                state: lifecycle::DONE,
+                state: Lifecycle::Done,
                 step: 5,
                 dropped: 0,
             };
@@ -1496,7 +1496,7 @@ mod tests {
         let done = Heartbeat {
             schema_version: SCHEMA_VERSION,
             node: "flow".into(),
-            state: lifecycle::DONE,
+            state: Lifecycle::Done,
             step: 10,
             dropped: 0,
         };
@@ -1545,7 +1545,7 @@ mod tests {
         }
         let mut committed = BTreeSet::new();
         while let Some((_, b)) = hb.recv::<Heartbeat>(Duration::ZERO) {
-            if b.state == lifecycle::COMMITTED {
+            if b.state == Lifecycle::Committed {
                 committed.insert(b.step);
             }
         }
