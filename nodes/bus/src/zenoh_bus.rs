@@ -295,9 +295,9 @@ impl ZenohBus {
         .map_err(terr)?;
         if s.mode == ZenohMode::Peer && !s.connect.is_empty() {
             // a peer's open waits for its connections (and the peers they tell it of) at
-            // most this long (15 s); on a busy machine the default 500 ms, and once 5 s while
-            // tests compiled beside the run, ran out before a healthy
-            // rendezvous answered and zenoh warned. Open returns as soon as it is connected.
+            // most this long (15 s): on a busy machine zenoh's default (500 ms) runs out
+            // before a healthy rendezvous answers (docs/history/performance.md, "From the
+            // code's comments"). Open returns as soon as it is connected.
             c.insert_json5("scouting/delay", &PEER_OPEN_WAIT_MS.to_string())
                 .map_err(terr)?;
             // connect to the rendezvous inside open, not in a background task: zenoh

@@ -222,8 +222,7 @@ fn set_up_process() {
     // Every coupling step allocates and frees message buffers of several MB. glibc serves
     // such sizes with fresh mmap'd pages (page faults, the kernel zeroing them) and trims
     // its heap after each free; keep them in the heap instead, so a step reuses the last
-    // step's memory (measured: 6% less wall and half the system time at 6 × 10⁴ fibres,
-    // docs/performance.md, "Allocator settings").
+    // step's memory (what it saves: docs/performance.md, "Allocator settings").
     // SAFETY: mallopt only tunes the allocator; called before any thread starts
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);

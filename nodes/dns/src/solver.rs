@@ -169,9 +169,8 @@ impl Solver {
     ///
     /// The step runs on a thread of the rayon pool (the caller waits once): its dozens of
     /// parallel loops then split among the pool's threads directly, where each loop
-    /// started from outside the pool was handed in and waited for on its own (the
-    /// fine-grid field step 1–5% shorter, measured in turns: `docs/performance.md`,
-    /// "Paper size, 2026-12-03").
+    /// started from outside the pool was handed in and waited for on its own (what it
+    /// saves: docs/history/performance.md, "Paper size, 2026-12-03").
     pub fn step(&mut self) -> Result<StepReport, DnsError> {
         rayon::scope(|_| self.step_in_pool())
     }

@@ -182,10 +182,9 @@ pub struct RecordPlan {
 }
 
 /// `[recorder] compression`: how the MCAP chunks are compressed. zstd (level 1) makes the
-/// smallest files; lz4 costs the recorder a fraction of zstd's CPU (at 6 × 10⁴ fibres
-/// zstd took ≈ 6% of the machine at level 3, ≈ 2.5% at level 1); none writes the messages
-/// as they are. Rerun, Foxglove and the
-/// Python `mcap` reader open all three.
+/// smallest files; lz4 costs the recorder a fraction of zstd's CPU; none writes the
+/// messages as they are (the costs: docs/history/performance.md, "From the code's
+/// comments"). Rerun, Foxglove and the Python `mcap` reader open all three.
 #[derive(
     Debug,
     Clone,
@@ -214,7 +213,7 @@ pub fn write_options(compression: ChunkCompression, software_version: &str) -> m
     mcap::WriteOptions::new()
         .compression(compression.mcap())
         // zstd's fastest level: the numbers in these files are mostly mantissas that no
-        // level compresses much (level 3 kept 86% of the bytes at 6 × 10⁴ fibres)
+        // level compresses much
         .compression_level(ZSTD_LEVEL)
         .chunk_size(Some(4 * 1024 * 1024))
         // each chunk is built in memory and written after its header, in file order
