@@ -404,8 +404,8 @@ fn inject_into_a_run(name: &str, structured: bool) {
 }
 
 /// kill -9 of the launcher alone mid-run: its nodes (processes it started, its children)
-/// end within 3 s instead of running on as orphans (the parent-death signal each node
-/// sets before it starts).
+/// end instead of running on as orphans (the parent-death signal each node sets before it
+/// starts; the run would go on until stopped, so 30 s is only how long the test waits).
 #[test]
 fn a_launcher_killed_outright_takes_its_nodes_with_it() {
     let _one = one_run_at_a_time();
@@ -422,8 +422,8 @@ fn a_launcher_killed_outright_takes_its_nodes_with_it() {
     let t0 = Instant::now();
     while !pids_with(&out.display().to_string()).is_empty() {
         assert!(
-            t0.elapsed() < Duration::from_secs(3),
-            "nodes outlived their launcher by 3 s: {:?}",
+            t0.elapsed() < Duration::from_secs(30),
+            "nodes outlived their launcher by 30 s: {:?}",
             pids_with(&out.display().to_string())
         );
         std::thread::sleep(Duration::from_millis(50));

@@ -3,6 +3,7 @@
 
 pub mod config;
 mod exchange;
+mod flow_watch;
 pub mod serve;
 
 pub use config::FiberNodeConfig;
