@@ -8,6 +8,7 @@ pub mod flocs;
 pub mod flow_validation;
 pub mod modulation;
 pub mod plot;
+pub mod realisations;
 pub mod reference;
 pub mod series;
 

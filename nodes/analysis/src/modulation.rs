@@ -21,6 +21,7 @@
 //! publication does not carry the finite-time ⟨v⟩ and ⟨w⟩; what they leave is second order).
 
 use crate::plot::{line_plot, Series};
+use crate::realisations::{pooled_profile_batches, pooled_scalars, Pooled};
 use crate::{io_err, AnalysisError};
 use fiberflow_messages::sanity::Sane;
 use fiberflow_messages::{decode, FiberGroupState, FlowProfiles, FlowStatus, RunAnnouncement};
@@ -191,6 +192,11 @@ impl Estimate {
 /// Batch means of `x` over the samples with `t ≥ from` (contiguous batches of equal count,
 /// the remainder dropped from the front); `None` with fewer than 2 samples per batch.
 pub fn batch_means(t: &[f64], x: &[f64], from: f64, batches: usize) -> Option<Estimate> {
+    batch_values(t, x, from, batches).map(|v| Estimate::of_batches(&v))
+}
+
+/// The batches' means behind [`batch_means`], in time order.
+pub fn batch_values(t: &[f64], x: &[f64], from: f64, batches: usize) -> Option<Vec<f64>> {
     let vals: Vec<f64> = t
         .iter()
         .zip(x)
@@ -206,18 +212,30 @@ pub fn batch_means(t: &[f64], x: &[f64], from: f64, batches: usize) -> Option<Es
         .chunks_exact(per)
         .map(|c| c.iter().sum::<f64>() / per as f64)
         .collect();
-    Some(Estimate::of_batches(&means))
+    Some(means)
 }
 
-/// The scalar results of a run: name, unit, estimate.
+/// The scalar results of a run: name, estimate.
 pub fn scalars(f: &FlowSeries, from: f64, batches: usize) -> Vec<(&'static str, Option<Estimate>)> {
+    scalar_batches(f, from, batches)
+        .into_iter()
+        .map(|(n, v)| (n, v.map(|v| Estimate::of_batches(&v))))
+        .collect()
+}
+
+/// The scalar results of a run as their batch means: name, batch values.
+pub fn scalar_batches(
+    f: &FlowSeries,
+    from: f64,
+    batches: usize,
+) -> Vec<(&'static str, Option<Vec<f64>>)> {
     let h = f.half_height_plus();
     let v = f.volume_plus();
     let t: Vec<f64> = f.status.iter().map(|s| s.t_plus).collect();
     let col = |g: &dyn Fn(&StatusRow) -> f64| -> Vec<f64> { f.status.iter().map(g).collect() };
     let tau_w = |s: &StatusRow| (s.re_tau / h).powi(2);
     let fibres = |s: &StatusRow| -s.fibre_force_x_plus * h / v;
-    let est = |x: Vec<f64>| batch_means(&t, &x, from, batches);
+    let est = |x: Vec<f64>| batch_values(&t, &x, from, batches);
     vec![
         ("re_tau", est(col(&|s| s.re_tau))),
         ("bulk_velocity_plus", est(col(&|s| s.bulk_velocity))),
@@ -371,29 +389,45 @@ pub fn profile_estimates(batches: &[[Vec<f64>; 6]]) -> [Vec<Estimate>; 6] {
 }
 
 /// Writes `flow_modulation.csv`, `flow_profiles.csv`, `flow_mean_velocity.png`,
-/// `flow_rms.png` and `flow_modulation.md` for `run` (against `base`, an unladen or
-/// one-way run of the same flow, if given) into `out`; returns the summary's text.
+/// `flow_rms.png` and `flow_modulation.md` for `runs` (one run or realisations of it)
+/// against `bases` (unladen or one-way realisations of the same flow, none for no
+/// comparison) into `out`, pooled as [`crate::realisations`] says; returns the summary.
 pub fn report(
-    run: &FlowSeries,
-    base: Option<&FlowSeries>,
+    runs: &[FlowSeries],
+    bases: &[FlowSeries],
     from: f64,
     batches: usize,
     out: &Path,
 ) -> Result<String, AnalysisError> {
+    let Some(first) = runs.first() else {
+        return Err(AnalysisError::Data("no run to report on".into()));
+    };
     std::fs::create_dir_all(out).map_err(io_err(out))?;
-    let ours = scalars(run, from, batches);
-    let theirs = base.map(|b| scalars(b, from, batches));
-    let (csv, mut md) = scalar_table(run, &ours, theirs.as_deref(), from, batches);
+    let ours = pooled_scalars(runs, from, batches);
+    let theirs = (!bases.is_empty()).then(|| pooled_scalars(bases, from, batches));
+    let (csv, mut md) = scalar_table(
+        first,
+        &ours,
+        theirs.as_deref(),
+        from,
+        batches,
+        [runs.len(), bases.len()],
+    );
     std::fs::write(out.join("flow_modulation.csv"), csv)
         .map_err(io_err(&out.join("flow_modulation.csv")))?;
+    if runs.len() > 1 || bases.len() > 1 {
+        md.push_str(&per_realisation_table(runs, bases, from, batches));
+    }
 
     // profiles
-    let (y, ours_b) = profile_batches(run, from);
+    let (y, ours_b) = pooled_profile_batches(runs, from)?;
     let ours_p = profile_estimates(&ours_b);
-    let theirs_p = base.map(|b| {
-        let (yb, bb) = profile_batches(b, from);
-        (yb, profile_estimates(&bb))
-    });
+    let theirs_p = if bases.is_empty() {
+        None
+    } else {
+        let (yb, bb) = pooled_profile_batches(bases, from)?;
+        Some((yb, profile_estimates(&bb)))
+    };
     let pcsv = profiles_csv(&y, &ours_p, theirs_p.as_ref());
     std::fs::write(out.join("flow_profiles.csv"), pcsv)
         .map_err(io_err(&out.join("flow_profiles.csv")))?;
@@ -402,10 +436,18 @@ pub fn report(
     }
     let _ = writeln!(
         md,
-        "\nProfiles: {} batches of this run{}; `flow_profiles.csv`, `flow_mean_velocity.png`, \
+        "\nProfiles: {} batches{}{}; `flow_profiles.csv`, `flow_mean_velocity.png`, \
          `flow_rms.png`. Budget: pressure_gradient = wall_shear + fibre_force_x (outer \
          units); the residual is what the time average leaves.",
         ours_b.len(),
+        if runs.len() > 1 {
+            format!(
+                " over {} realisations (Student's t over all their batches)",
+                runs.len()
+            )
+        } else {
+            " of this run".into()
+        },
         theirs_p
             .as_ref()
             .map_or(String::new(), |_| " beside the unladen run's".into())
@@ -415,14 +457,50 @@ pub fn report(
     Ok(md)
 }
 
-/// The scalar rows (this run, the base run, the change) as CSV and as the summary's
-/// Markdown table, which opens the summary.
-fn scalar_table(
-    run: &FlowSeries,
-    ours: &[(&'static str, Option<Estimate>)],
-    theirs: Option<&[(&'static str, Option<Estimate>)]>,
+/// Each realisation's own drag (pressure gradient) and skin friction, so the spread behind
+/// the pooled figures shows.
+fn per_realisation_table(
+    runs: &[FlowSeries],
+    bases: &[FlowSeries],
     from: f64,
     batches: usize,
+) -> String {
+    let mut md = String::from(
+        "\nEach realisation on its own (batch means, 95%):\n\n| realisation | pressure gradient Π | C_f |\n|---|---|---|\n",
+    );
+    let rows = runs
+        .iter()
+        .map(|r| ("laden", r))
+        .chain(bases.iter().map(|b| ("unladen", b)));
+    let mut counts = [0usize; 2];
+    for (kind, f) in rows {
+        let k = usize::from(kind == "unladen");
+        counts[k] += 1;
+        let s: BTreeMap<&str, Option<Estimate>> = scalars(f, from, batches).into_iter().collect();
+        let fmt = |e: Option<&Option<Estimate>>| match e {
+            Some(Some(e)) => format!("{:.5} ± {:.5}", e.mean, e.half_width),
+            _ => "—".into(),
+        };
+        let _ = writeln!(
+            md,
+            "| {kind} {} | {} | {} |",
+            counts[k],
+            fmt(s.get("pressure_gradient")),
+            fmt(s.get("skin_friction_cf"))
+        );
+    }
+    md
+}
+
+/// The scalar rows (this run, the base run, the change) as CSV and as the summary's
+/// Markdown table, which opens the summary; `counts` are the realisations of each.
+fn scalar_table(
+    run: &FlowSeries,
+    ours: &[(&'static str, Option<Pooled>)],
+    theirs: Option<&[(&'static str, Option<Pooled>)]>,
+    from: f64,
+    batches: usize,
+    counts: [usize; 2],
 ) -> (String, String) {
     let fmt = |e: &Option<Estimate>| match e {
         Some(e) => format!("{:.5} ± {:.5}", e.mean, e.half_width),
@@ -432,10 +510,20 @@ fn scalar_table(
         "quantity,run,run_half_width,unladen,unladen_half_width,change,change_half_width\n",
     );
     let mut md = String::new();
+    let pooled = if counts[0] > 1 || counts[1] > 1 {
+        format!(
+            " per run; {} laden and {} unladen realisations, each quantity's mean over all \
+             their batches with Student's t over them, or over the realisations' means where \
+             those scatter beyond their batches (marked *; docs/realisations.md)",
+            counts[0], counts[1]
+        )
+    } else {
+        String::new()
+    };
     let _ = writeln!(
         md,
         "# What the fibres do to the flow\n\nStatistics from t+ = {from} on, {batches} batch \
-         means, 95% intervals (Student's t). Mass loading {:.3} ({} coupling).\n",
+         means{pooled}, 95% intervals (Student's t). Mass loading {:.3} ({} coupling).\n",
         run.mass_loading(),
         if run.two_way { "two-way" } else { "one-way" }
     );
@@ -443,8 +531,17 @@ fn scalar_table(
         md,
         "| quantity | this run | unladen | change |\n|---|---|---|---|"
     );
-    for (k, (name, e)) in ours.iter().enumerate() {
-        let b = theirs.and_then(|t| t[k].1);
+    let mark = |e: &Option<Pooled>| {
+        if matches!(e, Some((_, true))) {
+            "*"
+        } else {
+            ""
+        }
+    };
+    for (k, (name, eb)) in ours.iter().enumerate() {
+        let e = eb.map(|e| e.0);
+        let bb = theirs.and_then(|t| t[k].1);
+        let b = bb.map(|b| b.0);
         let change = match (e, b) {
             (Some(e), Some(b)) if b.mean.abs() > 1e-12 => Some(e.change_from(&b)),
             _ => None,
@@ -462,9 +559,11 @@ fn scalar_table(
         );
         let _ = writeln!(
             md,
-            "| {name} | {} | {} | {} |",
-            fmt(e),
+            "| {name} | {}{} | {}{} | {} |",
+            fmt(&e),
+            mark(eb),
             fmt(&b),
+            mark(&bb),
             change.map_or("—".into(), |(c, h)| format!(
                 "{:+.2}% ± {:.2}%",
                 100.0 * c,

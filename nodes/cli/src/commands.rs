@@ -60,28 +60,63 @@ pub fn export_cmd(mcap: &Path, out: Option<PathBuf>, what: Option<&[String]>) ->
 
 /// `fiberflow analyze`: the fibre analysis and, for a two-way run, the flow's modulation.
 pub fn analyze_cmd(
-    mcap: &Path,
+    runs: &[PathBuf],
     out: Option<PathBuf>,
     coil_thresholds: &[f64],
-    unladen: Option<&Path>,
+    unladen: &[PathBuf],
     transient_plus: f64,
     batches: usize,
 ) -> Result<()> {
-    let out = out.unwrap_or_else(|| {
-        if mcap.is_dir() {
-            mcap.join("analysis")
+    let folder_of = |p: &Path| -> PathBuf {
+        if p.is_dir() {
+            p.to_path_buf()
         } else {
-            mcap.parent()
-                .unwrap_or(std::path::Path::new("."))
-                .join("analysis")
+            p.parent().unwrap_or(Path::new(".")).to_path_buf()
         }
-    });
-    let table = analyze::fibres(mcap, &out, coil_thresholds)?;
+    };
+    let [one] = runs else {
+        // realisations: each run's fibres in its own folder, the flow pooled
+        let out = out.unwrap_or_else(|| realisations_folder(&folder_of(&runs[0])));
+        for r in runs {
+            let table = analyze::fibres(r, &folder_of(r).join("analysis"), coil_thresholds)?;
+            println!("{}:\n{table}", r.display());
+        }
+        match analyze::modulation(runs, unladen, transient_plus, batches, &out)? {
+            Some(md) => println!("{md}"),
+            None => anyhow::bail!("the realisations recorded no flow status"),
+        }
+        return Ok(());
+    };
+    let out = out.unwrap_or_else(|| folder_of(one).join("analysis"));
+    let table = analyze::fibres(one, &out, coil_thresholds)?;
     println!("{table}");
-    if let Some(md) = analyze::modulation(mcap, unladen, transient_plus, batches, &out)? {
+    if let Some(md) = analyze::modulation(
+        std::slice::from_ref(one),
+        unladen,
+        transient_plus,
+        batches,
+        &out,
+    )? {
         println!("{md}");
     }
     Ok(())
+}
+
+/// Where the pooled analysis of realisations goes: beside the first, named for it without
+/// its `-r<i>` (`recordings/two-way-r1` → `recordings/two-way-realisations`).
+fn realisations_folder(first: &Path) -> PathBuf {
+    let name = first
+        .file_name()
+        .map(|n| n.to_string_lossy().to_string())
+        .unwrap_or_else(|| "run".into());
+    let stem = match name.rsplit_once("-r") {
+        Some((s, i)) if !i.is_empty() && i.chars().all(|c| c.is_ascii_digit()) => s.to_string(),
+        _ => name,
+    };
+    first
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join(format!("{stem}-realisations"))
 }
 
 /// `fiberflow view`: the Rerun scene of a recording, saved, spawned or streamed.
@@ -156,4 +191,21 @@ pub fn flow_report_cmd(stats: &Path, reference: &Path, out: Option<PathBuf>) -> 
     });
     println!("{}", analyze::flow(stats, reference, &out)?);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn realisations_go_beside_the_first_without_its_index() {
+        assert_eq!(
+            realisations_folder(Path::new("recordings/two-way-r1")),
+            PathBuf::from("recordings/two-way-realisations")
+        );
+        assert_eq!(
+            realisations_folder(Path::new("recordings/run-rx")),
+            PathBuf::from("recordings/run-rx-realisations")
+        );
+    }
 }

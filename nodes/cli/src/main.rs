@@ -25,7 +25,7 @@ enum Cmd {
     /// Run a whole experiment from a launch file (TOML).
     Launch {
         file: PathBuf,
-        /// Output folder (default: recordings/<run id>).
+        /// Output folder (default: recordings/<run id>, or recordings/<run id>-r<i> for run.realisation = i ≥ 1).
         #[arg(long)]
         out: Option<PathBuf>,
         /// inproc | zenoh | iceoryx2 (default: the launch file's run.transport).
@@ -112,19 +112,23 @@ enum Cmd {
     },
     /// Analysis of a recording (a run folder or one .mcap): the fibres' MSD, alignment and
     /// coiling, and what the fibres do to the flow (CSV, PNG, summary.md,
-    /// flow_modulation.md).
+    /// flow_modulation.md). Several recordings are realisations of one run: their flow
+    /// statistics are pooled (docs/realisations.md) and the fibres are analysed per run.
     Analyze {
-        mcap: PathBuf,
-        /// Output folder (default: <run folder>/analysis).
+        /// The run folder (or .mcap), or several realisations of one run.
+        #[arg(required = true, num_args = 1..)]
+        mcap: Vec<PathBuf>,
+        /// Output folder (default: <run folder>/analysis; for realisations
+        /// <first run folder without its -r<i>>-realisations).
         #[arg(long)]
         out: Option<PathBuf>,
         /// sigma^2 thresholds of the coiling-onset table.
         #[arg(long, value_delimiter = ',', default_value = "0.1,0.5,1.0")]
         coil_thresholds: Vec<f64>,
         /// An unladen (or one-way) run of the same flow to compare the flow statistics with
-        /// (a run folder or one .mcap).
-        #[arg(long)]
-        unladen: Option<PathBuf>,
+        /// (a run folder or one .mcap), or several realisations of it.
+        #[arg(long, num_args = 1..)]
+        unladen: Vec<PathBuf>,
         /// Flow statistics start at this t+ (the transient before it is left out).
         #[arg(long, default_value_t = 0.0)]
         transient_plus: f64,
@@ -332,7 +336,7 @@ fn main() -> Result<()> {
             &mcap,
             out,
             &coil_thresholds,
-            unladen.as_deref(),
+            &unladen,
             transient_plus,
             batches,
         ),

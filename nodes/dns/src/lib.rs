@@ -12,6 +12,7 @@ pub mod field;
 pub mod grid;
 pub mod implicit;
 pub mod init;
+pub mod perturb;
 pub mod poisson;
 pub mod regrid;
 pub mod rhs;

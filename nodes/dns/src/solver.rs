@@ -131,6 +131,17 @@ impl Solver {
         self.vel.update_halos(g);
     }
 
+    /// Gives the field realisation `seed`'s start: adds the seeded disturbance of
+    /// [`crate::perturb`], projects, and restores the held flow rate.
+    pub fn perturb(&mut self, seed: u64) {
+        crate::perturb::add_disturbance(&self.grid, seed, &mut self.vel);
+        self.vel.update_halos(&self.grid);
+        self.project(1.0);
+        if let Forcing::FlowRate { bulk_velocity } = self.cfg.forcing {
+            self.set_bulk_velocity(bulk_velocity);
+        }
+    }
+
     fn set_bulk_velocity(&mut self, target: f64) {
         let ub = bulk_mean(&self.grid, &self.vel.u);
         let g = &self.grid;

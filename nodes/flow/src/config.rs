@@ -75,7 +75,16 @@ pub struct FlowNodeConfig {
     /// leave it (`"none"`).
     #[serde(default)]
     pub self_induced: SelfInduced,
+    /// The run's realisation (docs/realisations.md): 0 starts from the source's field as
+    /// it is; i ≥ 1 adds realisation i's seeded divergence-free disturbance to a DNS
+    /// field at the start (`fiberflow_dns::perturb`; a resumed run reads its checkpoint).
+    /// A launch file sets it from `run.realisation` (giving it under `[flow]` is an error).
+    #[serde(default)]
+    pub realisation: u32,
 }
+
+/// The seed realisation i's flow disturbance is drawn from (`realisation_seed(this, i)`).
+pub const FLOW_DISTURBANCE_SEED: u64 = 0x5EED_F10E;
 
 /// `flow.self_induced`: how the samples of a two-way run treat each fibre's own
 /// disturbance of the flow.
@@ -180,6 +189,7 @@ pub(crate) mod tests {
             slices_every_steps: 10,
             streaks_y_plus: 15.0,
             self_induced: SelfInduced::History,
+            realisation: 0,
         }
     }
 

@@ -107,11 +107,19 @@ fn open_field(
             let mut s = Solver::new(d)?;
             if let Some(dir) = &run.resume_dir {
                 resumed_stats = crate::checkpoint::read_dns(dir, &mut s)?;
-            } else if let Some(r) = restart {
-                if *regrid {
-                    s.read_checkpoint_regridded(r)?;
-                } else {
-                    s.read_checkpoint(r)?;
+            } else {
+                if let Some(r) = restart {
+                    if *regrid {
+                        s.read_checkpoint_regridded(r)?;
+                    } else {
+                        s.read_checkpoint(r)?;
+                    }
+                }
+                if cfg.realisation > 0 {
+                    s.perturb(fiberflow_dns::perturb::realisation_seed(
+                        crate::config::FLOW_DISTURBANCE_SEED,
+                        cfg.realisation,
+                    ));
                 }
             }
             check_stability(&s, cfg.dt_plus)?;

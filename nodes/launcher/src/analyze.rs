@@ -1,7 +1,7 @@
 //! `analyze` (fibres, and what the fibres do to the flow) and `flow-report`.
 
 use anyhow::{Context, Result};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Fibre analysis; writes `summary.md` and returns the table.
 pub fn fibres(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String> {
@@ -34,12 +34,12 @@ pub fn fibres(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String
     Ok(table)
 }
 
-/// What the fibres do to the flow ([`fiberflow_analysis::modulation`]), against an
-/// unladen run if given; `None` when the recording has no flow statistics (an analytic
-/// flow).
+/// The flow modulation of `runs` (one run, or realisations of it) against `unladen`
+/// (none, one, or realisations of the unladen flow), statistics from `transient_plus` on
+/// in `batches` batches per run; `None` when the runs recorded no flow status.
 pub fn modulation(
-    mcap: &Path,
-    unladen: Option<&Path>,
+    runs: &[PathBuf],
+    unladen: &[PathBuf],
     transient_plus: f64,
     batches: usize,
     out: &Path,
@@ -51,24 +51,35 @@ pub fn modulation(
     if batches < 2 {
         anyhow::bail!("--batches must be >= 2 (got {batches})");
     }
-    let run = read_flow(mcap).with_context(|| format!("reading the flow of {}", mcap.display()))?;
-    if run.status.is_empty() {
+    let read =
+        |p: &PathBuf| read_flow(p).with_context(|| format!("reading the flow of {}", p.display()));
+    let ours = runs.iter().map(read).collect::<Result<Vec<_>>>()?;
+    let Some(first) = ours.first() else {
+        anyhow::bail!("no run to analyse");
+    };
+    if ours.iter().all(|r| r.status.is_empty()) {
         return Ok(None);
     }
-    let base = unladen
-        .map(|u| read_flow(u).with_context(|| format!("reading the flow of {}", u.display())))
-        .transpose()?;
-    if let Some(b) = &base {
-        if b.box_plus != run.box_plus {
+    for (p, r) in runs.iter().zip(&ours) {
+        if r.status.is_empty() {
             anyhow::bail!(
-                "--unladen {}: its channel box {:?} is not this run's {:?}",
-                unladen.map_or(String::new(), |u| u.display().to_string()),
-                b.box_plus,
-                run.box_plus
+                "{}: no flow status recorded (a realisation without statistics)",
+                p.display()
             );
         }
     }
-    let md = report(&run, base.as_ref(), transient_plus, batches, out)
+    let base = unladen.iter().map(read).collect::<Result<Vec<_>>>()?;
+    for (p, b) in runs.iter().zip(&ours).chain(unladen.iter().zip(&base)) {
+        if b.box_plus != first.box_plus {
+            anyhow::bail!(
+                "{}: its channel box {:?} is not the first run's {:?}",
+                p.display(),
+                b.box_plus,
+                first.box_plus
+            );
+        }
+    }
+    let md = report(&ours, &base, transient_plus, batches, out)
         .with_context(|| format!("writing the flow modulation into {}", out.display()))?;
     Ok(Some(md))
 }

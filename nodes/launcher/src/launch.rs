@@ -320,7 +320,7 @@ fn run_folder(lf: &LaunchFile, resume: Option<&Path>, out: Option<PathBuf>) -> R
             o.display()
         ),
         (Some(r), _) => r.to_path_buf(),
-        (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(&lf.run.id)),
+        (None, o) => o.unwrap_or_else(|| PathBuf::from("recordings").join(lf.run.default_folder())),
     })
 }
 
@@ -369,9 +369,13 @@ fn after_the_run(lf: &LaunchFile, m: &Path, out_dir: &Path) -> Result<()> {
         // two-way: what the fibres did to the flow (against nothing: `fiberflow analyze
         // --unladen` compares with another run)
         if lf.run.coupling == crate::launchfile::Coupling::TwoWay {
-            if let Some(md) =
-                crate::analyze::modulation(m, None, 0.0, 10, &out_dir.join("analysis"))?
-            {
+            if let Some(md) = crate::analyze::modulation(
+                std::slice::from_ref(&m.to_path_buf()),
+                &[],
+                0.0,
+                10,
+                &out_dir.join("analysis"),
+            )? {
                 println!("{md}");
             }
         }

@@ -16,7 +16,7 @@ use crate::overrides::refuse_misplaced_keys;
 #[serde(deny_unknown_fields)]
 pub struct RunSection {
     /// Run id: a non-empty name of [A-Za-z0-9_-]; the topics' prefix and the default
-    /// output folder `recordings/<id>`.
+    /// output folder `recordings/<id>` (`recordings/<id>-r<i>` for realisation i ≥ 1).
     pub id: String,
     /// Number of coupling steps, in 1..=1e8.
     pub steps: u64,
@@ -63,6 +63,13 @@ pub struct RunSection {
     /// a body force (docs/two-way.md); all groups of the run are then one suspension.
     #[serde(default)]
     pub coupling: Coupling,
+    /// Which realisation of the run this is (docs/realisations.md), in 0..=1000000: 0 (the
+    /// default) starts from the flow source's field and the groups' placement seeds as
+    /// given; i ≥ 1 gives the run its own start — the DNS field with realisation i's seeded
+    /// divergence-free disturbance and every random placement's seed mixed with i — the
+    /// same bits for the same i.
+    #[serde(default)]
+    pub realisation: u32,
 }
 
 /// `run.coupling`: whether the fluid feels the fibres.
@@ -135,6 +142,15 @@ impl Default for RestartSection {
 }
 
 impl RunSection {
+    /// The run's folder under `recordings/`: its id, or `<id>-r<i>` for realisation i ≥ 1
+    /// (so realisations sit side by side).
+    pub fn default_folder(&self) -> String {
+        match self.realisation {
+            0 => self.id.clone(),
+            i => format!("{}-r{i}", self.id),
+        }
+    }
+
     /// Coupling steps between checkpoints (0 = never).
     pub fn checkpoint_every_steps(&self) -> u64 {
         if self.checkpoint_every_plus <= 0.0 {
@@ -325,6 +341,13 @@ impl LaunchFile {
         }
         lf.flow.dt_plus = lf.run.dt_plus;
         lf.flow.steps = lf.run.steps;
+        lf.flow.realisation = lf.run.realisation;
+        for f in &mut lf.fibers {
+            if let fiberflow_fiber::config::PlacementConfig::Random { seed, .. } = &mut f.placement
+            {
+                *seed = fiberflow_dns::perturb::realisation_seed(*seed, lf.run.realisation);
+            }
+        }
         lf.validate()?;
         Ok((lf, text))
     }
@@ -340,6 +363,12 @@ impl LaunchFile {
             bail!(
                 "run.id must be a non-empty name of [A-Za-z0-9_-] (got {:?})",
                 r.id
+            );
+        }
+        if r.realisation > 1_000_000 {
+            bail!(
+                "run.realisation must be in 0..=1000000 (got {})",
+                r.realisation
             );
         }
         if r.steps == 0 || r.steps > 100_000_000 {
@@ -660,7 +689,11 @@ pub(crate) mod tests {
     fn run_keys_under_flow_are_refused_naming_the_run_key() {
         let dir = std::env::temp_dir().join(format!("ff-fk-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        for (extra, want) in [("steps = 5", "run.steps"), ("dt_plus = 0.1", "run.dt_plus")] {
+        for (extra, want) in [
+            ("steps = 5", "run.steps"),
+            ("dt_plus = 0.1", "run.dt_plus"),
+            ("realisation = 2", "run.realisation"),
+        ] {
             let err = LaunchFile::load_with(&write_launch(&dir, extra), &[]).unwrap_err();
             let msg = format!("{err:#}");
             assert!(msg.contains(want) && msg.contains("flow."), "{msg}");
@@ -668,6 +701,50 @@ pub(crate) mod tests {
         let err =
             LaunchFile::load_with(&write_launch(&dir, ""), &["flow.steps=3".into()]).unwrap_err();
         assert!(format!("{err:#}").contains("run.steps"), "{err:#}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// `run.realisation` reaches the flow node and mixes every random placement's seed
+    /// (realisation 0 leaves the configured seeds); out of range, the error names the key.
+    #[test]
+    fn a_realisation_reaches_the_flow_and_every_random_placement() {
+        let dir = std::env::temp_dir().join(format!("ff-real-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("r.toml");
+        std::fs::write(
+            &file,
+            "[run]\nid = \"r\"\nsteps = 10\ndt_plus = 0.25\n\n[flow.source]\nkind = \"analytic\"\n\
+             flow = { kind = \"simple_shear\", shear_rate = 0.1 }\n\n\
+             [[fibers]]\ngroup = \"a\"\nplacement = { kind = \"random\", count = 5, seed = 7 }\n\n\
+             [[fibers]]\ngroup = \"b\"\n",
+        )
+        .unwrap();
+        let seed = |lf: &LaunchFile| match &lf.fibers[0].placement {
+            fiberflow_fiber::config::PlacementConfig::Random { seed, .. } => *seed,
+            other => panic!("{other:?}"),
+        };
+        let (lf0, _) = LaunchFile::load_with(&file, &[]).unwrap();
+        assert_eq!(
+            (lf0.run.realisation, lf0.flow.realisation, seed(&lf0)),
+            (0, 0, 7)
+        );
+        let (lf3, _) = LaunchFile::load_with(&file, &["run.realisation=3".into()]).unwrap();
+        let (lf3b, _) = LaunchFile::load_with(&file, &["run.realisation=3".into()]).unwrap();
+        let (lf4, _) = LaunchFile::load_with(&file, &["run.realisation=4".into()]).unwrap();
+        assert_eq!(lf3.flow.realisation, 3);
+        assert_eq!(seed(&lf3), fiberflow_dns::perturb::realisation_seed(7, 3));
+        assert_eq!(seed(&lf3), seed(&lf3b));
+        assert!(seed(&lf3) != 7 && seed(&lf3) != seed(&lf4));
+        // the layers of group b have no seed: the same fibres in every realisation
+        assert_eq!(lf3.fibers[1].placement, lf0.fibers[1].placement);
+        assert_eq!(lf3.run.default_folder(), "r-r3");
+        assert_eq!(lf0.run.default_folder(), "r");
+        let err = LaunchFile::load_with(&file, &["run.realisation=2000000".into()]).unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(
+            msg.contains("run.realisation") && msg.contains("0..=1000000"),
+            "{msg}"
+        );
         std::fs::remove_dir_all(&dir).ok();
     }
 

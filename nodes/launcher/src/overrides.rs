@@ -106,9 +106,9 @@ fn tables_at<'a>(doc: &'a toml::Table, path: &str) -> Vec<&'a toml::Table> {
 }
 
 /// Keys a launch file must not have, each an error that names the key to use instead:
-/// renamed keys ([`RENAMED_KEYS`]), and `flow.steps` / `flow.dt_plus`, the flow node's own keys,
-/// which a launch file sets from `run.steps` / `run.dt_plus` (a value under `[flow]`
-/// would be silently replaced).
+/// renamed keys ([`RENAMED_KEYS`]), and `flow.steps` / `flow.dt_plus` / `flow.realisation`,
+/// the flow node's own keys, which a launch file sets from `run.steps` / `run.dt_plus` /
+/// `run.realisation` (a value under `[flow]` would be silently replaced).
 pub(crate) fn refuse_misplaced_keys(text: &str) -> Result<()> {
     // a file that is not TOML gets its error, with the file's name, from the parse after
     let Ok(doc) = toml::from_str::<toml::Table>(text) else {
@@ -116,7 +116,11 @@ pub(crate) fn refuse_misplaced_keys(text: &str) -> Result<()> {
     };
     let table = |name: &str| doc.get(name).and_then(toml::Value::as_table);
     if let Some(flow) = table("flow") {
-        for (key, instead) in [("steps", "run.steps"), ("dt_plus", "run.dt_plus")] {
+        for (key, instead) in [
+            ("steps", "run.steps"),
+            ("dt_plus", "run.dt_plus"),
+            ("realisation", "run.realisation"),
+        ] {
             if flow.contains_key(key) {
                 bail!("flow.{key} is set from {instead} in a launch file: remove flow.{key} and set {instead}");
             }
