@@ -284,11 +284,6 @@ impl GroupSnapshot {
         })
     }
 
-    /// Writes atomically: temp file, fsync, rename, fsync of the folder.
-    pub fn write(&self, path: &Path) -> Result<(), CheckpointError> {
-        write_atomic(path, &self.to_bytes())
-    }
-
     pub fn read(path: &Path) -> Result<Self, CheckpointError> {
         let b = std::fs::read(path).map_err(|source| CheckpointError::Io {
             path: path.display().to_string(),
@@ -299,17 +294,6 @@ impl GroupSnapshot {
             reason,
         })
     }
-}
-
-/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one
-/// (the one implementation: `fiberflow_messages::checkpoints::write_atomic`).
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
-    fiberflow_messages::checkpoints::write_atomic(path, bytes).map_err(|source| {
-        CheckpointError::Io {
-            path: path.display().to_string(),
-            source,
-        }
-    })
 }
 
 fn fnv1a(b: &[u8]) -> u64 {
@@ -381,7 +365,7 @@ mod tests {
         }
         let snap = GroupSnapshot::capture(&a, 20);
         let path = std::env::temp_dir().join(format!("ff-grp-{}.ckpt", std::process::id()));
-        snap.write(&path).unwrap();
+        std::fs::write(&path, snap.to_bytes()).unwrap();
         let back = GroupSnapshot::read(&path).unwrap();
         assert_eq!(back, snap);
         let mut b = group();

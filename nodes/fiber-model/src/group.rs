@@ -497,9 +497,10 @@ impl FibreGroup {
         }
     }
 
-    /// After [`Self::step_free`]: the message that carries it to the group's other shards
-    /// (`msg`'s header is the caller's; its arrays are refilled, allocations kept).
-    pub fn fill_free_step(&self, msg: &mut fiberflow_messages::FiberFreeStep) {
+    /// After [`Self::step_free`]: what the contact solve reads of it
+    /// ([`contact::exchange::FreeStep`]; `msg`'s step and first fibre are the caller's, its
+    /// arrays are refilled, allocations kept).
+    pub fn fill_free_step(&self, msg: &mut contact::exchange::FreeStep) {
         msg.segments_per_fiber.clear();
         msg.segments_per_fiber
             .extend((0..self.len()).map(|k| self.fibre_len(k) as u32));
@@ -537,7 +538,7 @@ impl FibreGroup {
     /// in the group, or in the suspension's groups one after the other) with the other
     /// pieces' free steps (`others`, each read for this step). Keeps the corrections of
     /// this piece's fibres and writes what the solve did to each other piece into
-    /// `solved[p]` (arrays refilled; the header is the caller's), for
+    /// `solved[p]` (arrays refilled), for
     /// [`Self::apply_contact_solved`] there. The pairs are solved in that order, so every
     /// piece's fibres get the bits [`Self::step`] of one unsharded group of all of them
     /// gives them.
@@ -546,7 +547,7 @@ impl FibreGroup {
         order: usize,
         others: &[OtherPiece],
         dt: f64,
-        solved: &mut [fiberflow_messages::FiberContactSolved],
+        solved: &mut [contact::exchange::ContactSolved],
     ) {
         let Some(mut c) = self.contact else {
             return;
@@ -588,11 +589,10 @@ impl FibreGroup {
     pub fn apply_contact_solved(
         &mut self,
         order: usize,
-        m: &fiberflow_messages::FiberContactSolved,
+        m: &contact::exchange::ContactSolved,
     ) -> Result<(), contact::exchange::ExchangeError> {
         use contact::exchange::ExchangeError;
-        use fiberflow_messages::sanity::Sane;
-        m.check().map_err(ExchangeError::Insane)?;
+        m.check()?;
         if m.fibers as usize != self.len() {
             return Err(ExchangeError::Insane(format!(
                 "the solve's part names {} fibres, this piece holds {}",
@@ -891,7 +891,7 @@ impl contact::Segments for Joined<'_> {
 /// within the walls, as the piece itself would), its contact load, its locked and frozen
 /// fibres, and the solve's summary.
 fn fill_solved(
-    m: &mut fiberflow_messages::FiberContactSolved,
+    m: &mut contact::exchange::ContactSolved,
     outcome: &ContactOutcome,
     fibres: &mut [Fibre],
     start: usize,

@@ -1,7 +1,7 @@
 //! The Lindström–Uesaka flexible-fibre model (paper §2, Appendices A and B): chains of
 //! rigid cylindrical segments with implicit joint forces, viscous (Cox/Kim & Karrila) and
 //! inertial cross-flow hydrodynamics, plus joint bending stiffness, gravity and wall
-//! contact. No transport dependency: plain state plus [`step::step`].
+//! contact. No transport or message dependency: plain state plus [`step::step`].
 
 pub mod batch;
 pub mod cases;

@@ -9,10 +9,11 @@
 use crate::config::{build_suspension, BuiltGroup, FiberNodeConfig};
 use crate::serve::FiberNodeError;
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
-use fiberflow_fiber_model::contact::exchange::OtherPiece;
+use fiberflow_fiber_model::contact::exchange::{ContactSolved, FreeStep, OtherPiece};
 use fiberflow_fiber_model::group::FibreGroup;
 use fiberflow_fiber_model::FibreError;
 use fiberflow_messages::pieces::Piece;
+use fiberflow_messages::sanity::Sane;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::{decode, FiberContactSolved, FiberFreeStep, SCHEMA_VERSION};
 use std::time::{Duration, Instant};
@@ -255,7 +256,9 @@ impl Exchange {
         {
             free.0.step = step;
             free.0.t_plus = t_plus;
-            group.fill_free_step(&mut free.0);
+            let mut fs = take_free_step(&mut free.0);
+            group.fill_free_step(&mut fs);
+            put_free_step(&mut free.0, fs);
             self.sent = true;
             bus.publish_message(free_topic, free.as_ref())?;
         }
@@ -274,11 +277,11 @@ impl Exchange {
                 m.0.step = step;
                 m.0.t_plus = t_plus;
             }
-            let mut msgs: Vec<FiberContactSolved> =
-                parts.iter_mut().map(|m| std::mem::take(&mut m.0)).collect();
-            group.resolve_contact_for(order, others, dt, &mut msgs);
-            for (m, filled) in parts.iter_mut().zip(msgs) {
-                m.0 = filled;
+            let mut done: Vec<ContactSolved> =
+                parts.iter_mut().map(|m| take_solved(&mut m.0)).collect();
+            group.resolve_contact_for(order, others, dt, &mut done);
+            for (m, filled) in parts.iter_mut().zip(done) {
+                put_solved(&mut m.0, filled);
             }
             *solved = Some(step);
             self.sent = true;
@@ -357,7 +360,7 @@ impl Exchange {
                     part_topics,
                     solved,
                 } => {
-                    let m = match decode::<FiberFreeStep>(&bytes) {
+                    let mut m = match decode::<FiberFreeStep>(&bytes) {
                         Ok(m) => m,
                         Err(e) => {
                             drops.drop_one(&topic, &e.to_string());
@@ -382,12 +385,16 @@ impl Exchange {
                         drops.drop_one(&topic, "free step of a later step");
                         continue;
                     }
-                    if let Err(e) = others[i].read(&m) {
+                    if let Err(e) = m.check() {
+                        drops.drop_one(&topic, &e);
+                        continue;
+                    }
+                    if let Err(e) = others[i].read(&take_free_step(&mut m)) {
                         drops.drop_one(&topic, &format!("inconsistent: {e}"));
                     }
                 }
                 Role::Member { .. } => {
-                    let m = match decode::<FiberContactSolved>(&bytes) {
+                    let mut m = match decode::<FiberContactSolved>(&bytes) {
                         Ok(m) => m,
                         Err(e) => {
                             drops.drop_one(&topic, &e.to_string());
@@ -402,7 +409,11 @@ impl Exchange {
                         drops.drop_one(&topic, "contact solve of a later step");
                         continue;
                     }
-                    match group.apply_contact_solved(order, &m) {
+                    if let Err(e) = m.check() {
+                        drops.drop_one(&topic, &e);
+                        continue;
+                    }
+                    match group.apply_contact_solved(order, &take_solved(&mut m)) {
                         Ok(()) => return Ok(()),
                         Err(e) => drops.drop_one(&topic, &format!("inconsistent: {e}")),
                     }
@@ -410,4 +421,80 @@ impl Exchange {
             }
         }
     }
+}
+
+/// The model's part of a free-step message, its arrays moved out (allocations kept).
+fn take_free_step(m: &mut FiberFreeStep) -> FreeStep {
+    use std::mem::take;
+    FreeStep {
+        step: m.step,
+        first_fiber: m.first_fiber,
+        segments_per_fiber: take(&mut m.segments_per_fiber),
+        start_centre: take(&mut m.start_centre),
+        start_axis: take(&mut m.start_axis),
+        start_normal: take(&mut m.start_normal),
+        centre: take(&mut m.centre),
+        axis: take(&mut m.axis),
+        normal: take(&mut m.normal),
+        velocity: take(&mut m.velocity),
+        angular_velocity: take(&mut m.angular_velocity),
+    }
+}
+
+/// Puts a free step's arrays into its message (the header stays the message's).
+fn put_free_step(m: &mut FiberFreeStep, fs: FreeStep) {
+    m.segments_per_fiber = fs.segments_per_fiber;
+    m.start_centre = fs.start_centre;
+    m.start_axis = fs.start_axis;
+    m.start_normal = fs.start_normal;
+    m.centre = fs.centre;
+    m.axis = fs.axis;
+    m.normal = fs.normal;
+    m.velocity = fs.velocity;
+    m.angular_velocity = fs.angular_velocity;
+}
+
+/// The model's part of a contact-solved message, its arrays moved out.
+fn take_solved(m: &mut FiberContactSolved) -> ContactSolved {
+    use std::mem::take;
+    ContactSolved {
+        fibers: m.fibers,
+        moved: take(&mut m.moved),
+        moved_segments: take(&mut m.moved_segments),
+        centre: take(&mut m.centre),
+        axis: take(&mut m.axis),
+        normal: take(&mut m.normal),
+        velocity: take(&mut m.velocity),
+        angular_velocity: take(&mut m.angular_velocity),
+        contact_segment: take(&mut m.contact_segment),
+        contact_force: take(&mut m.contact_force),
+        contacts: take(&mut m.contacts),
+        worst_gap: m.worst_gap,
+        sweeps: m.sweeps,
+        pairs: m.pairs,
+        candidates: m.candidates,
+        locked: take(&mut m.locked),
+        frozen: take(&mut m.frozen),
+    }
+}
+
+/// Puts what the solve did to a piece into its message (the header stays the message's).
+fn put_solved(m: &mut FiberContactSolved, s: ContactSolved) {
+    m.fibers = s.fibers;
+    m.moved = s.moved;
+    m.moved_segments = s.moved_segments;
+    m.centre = s.centre;
+    m.axis = s.axis;
+    m.normal = s.normal;
+    m.velocity = s.velocity;
+    m.angular_velocity = s.angular_velocity;
+    m.contact_segment = s.contact_segment;
+    m.contact_force = s.contact_force;
+    m.contacts = s.contacts;
+    m.worst_gap = s.worst_gap;
+    m.sweeps = s.sweeps;
+    m.pairs = s.pairs;
+    m.candidates = s.candidates;
+    m.locked = s.locked;
+    m.frozen = s.frozen;
 }

@@ -860,7 +860,13 @@ impl ServedPiece {
             source,
         })?;
         let t0 = Instant::now();
-        GroupSnapshot::capture(&self.group, step).write(&checkpoints::piece(&dir, &self.node))?;
+        let path = checkpoints::piece(&dir, &self.node);
+        // atomic: a crash leaves the old file or the new one
+        checkpoints::write_atomic(&path, &GroupSnapshot::capture(&self.group, step).to_bytes())
+            .map_err(|source| CheckpointError::Io {
+                path: path.display().to_string(),
+                source,
+            })?;
         tracing::info!(
             node = %self.node,
             step,

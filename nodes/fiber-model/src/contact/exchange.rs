@@ -1,17 +1,157 @@
 //! Contact across the shards of a group, and between the groups of a suspension: each
 //! piece (a shard's slice of a group's fibres, in a process of its own) makes its free
-//! step and sends it to the suspension's first piece
-//! ([`fiberflow_messages::FiberFreeStep`]), which solves contact over all of them
-//! ([`crate::group::FibreGroup::resolve_contact_for`]) and sends each other piece what the
-//! solve did to its fibres ([`fiberflow_messages::FiberContactSolved`], taken by
+//! step and sends it to the suspension's first piece ([`FreeStep`]), which solves contact
+//! over all of them ([`crate::group::FibreGroup::resolve_contact_for`]) and sends each
+//! other piece what the solve did to its fibres ([`ContactSolved`], taken by
 //! [`crate::group::FibreGroup::apply_contact_solved`]). The solve runs over all pieces in
 //! the (fibre, segment) order of one unsharded group, so every piece's fibres end the step
 //! with the bits that group gives them, whatever the shard count (docs/contact.md,
-//! "Across shards").
+//! "Across shards"). How the two travel is the fibre node's (its messages
+//! `FiberFreeStep` and `FiberContactSolved` carry these fields).
 
 use crate::fibre::{Fibre, FlatSegments};
-use fiberflow_messages::FiberFreeStep;
 use nalgebra::Vector3;
+
+/// A piece's free step: per fibre its segment count, per segment 3 values of each array —
+/// the step's start (centre, axis, normal) and after the free step.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FreeStep {
+    pub step: u64,
+    /// The piece's first fibre in its group.
+    pub first_fiber: u32,
+    pub segments_per_fiber: Vec<u32>,
+    pub start_centre: Vec<f64>,
+    pub start_axis: Vec<f64>,
+    pub start_normal: Vec<f64>,
+    pub centre: Vec<f64>,
+    pub axis: Vec<f64>,
+    pub normal: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub angular_velocity: Vec<f64>,
+}
+
+/// What the contact solve of a step did to one piece: its moved fibres' segments after
+/// the solve (3 values each), its contact load, and the solve's summary.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContactSolved {
+    /// Fibres in the piece.
+    pub fibers: u32,
+    /// The piece's fibres the solve moved (indices within the piece, ascending).
+    pub moved: Vec<u32>,
+    /// Per moved fibre: its number of segments.
+    pub moved_segments: Vec<u32>,
+    pub centre: Vec<f64>,
+    pub axis: Vec<f64>,
+    pub normal: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub angular_velocity: Vec<f64>,
+    /// Contact load: segments (within the piece, ascending), 3 force values each, pairs.
+    pub contact_segment: Vec<u32>,
+    pub contact_force: Vec<f64>,
+    pub contacts: Vec<u32>,
+    /// Smallest centre-line gap minus contact distance after the whole solve.
+    pub worst_gap: f64,
+    pub sweeps: u32,
+    /// Pairs that touched in the whole solve.
+    pub pairs: u32,
+    pub candidates: u32,
+    /// The piece's fibres locked into one body, and kept where they started.
+    pub locked: Vec<u32>,
+    pub frozen: Vec<u32>,
+}
+
+/// Arrays of 3 finite values per segment of fibres of `counts` segments each.
+fn per_segment(counts: &[u32], arrays: &[(&str, &[f64])]) -> Result<(), ExchangeError> {
+    let want = 3 * counts.iter().map(|&n| n as usize).sum::<usize>();
+    for (name, v) in arrays {
+        if v.len() != want {
+            return Err(ExchangeError::Insane(format!(
+                "{name} holds {} values, the segments ask for {want}",
+                v.len()
+            )));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(ExchangeError::Insane(format!("{name} is not finite")));
+        }
+    }
+    Ok(())
+}
+
+/// `xs` ascending, each below `n`.
+fn ascending_below(name: &str, xs: &[u32], n: usize) -> Result<(), ExchangeError> {
+    let ordered = xs.windows(2).all(|w| w[0] < w[1]);
+    if !ordered || xs.last().is_some_and(|&l| l as usize >= n) {
+        return Err(ExchangeError::Insane(format!(
+            "{name} is not ascending below {n}"
+        )));
+    }
+    Ok(())
+}
+
+impl FreeStep {
+    /// Every array as long as the segments ask, every value finite.
+    pub fn check(&self) -> Result<(), ExchangeError> {
+        per_segment(
+            &self.segments_per_fiber,
+            &[
+                ("start_centre", &self.start_centre),
+                ("start_axis", &self.start_axis),
+                ("start_normal", &self.start_normal),
+                ("centre", &self.centre),
+                ("axis", &self.axis),
+                ("normal", &self.normal),
+                ("velocity", &self.velocity),
+                ("angular_velocity", &self.angular_velocity),
+            ],
+        )
+    }
+}
+
+impl ContactSolved {
+    /// The lists ascending within the piece, every array as long as the moved fibres and
+    /// the loaded segments ask, every value finite (what the piece itself checks:
+    /// the fibres' and segments' counts).
+    pub fn check(&self) -> Result<(), ExchangeError> {
+        let n = self.fibers as usize;
+        if self.moved_segments.len() != self.moved.len() {
+            return Err(ExchangeError::Insane(format!(
+                "{} moved fibres, {} segment counts",
+                self.moved.len(),
+                self.moved_segments.len()
+            )));
+        }
+        ascending_below("moved", &self.moved, n)?;
+        ascending_below("locked", &self.locked, n)?;
+        ascending_below("frozen", &self.frozen, n)?;
+        per_segment(
+            &self.moved_segments,
+            &[
+                ("centre", &self.centre),
+                ("axis", &self.axis),
+                ("normal", &self.normal),
+                ("velocity", &self.velocity),
+                ("angular_velocity", &self.angular_velocity),
+            ],
+        )?;
+        let nc = self.contact_segment.len();
+        if self.contacts.len() != nc || self.contact_force.len() != 3 * nc {
+            return Err(ExchangeError::Insane(format!(
+                "{nc} loaded segments, {} counts and {} force values",
+                self.contacts.len(),
+                self.contact_force.len()
+            )));
+        }
+        if self.contact_force.iter().any(|x| !x.is_finite()) {
+            return Err(ExchangeError::Insane("contact_force is not finite".into()));
+        }
+        if self.contact_segment.windows(2).any(|w| w[0] >= w[1]) {
+            return Err(ExchangeError::Insane(
+                "contact_segment is not ascending".into(),
+            ));
+        }
+        Ok(())
+    }
+}
 
 /// Another shard's slice of the group after its free step, as this shard's contact solve
 /// reads it. Its fibres' properties are fixed (every shard builds the whole group at
@@ -70,9 +210,8 @@ impl OtherPiece {
     /// Takes the segments of a free step of this piece (checked: its fibres, their
     /// segment counts, every array's length and finiteness). The hydrodynamic force is
     /// left zero: the solve does not read it, and only the owning shard keeps the fibre.
-    pub fn read(&mut self, m: &FiberFreeStep) -> Result<(), ExchangeError> {
-        use fiberflow_messages::sanity::Sane;
-        m.check().map_err(ExchangeError::Insane)?;
+    pub fn read(&mut self, m: &FreeStep) -> Result<(), ExchangeError> {
+        m.check()?;
         if m.first_fiber as usize != self.first_fiber
             || m.segments_per_fiber.len() != self.after.len()
         {
@@ -152,8 +291,6 @@ mod tests {
         }
 
         fn step(&mut self, fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample, step: u64) {
-            use fiberflow_messages::{decode, encode, FiberContactSolved};
-            let total: usize = self.groups.iter().map(|(_, g)| g.len()).sum();
             let mut sent = Vec::new();
             for (first, g) in self.groups.iter_mut() {
                 let samples: Vec<FluidSample> = (0..g.len())
@@ -164,39 +301,26 @@ mod tests {
                     })
                     .collect();
                 g.step_free(&samples, DT).unwrap();
-                let mut m = FiberFreeStep {
-                    schema_version: fiberflow_messages::SCHEMA_VERSION,
-                    group: "g".into(),
+                let mut m = FreeStep {
                     step,
-                    t_plus: step as f64 * DT,
                     first_fiber: *first as u32,
-                    group_fibers: total as u32,
                     ..Default::default()
                 };
                 g.fill_free_step(&mut m);
-                sent.push(encode(&m));
+                sent.push(m);
             }
-            for (o, bytes) in self.others.iter_mut().zip(&sent[1..]) {
-                o.read(&decode::<FiberFreeStep>(bytes).unwrap()).unwrap();
+            for (o, m) in self.others.iter_mut().zip(&sent[1..]) {
+                o.read(m).unwrap();
             }
-            let mut solved: Vec<FiberContactSolved> = self.groups[1..]
+            let mut solved: Vec<ContactSolved> = self.groups[1..]
                 .iter()
-                .map(|(first, _)| FiberContactSolved {
-                    schema_version: fiberflow_messages::SCHEMA_VERSION,
-                    group: "g".into(),
-                    step,
-                    t_plus: step as f64 * DT,
-                    first_fiber: *first as u32,
-                    group_fibers: total as u32,
-                    ..Default::default()
-                })
+                .map(|_| ContactSolved::default())
                 .collect();
             let (first, solver) = &mut self.groups[0];
             solver.resolve_contact_for(*first, &self.others, DT, &mut solved);
             let pairs = solver.contact_pairs();
             for ((first, g), m) in self.groups[1..].iter_mut().zip(&solved) {
-                let m = decode::<FiberContactSolved>(&encode(m)).unwrap();
-                g.apply_contact_solved(*first, &m).unwrap();
+                g.apply_contact_solved(*first, m).unwrap();
                 assert_eq!(
                     g.contact_pairs(),
                     pairs,
@@ -460,13 +584,9 @@ mod tests {
             ],
         );
         let mut piece = OtherPiece::new(2, 2, g.fibres());
-        let mut m = FiberFreeStep {
-            schema_version: fiberflow_messages::SCHEMA_VERSION,
-            group: "g".into(),
+        let mut m = FreeStep {
             step: 0,
-            t_plus: 0.0,
             first_fiber: 2,
-            group_fibers: 4,
             ..Default::default()
         };
         let mut g2 = g.clone();
@@ -498,7 +618,6 @@ mod tests {
     /// is taken.
     #[test]
     fn a_solved_part_that_does_not_fit_is_refused() {
-        use fiberflow_messages::FiberContactSolved;
         let fibres = vec![
             fibre(Vector3::zeros(), Vector3::x()),
             fibre(Vector3::new(0.0, 0.5 * D, 0.0), Vector3::z()),
@@ -516,19 +635,11 @@ mod tests {
         let samples: Vec<FluidSample> = (0..7).map(|_| still(0, &Vector3::zeros())).collect();
         first.step_free(&samples, DT).unwrap();
         second.step_free(&samples, DT).unwrap();
-        let mut free = FiberFreeStep::default();
+        let mut free = FreeStep::default();
         second.fill_free_step(&mut free);
         free.first_fiber = 1;
-        free.group_fibers = 2;
-        free.group = "g".into();
         shards.others[0].read(&free).unwrap();
-        let mut part = vec![FiberContactSolved {
-            schema_version: fiberflow_messages::SCHEMA_VERSION,
-            group: "g".into(),
-            first_fiber: 1,
-            group_fibers: 2,
-            ..Default::default()
-        }];
+        let mut part = vec![ContactSolved::default()];
         first.resolve_contact_for(0, &shards.others, DT, &mut part);
         let m = &part[0];
         assert_eq!(
@@ -537,13 +648,12 @@ mod tests {
             "the overlapping pair moved the second fibre"
         );
         let held = second.fibres();
-        let refused = |bad: &FiberContactSolved, second: &mut FibreGroup| {
+        let refused = |bad: &ContactSolved, second: &mut FibreGroup| {
             assert!(second.apply_contact_solved(1, bad).is_err());
             assert_eq!(second.fibres(), held, "a refused part changed the piece");
         };
         let mut more = m.clone();
         more.fibers = 2;
-        more.group_fibers = 3;
         refused(&more, &mut second);
         let mut short = m.clone();
         short.moved_segments[0] = 6;
