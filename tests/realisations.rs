@@ -80,21 +80,7 @@ fn a_realisation_is_the_same_bits_everywhere_and_its_own_start() {
     // ... and over iceoryx2 with the flow node killed after the first checkpoint: rolled
     // back, resumed from the checkpoint (not disturbed again), the same bits
     let out = dir.join("r2-kill");
-    std::fs::create_dir_all(&out).unwrap();
-    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
-    let mut child = cmd(&out, "iceoryx2", &sets(Some(2), 1))
-        .stdout(std::process::Stdio::null())
-        .stderr(se)
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&out, 90);
-    let spec = out.join("config/flow.toml").display().to_string();
-    let pids = pids_with(&spec);
-    assert_eq!(pids.len(), 1, "flow node not found (run over already?)");
-    unsafe { libc::kill(pids[0], libc::SIGKILL) };
-    assert!(child.wait().unwrap().success());
-    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
-    assert!(err.contains("restarting every node from step"), "{err}");
+    launch_and_kill_the_flow_node(cmd(&out, "iceoryx2", &sets(Some(2), 1)), &out);
     assert_same(&a, &whole_states(&out), "realisation 2, flow node killed");
 
     // another realisation: case1 placed elsewhere; a group in fixed layers starts where it

@@ -148,21 +148,7 @@ fn two_way_is_bitwise_over_transports_shards_and_a_kill() {
     // kill -9 of the flow node after the first checkpoint: rolled back, resumed, and every
     // state bitwise that of the uninterrupted run
     let out = dir.join("kill-flow");
-    std::fs::create_dir_all(&out).unwrap();
-    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
-    let mut child = cmd(&out, "iceoryx2", &sets("two-way", 1))
-        .stdout(std::process::Stdio::null())
-        .stderr(se)
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&out, 90);
-    let spec = out.join("config/flow.toml").display().to_string();
-    let pids = pids_with(&spec);
-    assert_eq!(pids.len(), 1, "flow node not found (run over already?)");
-    unsafe { libc::kill(pids[0], libc::SIGKILL) };
-    assert!(child.wait().unwrap().success());
-    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
-    assert!(err.contains("restarting every node from step"), "{err}");
+    launch_and_kill_the_flow_node(cmd(&out, "iceoryx2", &sets("two-way", 1)), &out);
     let (resumed, segments) = states_by_step_merged(&out);
     assert!(segments >= 2, "a restart records into a new segment");
     assert_same(&a, &resumed, "kill -9 flow, restarted");

@@ -374,6 +374,27 @@ pub fn assert_same_states(
     }
 }
 
+/// Runs `launch` (a `fiberflow launch … --out out` command), kills its flow node with
+/// SIGKILL once the run has its first complete checkpoint, and checks that the launcher
+/// rolled every node back and finished the run.
+pub fn launch_and_kill_the_flow_node(mut launch: Command, out: &Path) {
+    std::fs::create_dir_all(out).unwrap();
+    let se = std::fs::File::create(out.with_extension("stderr")).unwrap();
+    let mut child = launch
+        .stdout(std::process::Stdio::null())
+        .stderr(se)
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(out, 90);
+    let spec = out.join("config/flow.toml").display().to_string();
+    let pids = pids_with(&spec);
+    assert_eq!(pids.len(), 1, "flow node not found (run over already?)");
+    unsafe { libc::kill(pids[0], libc::SIGKILL) };
+    assert!(child.wait().unwrap().success());
+    let err = std::fs::read_to_string(out.with_extension("stderr")).unwrap();
+    assert!(err.contains("restarting every node from step"), "{err}");
+}
+
 /// Waits until the run has a complete checkpoint (a manifest).
 pub fn wait_for_checkpoint(out: &Path, secs: u64) {
     let t0 = std::time::Instant::now();
