@@ -4,6 +4,10 @@
 pub mod config;
 mod exchange;
 mod flow_watch;
+mod lockstep;
+mod piece;
+mod publish;
 pub mod serve;
+mod tally;
 
 pub use config::FiberNodeConfig;

@@ -395,7 +395,7 @@ fn run_fibre_nodes(
         };
         nodes.push((cfg, p.index));
     }
-    let ck = fiberflow_fiber::serve::Checkpointing {
+    let ck = fiberflow_fiber::serve::RunSettings {
         start_step: spec.start_step,
         resume_dir: spec.resume_dir.clone(),
         every: lf.run.checkpoint_every_steps(),
