@@ -56,7 +56,7 @@ impl Entry {
 /// (the 104-byte [`Entry`] is made again only for the pairs that pass): its mid-step
 /// centre (folded into the box along the periodic directions), its displacement over the
 /// step, its axis at the start, its half length, `rho` (its radius plus its turn) and its
-/// fibre. In single precision, `rho` rounded out so that every pair [`pair`] may keep
+/// fibre. In single precision, `rho` rounded out so that every pair [`super::pairs::pair`] may keep
 /// passes [`Point::near`].
 #[derive(Debug, Clone, Copy, Default)]
 #[repr(C, align(16))]
@@ -88,7 +88,7 @@ impl Point {
     }
 
     /// Whether segments `self` and `other` may come within reach in the step, by
-    /// necessary conditions on what [`pair`] tests exactly: their mid-step centres within
+    /// necessary conditions on what [`super::pairs::pair`] tests exactly: their mid-step centres within
     /// `first` (nine pairs in ten fail here), then their start segments — widened by their
     /// radii, their turns, their relative displacement and `margin2` — by the projections
     /// of the line between their centres onto itself, onto each axis and onto the normal

@@ -17,8 +17,8 @@ pub(super) fn slack(limit: f64) -> f64 {
 
 /// The candidate pair of segments a and b (a before b in fibre-major order) from their
 /// ends and axes at the moment the pair's side is taken, if their centre-lines come within
-/// their contact distance plus `skin` (the old pairs' rule of [`Search::pairs`], the fresh
-/// ones' of [`Search::around`] with no skin).
+/// their contact distance plus `skin` (the old pairs' rule of [`super::Search::pairs`], the fresh
+/// ones' of [`super::Search::around`] with no skin).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn candidate(
     a: (usize, usize),
@@ -77,7 +77,7 @@ pub(super) fn motion((was, now): &(Pose, Pose)) -> (Vector3<f64>, f64) {
 /// motion of 2048 contact distances within the step).
 pub(super) const MAX_WAY_MOMENTS: u32 = 4096;
 
-/// A pair found after a round of corrections ([`Search::around`]), segments a and b each
+/// A pair found after a round of corrections ([`super::Search::around`]), segments a and b each
 /// at the start of the step and now, if it overlaps now: centre-lines closer than the
 /// contact distance by more than 10⁻⁶ of it. Its side: where they are now, unless their
 /// centre-lines came within half a contact distance of each other somewhere on the
@@ -132,7 +132,7 @@ pub(super) fn fresh_pair(
     Some(c)
 }
 
-/// The candidate pair of two segments in the step ([`Search::pairs`]): segments of
+/// The candidate pair of two segments in the step ([`super::Search::pairs`]): segments of
 /// different fibres, or non-adjacent segments of one fibre (adjacent ones share a joint),
 /// whose mid-step centres are close enough for them to touch at some
 /// moment of the step — within (l_a + l_b)/2 + (d_a + d_b)/2 + |Δr_a − Δr_b|/2 + turn_a +
