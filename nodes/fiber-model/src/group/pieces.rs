@@ -167,7 +167,7 @@ impl FibreGroup {
 
 /// A shard's own fibres (kept as [`Kept`]) between the other shards' ([`OtherPiece`]s), in
 /// the whole group's order of first fibres: the group the contact solve of
-/// [`FibreGroup::resolve_contact_with`] reads.
+/// [`FibreGroup::resolve_contact_for`] reads.
 struct Joined<'a> {
     own: Kept<'a>,
     others: &'a [OtherPiece],
