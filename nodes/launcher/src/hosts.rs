@@ -79,7 +79,7 @@ impl Role {
     ) -> Result<Next> {
         match self {
             Self::Worker => follow(base, pieces, stop),
-            _ => crate::launch::roll_back(base, pieces, digest).map(|_| Next::Run),
+            _ => crate::supervise::roll_back(base, pieces, digest).map(|_| Next::Run),
         }
     }
 }

@@ -21,3 +21,4 @@ pub mod progress;
 pub mod run_lock;
 pub mod scheduling;
 pub mod spinup_cmd;
+pub mod supervise;
