@@ -4,15 +4,26 @@
 //! channel per flow slice for generic viewers;
 //! flushes a chunk at least every second so a killed recorder loses at most that much.
 //!
-//! Size: the recorder's loop, its file writer and the segment/resume handling share one
-//! state (the open segment, its channel table and flush clock); the derived channels
+//! This file is the recorder's loop (its session: the open segment, what it holds back,
+//! its flush clock); the file it writes is [`writer`], what it is told of the run
+//! [`plan`], what a run folder already holds [`recorded`]; the derived channels
 //! (pointcloud, image), the O_DIRECT sink (direct) and recovery live in their own files.
+//! Size (≈ 660 lines before the tests): the session — what it holds back until a step is
+//! whole, when it starts a segment, how it ends — is one state machine over one open file.
 
 pub mod direct;
 pub mod image;
+mod plan;
 pub mod pointcloud;
+mod recorded;
 pub mod recover;
 pub mod ros;
+mod writer;
+
+pub use plan::{write_options, ChunkCompression, RecordPlan};
+pub use recorded::{recorded_steps, Recorded, RECORDED_WINDOW_STEPS};
+pub use writer::t_plus_to_nanos;
+use writer::{open_recording, Out};
 
 use fiberflow_bus::pulse::{Beat, Pulse, Watch};
 use fiberflow_bus::{BusHandle, DropCounter, Inbox};
@@ -23,7 +34,7 @@ use fiberflow_messages::Lifecycle;
 use fiberflow_messages::{
     checkpoints, decode, encode, sanity, schema, FiberGroupState, Heartbeat, SCHEMA_VERSION,
 };
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -76,241 +87,10 @@ pub struct RecordSummary {
     pub busy_s: f64,
 }
 
-struct Out {
-    w: mcap::Writer<direct::RecordingFile>,
-    path: String,
-    schemas: HashMap<&'static str, u16>,
-    channels: HashMap<String, u16>,
-    seq: u32,
-}
-
-impl Out {
-    fn err(&self) -> impl Fn(mcap::McapError) -> RecorderError + '_ {
-        move |source| RecorderError::Mcap {
-            path: self.path.clone(),
-            source,
-        }
-    }
-
-    fn channel(&mut self, topic: &str, type_name: &'static str) -> Result<u16, RecorderError> {
-        if let Some(&c) = self.channels.get(topic) {
-            return Ok(c);
-        }
-        let sid = match self.schemas.get(type_name) {
-            Some(&s) => s,
-            None => {
-                let s = self
-                    .w
-                    .add_schema(type_name, "ros2msg", schema::text(type_name).as_bytes())
-                    .map_err(|source| RecorderError::Mcap {
-                        path: self.path.clone(),
-                        source,
-                    })?;
-                self.schemas.insert(type_name, s);
-                s
-            }
-        };
-        let mut meta = BTreeMap::new();
-        meta.insert("schema_version".to_string(), SCHEMA_VERSION.to_string());
-        let c = self
-            .w
-            .add_channel(sid, topic, "cdr", &meta)
-            .map_err(|source| RecorderError::Mcap {
-                path: self.path.clone(),
-                source,
-            })?;
-        self.channels.insert(topic.to_string(), c);
-        Ok(c)
-    }
-
-    fn write(&mut self, channel: u16, log_time: u64, data: &[u8]) -> Result<(), RecorderError> {
-        self.seq = self.seq.wrapping_add(1);
-        // log time: simulation time (1 t+ = 1 s); publish time: wall clock of receipt
-        let wall = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos() as u64)
-            .unwrap_or(0);
-        let header = mcap::records::MessageHeader {
-            channel_id: channel,
-            sequence: self.seq,
-            log_time,
-            publish_time: wall,
-        };
-        let path = self.path.clone();
-        self.w
-            .write_to_known_channel(&header, data)
-            .map_err(|source| RecorderError::Mcap { path, source })
-    }
-}
-
-/// Simulation time in nanoseconds on the MCAP timeline: 1 t+ = 1 s.
-pub fn t_plus_to_nanos(t_plus: f64) -> u64 {
-    (t_plus.max(0.0) * 1e9).round() as u64
-}
-
 /// How long the recorder waits, after the flow node's DONE, for anything more to arrive.
 const QUIET_AFTER_FLOW_DONE: Duration = Duration::from_secs(3);
 /// How long it waits after every fibre node's last state when no DONE came.
 const QUIET_AFTER_LAST_STATES: Duration = Duration::from_secs(10);
-
-/// What the recorder needs to know of the run beyond its topics.
-#[derive(Debug, Clone, Default)]
-pub struct RecordPlan {
-    /// Fibre groups of the run.
-    pub groups: Vec<String>,
-    /// (group, first fibre) of every fibre node (empty: one per group).
-    pub pieces: Vec<(String, u32)>,
-    /// Fibre node names (a group's name, or `<group>.<i>` for a shard).
-    pub nodes: Vec<String>,
-    /// Coupling steps of the run.
-    pub steps: u64,
-    /// Coupled checkpoints: every this many steps (0 = never) under `checkpoint_root`.
-    pub checkpoint_every: u64,
-    pub checkpoint_root: Option<PathBuf>,
-    /// The step the run (re)starts from.
-    pub start_step: u64,
-    /// Segments recorded before this one: what they hold is not written again, so the
-    /// segments together hold every step-stamped message exactly once.
-    pub previous_segments: Vec<PathBuf>,
-    /// Full states (and their PointCloud2) every this many steps, plus the first and the
-    /// last step (0 counts as 1).
-    pub states_every_steps: u64,
-    /// Record the flow samples.
-    pub samples: bool,
-    /// How the file's chunks are compressed.
-    pub compression: ChunkCompression,
-}
-
-/// `[recorder] compression`: how the MCAP chunks are compressed. zstd (level 1) makes the
-/// smallest files; lz4 costs the recorder a fraction of zstd's CPU; none writes the
-/// messages as they are (the costs: docs/history/performance.md, "From the code's
-/// comments"). Rerun, Foxglove and the Python `mcap` reader open all three.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    schemars::JsonSchema,
-)]
-#[serde(rename_all = "lowercase")]
-pub enum ChunkCompression {
-    #[default]
-    Zstd,
-    Lz4,
-    None,
-}
-
-/// The zstd level of the chunks (1, the fastest; mcap's default would be 3).
-const ZSTD_LEVEL: u32 = 1;
-
-/// The MCAP writer's options of a recording: chunks of 4 MB compressed as `compression`
-/// says, written in file order.
-pub fn write_options(compression: ChunkCompression, software_version: &str) -> mcap::WriteOptions {
-    mcap::WriteOptions::new()
-        .compression(compression.mcap())
-        // zstd's fastest level: the numbers in these files are mostly mantissas that no
-        // level compresses much
-        .compression_level(ZSTD_LEVEL)
-        .chunk_size(Some(4 * 1024 * 1024))
-        // each chunk is built in memory and written after its header, in file order
-        .disable_seeking(true)
-        .profile("ros2")
-        .library(format!("fiberflow {software_version}"))
-}
-
-impl ChunkCompression {
-    fn mcap(self) -> Option<mcap::Compression> {
-        match self {
-            Self::Zstd => Some(mcap::Compression::Zstd),
-            Self::Lz4 => Some(mcap::Compression::Lz4),
-            Self::None => None,
-        }
-    }
-}
-
-impl RecordPlan {
-    /// Is a state of step `k` recorded?
-    pub fn keeps_state(&self, k: u64) -> bool {
-        k.is_multiple_of(self.states_every_steps.max(1)) || k == self.steps
-    }
-}
-
-/// Steps below the newest by more than this count as recorded without being remembered.
-pub const RECORDED_WINDOW_STEPS: u64 = 10_000;
-
-/// The step-stamped messages already recorded, per topic and slice (first fibre of a
-/// sharded group's piece): every step within [`RECORDED_WINDOW_STEPS`] of the newest
-/// exactly, and everything older as recorded. A topic's messages arrive in step order
-/// (a node resends only the step it waits on; a resumed run's earlier segments hold a
-/// prefix of each topic's steps), so this is the set of every recorded step for any run,
-/// while memory grows with the topics, not the steps: a set of every (topic, step) grew
-/// by ≈ 2 MB/s over a 10⁶-step run (docs/architecture.md).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Recorded {
-    by_slice: BTreeMap<(String, u32), (u64, BTreeSet<u64>)>,
-}
-
-impl Recorded {
-    /// Whether step `k` of `topic` (slice `first`) is recorded already.
-    pub fn contains(&self, topic: &str, k: u64, first: u32) -> bool {
-        self.by_slice
-            .get(&(topic.to_string(), first))
-            .is_some_and(|(newest, steps)| {
-                k.saturating_add(RECORDED_WINDOW_STEPS) < *newest || steps.contains(&k)
-            })
-    }
-
-    /// Marks step `k` recorded; false if it was already.
-    pub fn insert(&mut self, topic: &str, k: u64, first: u32) -> bool {
-        if self.contains(topic, k, first) {
-            return false;
-        }
-        let (newest, steps) = self
-            .by_slice
-            .entry((topic.to_string(), first))
-            .or_insert((k, BTreeSet::new()));
-        steps.insert(k);
-        if k > *newest {
-            *newest = k;
-            let floor = newest.saturating_sub(RECORDED_WINDOW_STEPS);
-            if steps.first().is_some_and(|&f| f < floor) {
-                *steps = steps.split_off(&floor);
-            }
-        }
-        true
-    }
-
-    /// Steps remembered exactly, over every topic and slice.
-    pub fn remembered(&self) -> usize {
-        self.by_slice.values().map(|(_, s)| s.len()).sum()
-    }
-}
-
-/// Every step-stamped message in `segments` (a damaged tail ends a file).
-pub fn recorded_steps(segments: &[PathBuf]) -> Recorded {
-    let mut seen = Recorded::default();
-    for p in segments {
-        // streamed (recordings reach gigabytes); a damaged tail ends the file
-        let _ = recover::for_each_message(p, |topic, data| {
-            let Some(kind) = kind_of(topic) else {
-                return;
-            };
-            if let Ok(sanity::Stamp {
-                step: Some(step),
-                first_fiber,
-                ..
-            }) = sanity::check_payload(kind, data)
-            {
-                seen.insert(topic, step, first_fiber);
-            }
-        });
-    }
-    seen
-}
 
 /// The recorder's running state between messages.
 struct Session<'a> {
@@ -791,52 +571,6 @@ fn drain(inbox: &mut Inbox, sess: &mut Session, limit: Duration) -> Result<u64, 
     Ok(n)
 }
 
-/// Creates the MCAP file at `path` (and its folder) with the run's provenance and the
-/// recording plan as metadata.
-fn open_recording(
-    path: &Path,
-    meta: &RunMetadata,
-    plan: &RecordPlan,
-) -> Result<Out, RecorderError> {
-    let pstr = path.display().to_string();
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|source| RecorderError::Io {
-            path: pstr.clone(),
-            source,
-        })?;
-    }
-    let file = direct::RecordingFile::create(path).map_err(|source| RecorderError::Io {
-        path: pstr.clone(),
-        source,
-    })?;
-    let opts = write_options(plan.compression, &meta.software_version);
-    let w = opts.create(file).map_err(|source| RecorderError::Mcap {
-        path: pstr.clone(),
-        source,
-    })?;
-    let mut out = Out {
-        w,
-        path: pstr.clone(),
-        schemas: HashMap::new(),
-        channels: HashMap::new(),
-        seq: 0,
-    };
-    write_provenance(&mut out, meta)?;
-    let mut rec = BTreeMap::new();
-    rec.insert(
-        "states_every_steps".to_string(),
-        plan.states_every_steps.max(1).to_string(),
-    );
-    rec.insert("samples".to_string(), plan.samples.to_string());
-    out.w
-        .write_metadata(&mcap::records::Metadata {
-            name: "fiberflow.recording".into(),
-            metadata: rec,
-        })
-        .map_err(out.err())?;
-    Ok(out)
-}
-
 /// The topics the recorder subscribes to: everything of the run, or everything but the
 /// flow's samples (at scale as large as the states, and every copy to the recorder costs).
 /// Never the shards' contact exchange (`contact/**`: each piece's free step, internal to
@@ -909,7 +643,7 @@ fn finish(
 
 /// How often (in recorded steps) the recorder says at once how far it has recorded; the
 /// flow node holds the run when it would get more than
-/// [`lifecycle::RECORDER_LAG_STEPS`] ahead.
+/// [`fiberflow_messages::lifecycle::RECORDER_LAG_STEPS`] ahead.
 const REPORT_EVERY_STEPS: u64 = 2;
 
 /// A heartbeat of the recorder itself.
@@ -921,47 +655,6 @@ fn own_heartbeat(state: Lifecycle, step: u64, dropped: u64) -> Heartbeat {
         step,
         dropped,
     }
-}
-
-fn write_provenance(out: &mut Out, meta: &RunMetadata) -> Result<(), RecorderError> {
-    let mut m = BTreeMap::new();
-    m.insert("run_id".to_string(), meta.run_id.clone());
-    m.insert(
-        "software_version".to_string(),
-        meta.software_version.clone(),
-    );
-    m.insert("git_commit".to_string(), meta.git_commit.clone());
-    m.insert("schema_version".to_string(), SCHEMA_VERSION.to_string());
-    m.insert("transport".to_string(), meta.transport.clone());
-    m.insert("launch_file".to_string(), meta.launch_file_name.clone());
-    out.w
-        .write_metadata(&mcap::records::Metadata {
-            name: "fiberflow.run".into(),
-            metadata: m,
-        })
-        .map_err(out.err())?;
-    let mut cfgs = BTreeMap::new();
-    for (k, v) in &meta.node_configs {
-        cfgs.insert(k.clone(), v.clone());
-    }
-    out.w
-        .write_metadata(&mcap::records::Metadata {
-            name: "fiberflow.node_configs".into(),
-            metadata: cfgs,
-        })
-        .map_err(out.err())?;
-    if !meta.launch_text.is_empty() {
-        out.w
-            .attach(&mcap::Attachment {
-                log_time: 0,
-                create_time: 0,
-                name: meta.launch_file_name.clone(),
-                media_type: "application/toml".into(),
-                data: std::borrow::Cow::Borrowed(meta.launch_text.as_bytes()),
-            })
-            .map_err(out.err())?;
-    }
-    Ok(())
 }
 
 #[cfg(test)]
