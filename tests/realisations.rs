@@ -108,9 +108,12 @@ fn a_realisation_is_the_same_bits_everywhere_and_its_own_start() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let md =
         std::fs::read_to_string(dir.join("r2-inproc-realisations/flow_modulation.md")).unwrap();
-    assert!(md.contains("2 laden and 2 unladen realisations"), "{md}");
     assert!(
-        md.contains("| laden 2 |") && md.contains("| unladen 2 |"),
+        md.contains("2 realisations of this run and 2 unladen"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| run 2 |") && md.contains("| unladen 2 |"),
         "{md}"
     );
     assert!(

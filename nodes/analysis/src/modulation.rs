@@ -466,11 +466,12 @@ fn per_realisation_table(
     batches: usize,
 ) -> String {
     let mut md = String::from(
-        "\nEach realisation on its own (batch means, 95%):\n\n| realisation | pressure gradient Π | C_f |\n|---|---|---|\n",
+        "\nEach realisation on its own (batch means, 95%; run: the runs analysed, unladen: \
+         those given with --unladen):\n\n| realisation | pressure gradient Π | C_f |\n|---|---|---|\n",
     );
     let rows = runs
         .iter()
-        .map(|r| ("laden", r))
+        .map(|r| ("run", r))
         .chain(bases.iter().map(|b| ("unladen", b)));
     let mut counts = [0usize; 2];
     for (kind, f) in rows {
@@ -512,7 +513,7 @@ fn scalar_table(
     let mut md = String::new();
     let pooled = if counts[0] > 1 || counts[1] > 1 {
         format!(
-            " per run; {} laden and {} unladen realisations, each quantity's mean over all \
+            " per run; {} realisations of this run and {} unladen, each quantity's mean over all \
              their batches with Student's t over them, or over the realisations' means where \
              those scatter beyond their batches (marked *; docs/realisations.md)",
             counts[0], counts[1]
