@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The runs of the drag study (docs/realisations.md): realisations of the unladen channel and
 # of case-1 fibres two-way at mass loading 0.4 and 1.0, each 2500 t+ of launch/two-way.toml
-# (the first 500 the transient, the last 2000 the statistics), one after another. A run
+# (the first 500 the transient, the last 2000 the statistics: two batches of 1000 t+, long
+# enough to be independent), one after another. A run
 # stopped half-way resumes from its newest checkpoint; a finished one is skipped, so the
 # script can be started again after any stop.
 #
@@ -11,7 +12,7 @@
 #
 # Then, for example:
 #   fiberflow analyze recordings/drag/two-way-0.4-r{1,2,3,4} \
-#     --unladen recordings/drag/unladen-r{1,2,3,4,5,6} --transient-plus 500 --batches 20
+#     --unladen recordings/drag/unladen-r{1,2,3,4,5,6} --transient-plus 500 --batches 2
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 FF=${FIBERFLOW:-target/release/fiberflow}
