@@ -6,6 +6,7 @@
 
 mod contact;
 mod scale;
+mod scale_tables;
 mod slicing;
 mod stages;
 

@@ -6,12 +6,12 @@
 //! step wall), and the CPU time all processes of a run used (on a saturated machine the
 //! wall follows the CPU, not the transport).
 //!
-//! Size: one file, because its parts (configurations, rounds, the log lines it reads, the
-//! paired ratios and the table) change together whenever a measurement changes; it is
-//! benchmark tooling, outside the product binary.
+//! The paired ratios and the tables are [`crate::scale_tables`]. Size (≈ 700 lines before
+//! the tests): the configurations, the rounds and the log lines it reads change together
+//! whenever a measurement changes.
 
+use crate::scale_tables::{compared_table, table};
 use anyhow::{bail, Context, Result};
-use fiberflow_analysis::bootstrap::{self, Interval};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -86,16 +86,16 @@ impl std::str::FromStr for Compare {
 
 /// One configuration of a round.
 #[derive(Debug, Clone, PartialEq)]
-struct Config {
-    fibres: u64,
+pub(crate) struct Config {
+    pub(crate) fibres: u64,
     /// The transport, or [`TWO_LAUNCHERS`].
-    transport: String,
+    pub(crate) transport: String,
     /// The compared key's setting (`key=value`), if any.
-    setting: Option<String>,
+    pub(crate) setting: Option<String>,
     /// The row's name: the transport, and the setting when one is compared.
-    label: String,
+    pub(crate) label: String,
     /// The label of the flow-only runs this configuration is compared with.
-    baseline: String,
+    pub(crate) baseline: String,
 }
 
 /// The configurations of one round, in the order of the first round: each transport's
@@ -234,28 +234,28 @@ fn baseline_of(transport: &str) -> &str {
 
 /// One run's figures, seconds.
 #[derive(Debug, Clone, Default)]
-struct Figures {
+pub(crate) struct Figures {
     /// Whole process, from start to exit.
-    process_s: f64,
+    pub(crate) process_s: f64,
     /// CPU time (user + system) of the launcher and every node it ran.
-    cpu_s: f64,
+    pub(crate) cpu_s: f64,
     /// CPU time of the flow node, every fibre node and the recorder during the steps
     /// (each from its own timing line).
-    nodes_cpu_s: f64,
+    pub(crate) nodes_cpu_s: f64,
     /// The flow node's loop, wall clock from its first step to its last (its stages and
     /// what lies between them); from logs without it, the sum of the stages.
-    loop_s: f64,
-    field_step_s: f64,
-    sampling_s: f64,
+    pub(crate) loop_s: f64,
+    pub(crate) field_step_s: f64,
+    pub(crate) sampling_s: f64,
     /// Flow node encoding + publishing samples, plus the groups' mean encoding +
     /// publishing of states and metrics.
-    flow_publish_s: f64,
-    group_publish_s: f64,
+    pub(crate) flow_publish_s: f64,
+    pub(crate) group_publish_s: f64,
     /// The groups' mean fibre step.
-    fibre_step_s: f64,
+    pub(crate) fibre_step_s: f64,
     /// The flow node waiting for states (fibre step + transport on the groups' side).
-    waiting_s: f64,
-    recording_s: f64,
+    pub(crate) waiting_s: f64,
+    pub(crate) recording_s: f64,
 }
 
 /// `key="value"` or `key=value` pairs of a log line.
@@ -330,7 +330,7 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
     Ok(f)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
     if n == 0 {
@@ -693,173 +693,10 @@ fn ensure_certificates(file: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The step wall of each run over that of the flow-only run of the same round (the runs
-/// of one round ran back to back, so the pair shares the host's load): median, min, max,
-/// and the 95% bootstrap interval of the median (the rounds resampled).
-fn paired_ratios(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64, Interval) {
-    let r: Vec<f64> = runs
-        .iter()
-        .zip(flow_only)
-        .map(|(a, b)| a.loop_s / b.loop_s)
-        .collect();
-    let ci = bootstrap::interval(r.len(), bootstrap::REPLICATES, 0x5ca1e, |w| {
-        median(
-            r.iter()
-                .zip(w)
-                .flat_map(|(&x, &k)| std::iter::repeat_n(x, k as usize))
-                .collect(),
-        )
-    });
-    let (m, lo, hi) = median_min_max(r);
-    (m, lo, hi, ci)
-}
-
-/// The flow node's serial coupling work in each run — sampling, handing the samples over
-/// and waiting for the states, less what the flow-only run of the same round spent in
-/// those stages (its status and slices go out in the same stage) — over that run's step
-/// wall: median, min, max.
-fn paired_serial_share(runs: &[Figures], flow_only: &[Figures]) -> (f64, f64, f64) {
-    let serial = |f: &Figures| f.sampling_s + f.flow_publish_s + f.waiting_s;
-    let r: Vec<f64> = runs
-        .iter()
-        .zip(flow_only)
-        .map(|(a, b)| (serial(a) - serial(b)) / b.loop_s)
-        .collect();
-    median_min_max(r)
-}
-
-/// The compared values side by side: for every fibre configuration and value after the
-/// first, its step wall over that of the first value's run of the same round (the two ran
-/// next to each other, or at once in turns): median, min, max, the 95% bootstrap interval
-/// of the median, and in how many rounds it was the faster. Finer than the two rows'
-/// ratios to the flow alone, whose own scatter both carry.
-fn compared_table(
-    results: &BTreeMap<(u64, String), Vec<Figures>>,
-    configs: &[Config],
-    compare: &Compare,
-) -> String {
-    use std::fmt::Write as _;
-    let first = format!("{}={}", compare.key, compare.values[0]);
-    let mut md = format!(
-        "| fibres | transport | over {first}, round by round: median (min–max) | 95% interval of that median (bootstrap over rounds) | rounds in which it was the faster |\n|---|---|---|---|---|\n"
-    );
-    for c in configs.iter().filter(|c| c.fibres > 0) {
-        let Some(setting) = c.setting.as_deref().filter(|s| *s != first) else {
-            continue;
-        };
-        let Some(reference) = configs.iter().find(|r| {
-            r.fibres == c.fibres
-                && r.transport == c.transport
-                && r.setting.as_deref() == Some(first.as_str())
-        }) else {
-            continue;
-        };
-        let (Some(runs), Some(refs)) = (
-            results.get(&(c.fibres, c.label.clone())),
-            results.get(&(reference.fibres, reference.label.clone())),
-        ) else {
-            continue;
-        };
-        let (m, lo, hi, ci) = paired_ratios(runs, refs);
-        let faster = runs
-            .iter()
-            .zip(refs)
-            .filter(|(a, b)| a.loop_s < b.loop_s)
-            .count();
-        let _ = writeln!(
-            md,
-            "| {} | {}, {setting} | {m:.3} ({lo:.3}–{hi:.3}) | {:.3}–{:.3} | {faster} of {} |",
-            c.fibres,
-            c.transport,
-            ci.lo,
-            ci.hi,
-            runs.len().min(refs.len()),
-        );
-    }
-    md
-}
-
-/// Median, smallest and largest of `r`.
-fn median_min_max(r: Vec<f64>) -> (f64, f64, f64) {
-    let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = r.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    (median(r), lo, hi)
-}
-
-/// Milliseconds as the table prints a stage: two decimals below 1 ms, one below 100 ms,
-/// whole above (so that the paper-size stages do not all read 0); "—" for a stage not
-/// measured.
-fn stage_ms(x: f64) -> String {
-    if x.is_nan() {
-        "—".into()
-    } else if x < 1.0 {
-        format!("{x:.2}")
-    } else if x < 100.0 {
-        format!("{x:.1}")
-    } else {
-        format!("{x:.0}")
-    }
-}
-
-/// The markdown table: ms per coupling step, medians over the repeats.
-/// `baselines`: each row label's flow-only label.
-fn table(
-    results: &BTreeMap<(u64, String), Vec<Figures>>,
-    baselines: &BTreeMap<String, String>,
-    steps: u64,
-) -> String {
-    use std::fmt::Write as _;
-    let mut md = String::from(
-        "| fibres | transport | step wall ms (min–max) | vs flow-only, run by run: median (min–max) | 95% interval of that median (bootstrap over rounds) | flow node's serial coupling (sampling + samples out + waiting, less the flow-only run's), % of the flow-only step: median (min–max) | field step | sampling | samples out | waiting for states | fibre step (per group) | states out (per group) | recording | whole process s | CPU s, whole process | nodes' CPU per step ms (cores busy) |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-    );
-    let per = |v: &[Figures], f: fn(&Figures) -> f64| {
-        median(v.iter().map(f).collect()) * 1e3 / steps as f64
-    };
-    for ((n, t), v) in results {
-        let step = per(v, |f| f.loop_s);
-        let lo = v.iter().map(|f| f.loop_s).fold(f64::INFINITY, f64::min) * 1e3 / steps as f64;
-        let hi = v.iter().map(|f| f.loop_s).fold(0.0, f64::max) * 1e3 / steps as f64;
-        let base = results.get(&(0, baselines.get(t).cloned().unwrap_or_else(|| t.clone())));
-        let (r_med, r_lo, r_hi, ci) = base.map(|b| paired_ratios(v, b)).unwrap_or((
-            f64::NAN,
-            f64::NAN,
-            f64::NAN,
-            Interval::NAN,
-        ));
-        let (s_med, s_lo, s_hi) =
-            base.map(|b| paired_serial_share(v, b))
-                .unwrap_or((f64::NAN, f64::NAN, f64::NAN));
-        let _ = writeln!(
-            md,
-            "| {n} | {t} | {step:.0} ({lo:.0}–{hi:.0}) | {r_med:.3} ({r_lo:.3}–{r_hi:.3}) | {:.3}–{:.3} | {:.1} ({:.1}–{:.1}) | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.0} ({:.2}) |",
-            ci.lo,
-            ci.hi,
-            100.0 * s_med,
-            100.0 * s_lo,
-            100.0 * s_hi,
-            stage_ms(per(v, |f| f.field_step_s)),
-            stage_ms(per(v, |f| f.sampling_s)),
-            stage_ms(per(v, |f| f.flow_publish_s)),
-            stage_ms(per(v, |f| f.waiting_s)),
-            stage_ms(per(v, |f| f.fibre_step_s)),
-            stage_ms(per(v, |f| f.group_publish_s)),
-            stage_ms(per(v, |f| f.recording_s)),
-            match median(v.iter().map(|f| f.process_s).collect()) {
-                x if x.is_nan() => "—".to_string(),
-                x => format!("{x:.1}"),
-            },
-            median(v.iter().map(|f| f.cpu_s).collect()),
-            per(v, |f| f.nodes_cpu_s),
-            median(v.iter().map(|f| f.nodes_cpu_s / f.loop_s).collect()),
-        );
-    }
-    md
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scale_tables::*;
 
     /// Runs with these loop times and nothing else.
     fn runs(loop_s: &[f64]) -> Vec<Figures> {
