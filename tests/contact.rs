@@ -143,7 +143,7 @@ fn assert_same(
 }
 
 #[test]
-fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
+fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibers_apart() {
     let _one = one_run_at_a_time();
     let dir = scratch("contact");
     let file = launch_file(&dir);
@@ -171,7 +171,7 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
             "step {step}: a fibre's own segments {} d apart",
             r.self_closest_over_d
         );
-        touched = touched.max(r.contacts_per_fibre);
+        touched = touched.max(r.contacts_per_fiber);
     }
     assert!(
         touched > 0.01,
@@ -203,7 +203,7 @@ fn contact_is_bitwise_over_transports_and_a_kill_and_keeps_fibres_apart() {
     }
     // kill -9 of the fibre node after the first checkpoint: rolled back, resumed, and
     // every state bitwise that of the uninterrupted run
-    let out = dir.join("kill-fibres");
+    let out = dir.join("kill-fibers");
     run_killing(&file, &out, &[], "suspension");
     assert_same(&a, &states(&out), "kill -9 fibres, restarted");
     std::fs::remove_dir_all(&dir).ok();

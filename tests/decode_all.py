@@ -29,7 +29,7 @@ with open(path, "rb") as f:
             touched_total += len(touched)
             last_step[decoded.group] = decoded.step
         if schema.name == "fiberflow_msgs/msg/FlowStatus":
-            assert len(decoded.fibre_force_plus) in (0, 3), "fibre_force_plus length"
+            assert len(decoded.fiber_force_plus) in (0, 3), "fiber_force_plus length"
         if schema.name == "sensor_msgs/msg/PointCloud2":
             assert decoded.point_step == 16 and len(decoded.data) == 16 * decoded.width
         if schema.name == "sensor_msgs/msg/Image":

@@ -31,8 +31,8 @@ fn large_messages_in_shared_memory_give_identical_states() {
             let names: Vec<String> = logs
                 .map(|e| e.file_name().to_string_lossy().to_string())
                 .collect();
-            assert!(names.contains(&"fibres-1.log".to_string()), "{names:?}");
-            let log = std::fs::read_to_string(b.join("logs/fibres-1.log")).unwrap();
+            assert!(names.contains(&"fibers-1.log".to_string()), "{names:?}");
+            let log = std::fs::read_to_string(b.join("logs/fibers-1.log")).unwrap();
             assert!(log.contains("fibre nodes on a thread each"), "{log}");
         }
         assert_same_states(&sa, &sb, transport);
@@ -557,7 +557,7 @@ fn shortened_quick_run_produces_sane_analysis() {
         "sigma2.png",
         "case1_msd23.csv",
         "case6_abs_z1.csv",
-        "case3_fibres.csv",
+        "case3_fibers.csv",
         "coiling_onsets.csv",
     ] {
         assert!(a.join(f).exists(), "missing {f}");
@@ -582,7 +582,7 @@ fn shortened_quick_run_produces_sane_analysis() {
         "coiling-onset table missing:\n{summary}"
     );
     for c in 1..=6 {
-        let csv = std::fs::read_to_string(a.join(format!("case{c}_fibres.csv"))).unwrap();
+        let csv = std::fs::read_to_string(a.join(format!("case{c}_fibers.csv"))).unwrap();
         let mut rows = 0;
         for l in csv.lines().skip(1) {
             let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
@@ -656,8 +656,8 @@ fn replay_republishes_the_recording() {
     );
 }
 
-/// A replay into a listener of one topic starts once that listener is heard (it used to
-/// wait out `--wait-s` for a subscriber on every recorded topic, then warn), and
+/// A replay into a listener of one topic starts once that listener is heard (not after
+/// waiting out `--wait-s` for a subscriber on every recorded topic), and
 /// `--topics` replays only the topics it matches.
 #[test]
 fn replay_starts_for_the_subscribers_there_are_and_filters_topics() {
@@ -804,7 +804,7 @@ fn sharded_groups_match_unsharded_bitwise() {
         ("shards-3-in-1", "zenoh", 1),
     ] {
         let (out, table) = run_on(name, 3, transport, processes);
-        let log = std::fs::read_to_string(out.join("logs/fibres-1.log")).unwrap();
+        let log = std::fs::read_to_string(out.join("logs/fibers-1.log")).unwrap();
         assert!(
             log.contains("fibre nodes stepped in turn on one thread"),
             "{name}: {log}"
@@ -823,7 +823,7 @@ fn sharded_groups_match_unsharded_bitwise() {
             .collect();
         logs.sort();
         let mut want: Vec<String> = (1..=processes)
-            .map(|i| format!("fibres-{i}.log"))
+            .map(|i| format!("fibers-{i}.log"))
             .chain(["flow.log".into(), "recorder.log".into()])
             .collect();
         want.sort();

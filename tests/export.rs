@@ -157,10 +157,10 @@ fn a_run_exports_to_parquet_bitwise_and_shards_give_the_same_tables() {
         assert!(a[table].as_u64().unwrap() > 0, "{table} is empty: {a}");
     }
 
-    // docs/scripts/wall_share.py reads the export: every 2.5 t+ (a state every 5 steps of 0.25),
+    // scripts/wall_share.py reads the export: every 2.5 t+ (a state every 5 steps of 0.25),
     // all segments of both groups, shares that add up to one
     let o = Command::new("python3")
-        .arg(root().join("docs/scripts/wall_share.py"))
+        .arg(root().join("scripts/wall_share.py"))
         .arg(sharded.join("export"))
         .arg("2.5")
         .output()

@@ -82,10 +82,10 @@ f64 = lambda v: np.asarray(v, dtype=np.float64)
 
 def state_columns():
     cols = {k: [] for k in (
-        "step t_plus group fibre segment segments segment_length_plus diameter_plus "
+        "step t_plus group fiber segment segments segment_length_plus diameter_plus "
         "density_ratio layer".split())}
     vec = {}
-    contact_rows = {k: [] for k in "step t_plus group fibre segment contacts".split()}
+    contact_rows = {k: [] for k in "step t_plus group fiber segment contacts".split()}
     contact_force = []
     for key in sorted(states, key=lambda k: (k[1], k[0])):
         for s in states[key]:
@@ -96,7 +96,7 @@ def state_columns():
             cols["step"].append(np.full(nseg, s.step, np.uint64))
             cols["t_plus"].append(np.full(nseg, s.t_plus))
             cols["group"] += [s.group] * nseg
-            cols["fibre"].append(fibre)
+            cols["fiber"].append(fibre)
             cols["segment"].append(segment)
             cols["segments"].append(np.repeat(spf, spf))
             cols["segment_length_plus"].append(np.repeat(f64(s.segment_length), spf))
@@ -118,7 +118,7 @@ def state_columns():
                 contact_rows["step"].append(np.full(idx.size, s.step, np.uint64))
                 contact_rows["t_plus"].append(np.full(idx.size, s.t_plus))
                 contact_rows["group"] += [s.group] * idx.size
-                contact_rows["fibre"].append(fibre[idx])
+                contact_rows["fiber"].append(fibre[idx])
                 contact_rows["segment"].append(segment[idx])
                 contact_rows["contacts"].append(cn[idx])
                 contact_force.append(cf[idx])
@@ -141,7 +141,7 @@ def metric_columns():
             cols.setdefault("step", []).append(np.full(n, m.step, np.uint64))
             cols.setdefault("t_plus", []).append(np.full(n, m.t_plus))
             cols.setdefault("group", []).extend([m.group] * n)
-            cols.setdefault("fibre", []).append(m.first_fiber + np.arange(n))
+            cols.setdefault("fiber", []).append(m.first_fiber + np.arange(n))
             com = f64(m.centre_of_mass).reshape(-1, 3)
             for c, xyz in enumerate("xyz"):
                 cols.setdefault(f"centre_of_mass_{xyz}_plus", []).append(com[:, c])
@@ -159,9 +159,9 @@ def flow_columns():
                        ("bulk_velocity_plus", s.bulk_velocity), ("re_tau", s.re_tau),
                        ("pressure_gradient", s.pressure_gradient)):
             cols.setdefault(col, []).append(np.asarray([v]))
-        ff = f64(s.fibre_force_plus)
+        ff = f64(s.fiber_force_plus)
         for c, xyz in enumerate("xyz"):
-            cols.setdefault(f"fibre_force_{xyz}_plus", []).append(
+            cols.setdefault(f"fiber_force_{xyz}_plus", []).append(
                 np.asarray([ff[c] if ff.size else np.nan]))
     return cols
 

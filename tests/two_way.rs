@@ -159,7 +159,7 @@ fn two_way_is_bitwise_over_transports_shards_and_a_kill() {
         let m = m.unwrap();
         if m.channel.topic.ends_with("/flow/status") {
             let st: fiberflow_messages::FlowStatus = fiberflow_messages::decode(&m.data).unwrap();
-            assert_eq!(st.fibre_force_plus.len(), 3);
+            assert_eq!(st.fiber_force_plus.len(), 3);
             statuses += 1;
         }
     }

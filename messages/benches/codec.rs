@@ -10,7 +10,7 @@ use fiberflow_messages::{
     decode, encode, FiberGroupMetrics, FiberGroupState, FlowSamples, Message, SCHEMA_VERSION,
 };
 
-const FIBRES: usize = 10_000;
+const FIBERS: usize = 10_000;
 const SEGMENTS: usize = 7;
 
 fn numbers(n: usize, seed: f64) -> Vec<f64> {
@@ -18,33 +18,33 @@ fn numbers(n: usize, seed: f64) -> Vec<f64> {
 }
 
 fn samples() -> FlowSamples {
-    let points = FIBRES * SEGMENTS;
+    let points = FIBERS * SEGMENTS;
     FlowSamples {
         schema_version: SCHEMA_VERSION,
         group: "case1".into(),
         step: 12,
         t_plus: 2.4,
         first_fiber: 0,
-        group_fibers: FIBRES as u32,
+        group_fibers: FIBERS as u32,
         velocity: numbers(3 * points, 0.1),
         velocity_gradient: numbers(9 * points, 0.2),
     }
 }
 
 fn state() -> FiberGroupState {
-    let points = FIBRES * SEGMENTS;
+    let points = FIBERS * SEGMENTS;
     FiberGroupState {
         schema_version: SCHEMA_VERSION,
         group: "case1".into(),
         step: 12,
         t_plus: 2.4,
         first_fiber: 0,
-        group_fibers: FIBRES as u32,
-        segments_per_fiber: vec![SEGMENTS as u32; FIBRES],
-        segment_length: vec![3.0; FIBRES],
-        diameter: vec![0.232; FIBRES],
-        density_ratio: vec![1150.0; FIBRES],
-        layer: vec![1; FIBRES],
+        group_fibers: FIBERS as u32,
+        segments_per_fiber: vec![SEGMENTS as u32; FIBERS],
+        segment_length: vec![3.0; FIBERS],
+        diameter: vec![0.232; FIBERS],
+        density_ratio: vec![1150.0; FIBERS],
+        layer: vec![1; FIBERS],
         centre: numbers(3 * points, 0.3),
         axis: numbers(3 * points, 0.4),
         velocity: numbers(3 * points, 0.5),
@@ -63,11 +63,11 @@ fn metrics() -> FiberGroupMetrics {
         step: 12,
         t_plus: 2.4,
         first_fiber: 0,
-        group_fibers: FIBRES as u32,
-        centre_of_mass: numbers(3 * FIBRES, 0.7),
-        z1: numbers(FIBRES, 0.8),
-        sigma2: numbers(FIBRES, 0.9),
-        end_to_end: numbers(FIBRES, 1.0),
+        group_fibers: FIBERS as u32,
+        centre_of_mass: numbers(3 * FIBERS, 0.7),
+        z1: numbers(FIBERS, 0.8),
+        sigma2: numbers(FIBERS, 0.9),
+        end_to_end: numbers(FIBERS, 1.0),
         mean_abs_z1: 0.5,
         mean_sigma2: 0.1,
     }
@@ -86,9 +86,9 @@ fn codec<M: Message>(c: &mut Criterion, name: &str, m: &M) {
 }
 
 fn bench(c: &mut Criterion) {
-    codec(c, "flow_samples_1e4_fibres", &samples());
-    codec(c, "fibre_state_1e4_fibres", &state());
-    codec(c, "fibre_metrics_1e4_fibres", &metrics());
+    codec(c, "flow_samples_1e4_fibers", &samples());
+    codec(c, "fiber_state_1e4_fibers", &state());
+    codec(c, "fiber_metrics_1e4_fibers", &metrics());
 }
 
 criterion_group! {

@@ -103,7 +103,7 @@ mod tests {
             bulk_velocity: 15.47,
             re_tau: f64::NAN,
             pressure_gradient: 1.0,
-            fibre_force_plus: vec![],
+            fiber_force_plus: vec![],
         };
         let text = echo_text("fiberflow/r/flow/status", &encode(&status), 5).unwrap();
         assert!(

@@ -214,7 +214,7 @@ fn payload(kind: Kind, r: &mut Rng, groups: &[String]) -> Vec<u8> {
             bulk_velocity: r.float(),
             re_tau: r.float(),
             pressure_gradient: r.float(),
-            fibre_force_plus: {
+            fiber_force_plus: {
                 let n = r.len_near(3);
                 r.floats(n)
             },

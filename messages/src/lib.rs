@@ -12,6 +12,7 @@ pub mod kind;
 pub mod palette;
 pub mod pieces;
 pub mod reading;
+pub mod role;
 pub mod sanity;
 pub mod schema;
 pub mod segments;
@@ -23,14 +24,17 @@ pub use codec::{
     peek_group_header, DecodeError, GroupHeader, Message,
 };
 pub use kind::Kind;
+pub use role::{NodeRole, FLOW_NODE, RECORDER_NODE};
 pub use types::*;
 
-/// Version of every message layout in this crate; bumped on any incompatible change.
-pub const SCHEMA_VERSION: u32 = 4;
+/// Version of every message layout and field name in this crate (the `.msg` schemas);
+/// bumped on any change a reader could see.
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// The oldest version this build still reads: schema 3 differs from 4 only in
 /// `FiberGroupState`, which then has no contact arrays (read as empty, and written back
-/// without them, so a version-3 message keeps its layout).
+/// without them, so a version-3 message keeps its layout); schema 4 differs from 5 only in
+/// a field's name (`FlowStatus.fibre_force_plus`, now `fiber_force_plus`: the same bytes).
 pub const OLDEST_READABLE_SCHEMA: u32 = 3;
 
 /// Whether this build reads messages of schema `version`.

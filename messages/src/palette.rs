@@ -7,7 +7,7 @@ pub const U_FLUCT_RANGE_PLUS: f64 = 4.0;
 
 /// The `quantity` of a slice of the fibres' streamwise force on the fluid per unit volume
 /// (two-way coupling), wall units.
-pub const FIBRE_FORCE_QUANTITY: &str = "fibre_force_x_plus";
+pub const FIBER_FORCE_QUANTITY: &str = "fiber_force_x_plus";
 
 /// Colour range of a slice's values: ±[`U_FLUCT_RANGE_PLUS`] for u'; for any other
 /// quantity (the fibres' force, which has no natural scale) the 99th percentile of |value|
@@ -81,9 +81,9 @@ mod tests {
             .rev()
             .map(|x| if x % 2 == 0 { x as f32 } else { -(x as f32) })
             .collect();
-        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &v), 99.0);
-        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[0.0; 5]), 1.0);
-        assert_eq!(range_for(FIBRE_FORCE_QUANTITY, &[]), 1.0);
+        assert_eq!(range_for(FIBER_FORCE_QUANTITY, &v), 99.0);
+        assert_eq!(range_for(FIBER_FORCE_QUANTITY, &[0.0; 5]), 1.0);
+        assert_eq!(range_for(FIBER_FORCE_QUANTITY, &[]), 1.0);
     }
 
     #[test]

@@ -79,10 +79,10 @@ impl Sane for FlowStatus {
                 self.pressure_gradient,
             ],
         )?;
-        if !(self.fibre_force_plus.is_empty() || self.fibre_force_plus.len() == 3) {
-            return Err("fibre_force_plus must hold 0 or 3 values".into());
+        if !(self.fiber_force_plus.is_empty() || self.fiber_force_plus.len() == 3) {
+            return Err("fiber_force_plus must hold 0 or 3 values".into());
         }
-        finite("fibre_force_plus", &self.fibre_force_plus)
+        finite("fiber_force_plus", &self.fiber_force_plus)
     }
 }
 
@@ -273,7 +273,7 @@ impl Sane for FiberFreeStep {
         let nf = self.segments_per_fiber.len();
         piece(self.first_fiber, nf, self.group_fibers)?;
         per_segment(
-            "fibre",
+            "fiber",
             &self.segments_per_fiber,
             &[
                 ("start_centre", &self.start_centre),

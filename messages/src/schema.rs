@@ -20,41 +20,50 @@ pub const IMAGE_NAME: &str = "sensor_msgs/msg/Image";
 /// Schema text by ROS 2 type name ("" if unknown).
 pub fn text(type_name: &str) -> &'static str {
     match type_name {
-        "fiberflow_msgs/msg/RunAnnouncement" => RUN_ANNOUNCEMENT,
-        "fiberflow_msgs/msg/FlowStatus" => FLOW_STATUS,
-        "fiberflow_msgs/msg/FlowSamples" => FLOW_SAMPLES,
-        "fiberflow_msgs/msg/FlowProfiles" => FLOW_PROFILES,
-        "fiberflow_msgs/msg/FlowSlice" => FLOW_SLICE,
-        "fiberflow_msgs/msg/FiberGroupState" => FIBER_GROUP_STATE,
-        "fiberflow_msgs/msg/FiberGroupMetrics" => FIBER_GROUP_METRICS,
-        "fiberflow_msgs/msg/FiberFreeStep" => FIBER_FREE_STEP,
-        "fiberflow_msgs/msg/FiberContactSolved" => FIBER_CONTACT_SOLVED,
-        "fiberflow_msgs/msg/Heartbeat" => HEARTBEAT,
         POINT_CLOUD2_NAME => POINT_CLOUD2,
         IMAGE_NAME => IMAGE,
-        _ => "",
+        _ => crate::Kind::of_type_name(type_name).map_or("", kind_text),
+    }
+}
+
+/// The schema text of a kind of message.
+pub const fn kind_text(kind: crate::Kind) -> &'static str {
+    use crate::Kind;
+    match kind {
+        Kind::RunAnnouncement => RUN_ANNOUNCEMENT,
+        Kind::FlowStatus => FLOW_STATUS,
+        Kind::FlowSamples => FLOW_SAMPLES,
+        Kind::FlowProfiles => FLOW_PROFILES,
+        Kind::FlowSlice => FLOW_SLICE,
+        Kind::FiberGroupState => FIBER_GROUP_STATE,
+        Kind::FiberGroupMetrics => FIBER_GROUP_METRICS,
+        Kind::FiberFreeStep => FIBER_FREE_STEP,
+        Kind::FiberContactSolved => FIBER_CONTACT_SOLVED,
+        Kind::Heartbeat => HEARTBEAT,
     }
 }
 
 /// Checks that a payload of the given type decodes (used by the recorder to drop garbage).
 pub fn validate(type_name: &str, bytes: &[u8]) -> Result<(), crate::DecodeError> {
-    use crate::decode;
     use crate::types::*;
-    match type_name {
-        "fiberflow_msgs/msg/RunAnnouncement" => decode::<RunAnnouncement>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FlowStatus" => decode::<FlowStatus>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FlowSamples" => decode::<FlowSamples>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FlowProfiles" => decode::<FlowProfiles>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FlowSlice" => decode::<FlowSlice>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FiberGroupState" => decode::<FiberGroupState>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FiberGroupMetrics" => decode::<FiberGroupMetrics>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FiberFreeStep" => decode::<FiberFreeStep>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/FiberContactSolved" => decode::<FiberContactSolved>(bytes).map(|_| ()),
-        "fiberflow_msgs/msg/Heartbeat" => decode::<Heartbeat>(bytes).map(|_| ()),
-        _ => Err(crate::DecodeError::Malformed {
+    use crate::{decode, Kind};
+    let Some(kind) = Kind::of_type_name(type_name) else {
+        return Err(crate::DecodeError::Malformed {
             len: bytes.len(),
             reason: format!("unknown type {type_name}"),
-        }),
+        });
+    };
+    match kind {
+        Kind::RunAnnouncement => decode::<RunAnnouncement>(bytes).map(|_| ()),
+        Kind::FlowStatus => decode::<FlowStatus>(bytes).map(|_| ()),
+        Kind::FlowSamples => decode::<FlowSamples>(bytes).map(|_| ()),
+        Kind::FlowProfiles => decode::<FlowProfiles>(bytes).map(|_| ()),
+        Kind::FlowSlice => decode::<FlowSlice>(bytes).map(|_| ()),
+        Kind::FiberGroupState => decode::<FiberGroupState>(bytes).map(|_| ()),
+        Kind::FiberGroupMetrics => decode::<FiberGroupMetrics>(bytes).map(|_| ()),
+        Kind::FiberFreeStep => decode::<FiberFreeStep>(bytes).map(|_| ()),
+        Kind::FiberContactSolved => decode::<FiberContactSolved>(bytes).map(|_| ()),
+        Kind::Heartbeat => decode::<Heartbeat>(bytes).map(|_| ()),
     }
 }
 

@@ -7,7 +7,7 @@ use crate::kind::Kind;
 /// wall and the y–z cross-section at x = 0.
 /// The flow slices: u' near the wall, u' across the channel, and (two-way runs only) the
 /// fibres' streamwise force on the fluid in the streaks' plane.
-pub const FLOW_SLICE_NAMES: [&str; 3] = ["streaks", "cross_section", "fibre_force"];
+pub const FLOW_SLICE_NAMES: [&str; 3] = ["streaks", "cross_section", "fiber_force"];
 
 /// Topic builder for one run.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -36,7 +36,7 @@ pub struct FlowStatus {
     pub pressure_gradient: f64,
     /// Two-way coupling: the fibres' total force on the fluid applied in the step (x, y,
     /// z, wall units ρ u_τ² ℓ_ν²); empty when one-way.
-    pub fibre_force_plus: Vec<f64>,
+    pub fiber_force_plus: Vec<f64>,
 }
 
 /// Running flow statistics (paper figs. 3–4), half channel in wall units, averaged over

@@ -30,7 +30,7 @@ pub fn first_crossing(t_plus: &[f64], s2: &[f64], threshold: f64) -> Option<f64>
     })
 }
 
-/// Onset times of every fibre of a group, per threshold: `[threshold][fibre]`.
+/// Onset times of every fibre of a group, per threshold: `[threshold][fiber]`.
 pub fn onsets(g: &GroupSeries, thresholds: &[f64]) -> Vec<Vec<Option<f64>>> {
     let nf = g.sigma2.first().map_or(0, |v| v.len());
     let series: Vec<Vec<f64>> = (0..nf)
@@ -51,7 +51,7 @@ pub fn onsets(g: &GroupSeries, thresholds: &[f64]) -> Vec<Vec<Option<f64>>> {
 /// the share only).
 #[derive(Debug, Clone, PartialEq)]
 pub struct OnsetStats {
-    pub fibres: usize,
+    pub fibers: usize,
     pub reached: usize,
     pub median: f64,
     pub q25: f64,
@@ -73,7 +73,7 @@ pub fn stats(onsets: &[Option<f64>]) -> OnsetStats {
     let mut v: Vec<f64> = onsets.iter().flatten().copied().collect();
     v.sort_by(f64::total_cmp);
     OnsetStats {
-        fibres: onsets.len(),
+        fibers: onsets.len(),
         reached: v.len(),
         median: quantile(&v, 0.5),
         q25: quantile(&v, 0.25),
@@ -89,7 +89,7 @@ const LAYERS: [(&str, Option<u8>); 4] = [
 ];
 
 fn cell(s: &OnsetStats) -> String {
-    let share = 100.0 * s.reached as f64 / s.fibres.max(1) as f64;
+    let share = 100.0 * s.reached as f64 / s.fibers.max(1) as f64;
     if s.reached == 0 {
         "0% | –".to_string()
     } else {
@@ -98,12 +98,12 @@ fn cell(s: &OnsetStats) -> String {
 }
 
 /// The per-case table (markdown) and the per-fibre CSV rows
-/// (`group,fibre,layer,threshold,onset_t_plus`, empty onset = never).
+/// (`group,fiber,layer,threshold,onset_t_plus`, empty onset = never).
 pub fn report(groups: &BTreeMap<String, GroupSeries>, thresholds: &[f64]) -> (String, String) {
     let mut md = String::from(
         "| case | sigma^2 threshold | layer | fibres reaching it | median onset t+ (quartiles) |\n|---|---|---|---|---|\n",
     );
-    let mut csv = String::from("group,fibre,layer,threshold,onset_t_plus\n");
+    let mut csv = String::from("group,fiber,layer,threshold,onset_t_plus\n");
     for (name, g) in groups {
         let on = onsets(g, thresholds);
         for (ti, thr) in thresholds.iter().enumerate() {
@@ -164,7 +164,7 @@ mod tests {
     #[test]
     fn stats_and_report() {
         let s = stats(&[Some(3.0), None, Some(1.0), Some(4.0), Some(2.0)]);
-        assert_eq!((s.fibres, s.reached), (5, 4));
+        assert_eq!((s.fibers, s.reached), (5, 4));
         assert_eq!((s.median, s.q25, s.q75), (2.5, 1.75, 3.25));
         let mut g = GroupSeries::default();
         for k in 0..=10 {

@@ -7,7 +7,7 @@
 //! measure how much they interpenetrate.
 
 use fiberflow_fiber_model::contact::{closest_points, self_touching, touching};
-use fiberflow_fiber_model::fibre::{Fibre, Segment, SegmentProps};
+use fiberflow_fiber_model::fiber::{Fiber, Segment, SegmentProps};
 use fiberflow_messages::FiberGroupState;
 use nalgebra::Vector3;
 use std::fmt::Write as _;
@@ -26,9 +26,9 @@ pub const BAND_NAMES: [&str; 3] = ["wall", "log", "centre"];
 /// Contacts and flocs of the fibres whose centre of mass lies in one wall-distance band.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct BandRow {
-    pub fibres: usize,
+    pub fibers: usize,
     /// Mean number of other fibres (anywhere) each of the band's fibres touches.
-    pub contacts_per_fibre: f64,
+    pub contacts_per_fiber: f64,
     /// Share of the band's fibres that are in a floc.
     pub in_flocs: f64,
 }
@@ -38,9 +38,9 @@ pub struct BandRow {
 pub struct FlocRow {
     pub step: u64,
     pub t_plus: f64,
-    pub fibres: usize,
+    pub fibers: usize,
     /// Mean number of other fibres each fibre touches.
-    pub contacts_per_fibre: f64,
+    pub contacts_per_fiber: f64,
     /// Pairs of segments of different fibres in contact.
     pub segment_contacts: usize,
     /// Clusters of two or more fibres joined by contacts.
@@ -70,7 +70,7 @@ pub struct FlocRow {
 }
 
 /// The fibres of a full state (centres and axes) as the model's fibres.
-fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
+fn fibers_of(s: &FiberGroupState) -> Vec<Fiber> {
     let mut out = Vec::with_capacity(s.segments_per_fiber.len());
     let mut seg = 0usize;
     for (f, &n) in s.segments_per_fiber.iter().enumerate() {
@@ -92,7 +92,7 @@ fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
             });
         }
         seg += n as usize;
-        out.push(Fibre {
+        out.push(Fiber {
             props: vec![SegmentProps::new(l, d, rho); n as usize],
             segments,
             density: rho,
@@ -106,23 +106,23 @@ fn fibres_of(s: &FiberGroupState) -> Vec<Fibre> {
 /// (fibre, segment) order of the pairs, then of each pair of a fibre's own non-adjacent
 /// segments in contact; folded into the box along the periodic x1 and x3.
 pub fn contact_points(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<[f64; 3]> {
-    let fibres = fibres_of(s);
+    let fibers = fibers_of(s);
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
-    let ends = |f: &Fibre, i: usize| {
+    let ends = |f: &Fiber, i: usize| {
         let (sg, h) = (&f.segments[i], 0.5 * f.props[i].shape.length);
         (sg.r - sg.z * h, sg.r + sg.z * h)
     };
-    let own = self_touching(&fibres, CONTACT_TOLERANCE)
+    let own = self_touching(&fibers, CONTACT_TOLERANCE)
         .into_iter()
         .map(|(k, i, j, _)| (k, i, k, j, 0.0));
-    touching(&fibres, &period, CONTACT_TOLERANCE)
+    touching(&fibers, &period, CONTACT_TOLERANCE)
         .into_iter()
         .chain(own)
         .map(|(fa, ia, fb, ib, _)| {
-            let (p0, p1) = ends(&fibres[fa], ia);
-            let (q0, q1) = ends(&fibres[fb], ib);
+            let (p0, p1) = ends(&fibers[fa], ia);
+            let (q0, q1) = ends(&fibers[fb], ib);
             // b's nearest image beside a
-            let gap = fibres[fa].segments[ia].r - fibres[fb].segments[ib].r;
+            let gap = fibers[fa].segments[ia].r - fibers[fb].segments[ib].r;
             let shift = Vector3::new(
                 (gap.x / box_plus[0]).round() * box_plus[0],
                 0.0,
@@ -149,11 +149,11 @@ fn root(parent: &mut [usize], mut a: usize) -> usize {
     a
 }
 
-/// The clusters of `n` fibres joined by `fibre_pairs`: each fibre's root, the lowest
+/// The clusters of `n` fibres joined by `fiber_pairs`: each fibre's root, the lowest
 /// fibre of its cluster.
-fn clusters(n: usize, fibre_pairs: &[(usize, usize)]) -> Vec<usize> {
+fn clusters(n: usize, fiber_pairs: &[(usize, usize)]) -> Vec<usize> {
     let mut parent: Vec<usize> = (0..n).collect();
-    for &(a, b) in fibre_pairs {
+    for &(a, b) in fiber_pairs {
         let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
         if ra != rb {
             parent[ra.max(rb)] = ra.min(rb);
@@ -163,7 +163,7 @@ fn clusters(n: usize, fibre_pairs: &[(usize, usize)]) -> Vec<usize> {
 }
 
 /// The pairs of fibres in contact in one full state, each once, ascending.
-fn fibre_pairs(pairs: &[(usize, usize, usize, usize, f64)]) -> Vec<(usize, usize)> {
+fn fiber_pairs(pairs: &[(usize, usize, usize, usize, f64)]) -> Vec<(usize, usize)> {
     let mut out: Vec<(usize, usize)> = pairs.iter().map(|p| (p.0, p.2)).collect();
     out.sort_unstable();
     out.dedup();
@@ -173,11 +173,11 @@ fn fibre_pairs(pairs: &[(usize, usize, usize, usize, f64)]) -> Vec<(usize, usize
 /// The fibres of one full state that are in a floc (a cluster of two or more joined by
 /// contacts), ascending, each with its floc's name: the floc's lowest fibre.
 pub fn floc_members(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<(usize, usize)> {
-    let fibres = fibres_of(s);
+    let fibers = fibers_of(s);
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
-    let pairs = fibre_pairs(&touching(&fibres, &period, CONTACT_TOLERANCE));
-    let roots = clusters(fibres.len(), &pairs);
-    let mut size = vec![0usize; fibres.len()];
+    let pairs = fiber_pairs(&touching(&fibers, &period, CONTACT_TOLERANCE));
+    let roots = clusters(fibers.len(), &pairs);
+    let mut size = vec![0usize; fibers.len()];
     for &r in &roots {
         size[r] += 1;
     }
@@ -192,19 +192,19 @@ pub fn floc_members(s: &FiberGroupState, box_plus: [f64; 3]) -> Vec<(usize, usiz
 /// Contacts and flocs of one full state of a whole group in a box periodic along x1
 /// and x3 (`box_plus` its lengths).
 pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
-    let fibres = fibres_of(s);
-    let n = fibres.len();
+    let fibers = fibers_of(s);
+    let n = fibers.len();
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
-    let pairs = touching(&fibres, &period, CONTACT_TOLERANCE);
-    let fibre_pairs = fibre_pairs(&pairs);
-    let roots = clusters(n, &fibre_pairs);
+    let pairs = touching(&fibers, &period, CONTACT_TOLERANCE);
+    let fiber_pairs = fiber_pairs(&pairs);
+    let roots = clusters(n, &fiber_pairs);
     let mut size = vec![0usize; n];
     for &r in &roots {
         size[r] += 1;
     }
     // each fibre's band, from its centre of mass's distance to the nearer wall
     let half_height = 0.5 * box_plus[1];
-    let band_of = |f: &Fibre| {
+    let band_of = |f: &Fiber| {
         let mass: f64 = f.props.iter().map(|p| p.mass).sum();
         let y = f
             .segments
@@ -217,47 +217,47 @@ pub fn of_state(s: &FiberGroupState, box_plus: [f64; 3]) -> FlocRow {
         BAND_EDGES_PLUS.iter().filter(|&&e| wall >= e).count()
     };
     let mut degree = vec![0usize; n];
-    for &(a, b) in &fibre_pairs {
+    for &(a, b) in &fiber_pairs {
         degree[a] += 1;
         degree[b] += 1;
     }
     let mut bands = [BandRow::default(); 3];
     let mut in_band_flocs = [0usize; 3];
-    for (k, f) in fibres.iter().enumerate() {
+    for (k, f) in fibers.iter().enumerate() {
         let b = band_of(f);
-        bands[b].fibres += 1;
-        bands[b].contacts_per_fibre += degree[k] as f64;
+        bands[b].fibers += 1;
+        bands[b].contacts_per_fiber += degree[k] as f64;
         if size[roots[k]] >= 2 {
             in_band_flocs[b] += 1;
         }
     }
     for (b, row) in bands.iter_mut().enumerate() {
-        let m = row.fibres.max(1) as f64;
-        row.contacts_per_fibre /= m;
+        let m = row.fibers.max(1) as f64;
+        row.contacts_per_fiber /= m;
         row.in_flocs = in_band_flocs[b] as f64 / m;
     }
     let flocs = size.iter().filter(|&&c| c >= 2).count();
     let in_flocs = size.iter().filter(|&&c| c >= 2).sum::<usize>();
     let mean_d = s.diameter.iter().sum::<f64>() / s.diameter.len().max(1) as f64;
     let closest = pairs.iter().map(|p| p.4).fold(f64::INFINITY, f64::min);
-    let own = self_touching(&fibres, CONTACT_TOLERANCE);
+    let own = self_touching(&fibers, CONTACT_TOLERANCE);
     let own_closest = own.iter().map(|p| p.3).fold(f64::INFINITY, f64::min);
-    let fibre_volume: f64 = fibres
+    let fiber_volume: f64 = fibers
         .iter()
         .flat_map(|f| f.props.iter())
         .map(|p| std::f64::consts::FRAC_PI_4 * p.shape.diameter.powi(2) * p.shape.length)
         .sum();
-    let length = fibres
+    let length = fibers
         .iter()
         .map(|f| f.props.iter().map(|p| p.shape.length).sum::<f64>())
         .sum::<f64>()
         / n.max(1) as f64;
-    let cv = fibre_volume / box_plus.iter().product::<f64>();
+    let cv = fiber_volume / box_plus.iter().product::<f64>();
     FlocRow {
         step: s.step,
         t_plus: s.t_plus,
-        fibres: n,
-        contacts_per_fibre: 2.0 * fibre_pairs.len() as f64 / n.max(1) as f64,
+        fibers: n,
+        contacts_per_fiber: 2.0 * fiber_pairs.len() as f64 / n.max(1) as f64,
         segment_contacts: pairs.len(),
         flocs,
         largest: size.iter().copied().max().unwrap_or(0),
@@ -338,12 +338,12 @@ pub fn merged(states: &[&FiberGroupState]) -> Option<FiberGroupState> {
 
 pub fn csv(rows: &[FlocRow]) -> String {
     let mut out = String::from(
-        "step,t_plus,fibres,contacts_per_fibre,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding",
+        "step,t_plus,fibers,contacts_per_fiber,segment_contacts,flocs,largest_floc,share_in_flocs,closest_over_d,crowding",
     );
     for name in BAND_NAMES {
         let _ = write!(
             out,
-            ",fibres_{name},contacts_per_fibre_{name},share_in_flocs_{name}"
+            ",fibers_{name},contacts_per_fiber_{name},share_in_flocs_{name}"
         );
     }
     out.push_str(",self_contacts,self_closest_over_d,solve_pairs,mean_contact_force_plus\n");
@@ -353,8 +353,8 @@ pub fn csv(rows: &[FlocRow]) -> String {
             "{},{:.4},{},{:.5},{},{},{},{:.5},{:.5},{:.4}",
             r.step,
             r.t_plus,
-            r.fibres,
-            r.contacts_per_fibre,
+            r.fibers,
+            r.contacts_per_fiber,
             r.segment_contacts,
             r.flocs,
             r.largest,
@@ -366,7 +366,7 @@ pub fn csv(rows: &[FlocRow]) -> String {
             let _ = write!(
                 out,
                 ",{},{:.5},{:.5}",
-                b.fibres, b.contacts_per_fibre, b.in_flocs
+                b.fibers, b.contacts_per_fiber, b.in_flocs
             );
         }
         let _ = writeln!(
@@ -395,7 +395,7 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
                 "| {name} | {:.1} | {:.2} | {:.3} | {} | {} | {:.3} | {} | {} | {} |",
                 r.t_plus,
                 r.crowding,
-                r.contacts_per_fibre,
+                r.contacts_per_fiber,
                 r.flocs,
                 r.largest,
                 r.in_flocs,
@@ -411,7 +411,7 @@ pub fn table(groups: &[(String, Vec<FlocRow>)]) -> String {
                 },
                 r.bands
                     .iter()
-                    .map(|b| format!("{:.3} ({})", b.contacts_per_fibre, b.fibres))
+                    .map(|b| format!("{:.3} ({})", b.contacts_per_fiber, b.fibers))
                     .collect::<Vec<_>>()
                     .join(" / ")
             );
@@ -443,7 +443,7 @@ pub fn plot(
         "t+",
         "per fibre / share / closest over d",
         &[
-            series("contacts per fibre", 0, &|r| r.contacts_per_fibre),
+            series("contacts per fibre", 0, &|r| r.contacts_per_fiber),
             series("share of fibres in flocs", 1, &|r| r.in_flocs),
             series("closest centre-lines / d", 2, &|r| r.closest_over_d),
             series("closest own segments / d", 3, &|r| r.self_closest_over_d),
@@ -488,7 +488,7 @@ mod tests {
     /// itself): one pair of its own segments in contact, 0.2 / 0.232 apart; its neighbours
     /// along the chain (adjacent segments) do not count, nor does it touch another fibre.
     #[test]
-    fn a_fibre_folded_through_itself_is_counted() {
+    fn a_fiber_folded_through_itself_is_counted() {
         let mut s = state(&[(10.0, 0.0), (60.0, 0.0)]);
         s.centre[6..9].copy_from_slice(&[10.2, 0.0, 100.0]);
         let r = of_state(&s, [942.0, 300.0, 471.0]);
@@ -507,7 +507,7 @@ mod tests {
     /// one alone; a pair 0.24 apart (3% off) does not count. Flocs, sizes, contacts per
     /// fibre and the closest approach follow by hand; the crowding number is (2/3) c_v (L/d)².
     #[test]
-    fn a_chain_of_touching_fibres_is_one_floc() {
+    fn a_chain_of_touching_fibers_is_one_floc() {
         let s = state(&[
             (10.0, 0.0),
             (10.0, 0.232),
@@ -517,12 +517,12 @@ mod tests {
         ]);
         let box_plus = [942.0, 300.0, 471.0];
         let r = of_state(&s, box_plus);
-        assert_eq!(r.fibres, 5);
+        assert_eq!(r.fibers, 5);
         assert_eq!(r.flocs, 1);
         assert_eq!(r.largest, 3);
         assert!((r.in_flocs - 0.6).abs() < 1e-12);
         // two fibre pairs touch: 2 × 2 / 5
-        assert!((r.contacts_per_fibre - 0.8).abs() < 1e-12);
+        assert!((r.contacts_per_fiber - 0.8).abs() < 1e-12);
         assert_eq!(r.segment_contacts, 2 * 7 + 2 * 2 * 6);
         assert!(
             (r.closest_over_d - 1.0).abs() < 1e-9,
@@ -559,7 +559,7 @@ mod tests {
         assert_eq!((m.group_fibers, m.segments_per_fiber.len()), (4, 4));
         assert_eq!(&m.centre[..a.centre.len()], &a.centre[..]);
         let r = of_state(&m, box_plus);
-        assert_eq!((r.fibres, r.flocs, r.largest), (4, 1, 4));
+        assert_eq!((r.fibers, r.flocs, r.largest), (4, 1, 4));
         // the solve's account rides along: b's listed segments renumbered past a's 14
         let mut a2 = a.clone();
         (a2.contact_segment, a2.contact_force, a2.contacts) =
@@ -628,7 +628,7 @@ mod tests {
     /// touching pair 10 from the lower wall, a lone fibre 60 from the upper one, a chain
     /// of three at the centre plane (box height 300).
     #[test]
-    fn contacts_are_counted_by_the_band_of_the_fibres_wall_distance() {
+    fn contacts_are_counted_by_the_band_of_the_fibers_wall_distance() {
         let s = state(&[
             (10.0, -140.0),
             (10.0, -140.0 + 0.232),
@@ -639,16 +639,16 @@ mod tests {
         ]);
         let r = of_state(&s, [942.0, 300.0, 471.0]);
         let [wall, log, centre] = r.bands;
-        assert_eq!((wall.fibres, log.fibres, centre.fibres), (2, 1, 3));
-        assert!((wall.contacts_per_fibre - 1.0).abs() < 1e-12);
+        assert_eq!((wall.fibers, log.fibers, centre.fibers), (2, 1, 3));
+        assert!((wall.contacts_per_fiber - 1.0).abs() < 1e-12);
         assert!((wall.in_flocs - 1.0).abs() < 1e-12);
-        assert_eq!((log.contacts_per_fibre, log.in_flocs), (0.0, 0.0));
+        assert_eq!((log.contacts_per_fiber, log.in_flocs), (0.0, 0.0));
         // the chain: 1, 2 and 1 other fibres
-        assert!((centre.contacts_per_fibre - 4.0 / 3.0).abs() < 1e-12);
+        assert!((centre.contacts_per_fiber - 4.0 / 3.0).abs() < 1e-12);
         assert!((centre.in_flocs - 1.0).abs() < 1e-12);
         let csv = csv(&[r]);
         assert!(csv.lines().next().unwrap().ends_with(
-            "fibres_wall,contacts_per_fibre_wall,share_in_flocs_wall,fibres_log,contacts_per_fibre_log,share_in_flocs_log,fibres_centre,contacts_per_fibre_centre,share_in_flocs_centre,self_contacts,self_closest_over_d,solve_pairs,mean_contact_force_plus"
+            "fibers_wall,contacts_per_fiber_wall,share_in_flocs_wall,fibers_log,contacts_per_fiber_log,share_in_flocs_log,fibers_centre,contacts_per_fiber_centre,share_in_flocs_centre,self_contacts,self_closest_over_d,solve_pairs,mean_contact_force_plus"
         ));
         assert!(csv
             .lines()
@@ -659,7 +659,7 @@ mod tests {
 
     /// Floc members are named by their floc's lowest fibre; a lone fibre is in none.
     #[test]
-    fn floc_members_name_each_floc_by_its_lowest_fibre() {
+    fn floc_members_name_each_floc_by_its_lowest_fiber() {
         let s = state(&[
             (50.0, 0.0),
             (10.0, 0.0),

@@ -3,7 +3,7 @@
 
 pub mod bootstrap;
 pub mod coiling;
-pub mod fibres;
+pub mod fibers;
 pub mod flocs;
 pub mod flow_validation;
 pub mod modulation;

@@ -19,6 +19,9 @@
 //! batch is the difference of two consecutive publications (sums = samples × means). The
 //! second moments use ⟨v⟩ = 0 (continuity between two walls) and ⟨w⟩ = 0 (symmetry: the
 //! publication does not carry the finite-time ⟨v⟩ and ⟨w⟩; what they leave is second order).
+//!
+//! Size (≈ 670 lines before the tests): the estimates, the report and its plots read one
+//! [`FlowSeries`] and write one summary; pooling over realisations is `realisations.rs`.
 
 use crate::plot::{line_plot, Series};
 use crate::realisations::{pooled_profile_batches, pooled_scalars, Pooled};
@@ -37,7 +40,7 @@ pub struct StatusRow {
     pub bulk_velocity: f64,
     pub pressure_gradient: f64,
     /// The fibres' total streamwise force on the fluid, wall units (0 one-way).
-    pub fibre_force_x_plus: f64,
+    pub fiber_force_x_plus: f64,
 }
 
 /// The flow side of a recording.
@@ -48,7 +51,7 @@ pub struct FlowSeries {
     /// Cumulative statistics, by time.
     pub profiles: Vec<FlowProfiles>,
     /// Total fibre mass (wall units, ρ_f = 1) from the first state of every piece.
-    pub fibre_mass_plus: f64,
+    pub fiber_mass_plus: f64,
     /// Whether the fibres' forces reached the fluid (a status carried them).
     pub two_way: bool,
 }
@@ -61,7 +64,7 @@ impl FlowSeries {
         self.box_plus.iter().product()
     }
     pub fn mass_loading(&self) -> f64 {
-        self.fibre_mass_plus / self.volume_plus()
+        self.fiber_mass_plus / self.volume_plus()
     }
 }
 
@@ -82,13 +85,13 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
                 if s.check().is_err() || s.re_tau <= 0.0 {
                     return;
                 }
-                out.two_way |= s.fibre_force_plus.len() == 3;
+                out.two_way |= s.fiber_force_plus.len() == 3;
                 out.status.push(StatusRow {
                     t_plus: s.t_plus,
                     re_tau: s.re_tau,
                     bulk_velocity: s.bulk_velocity,
                     pressure_gradient: s.pressure_gradient,
-                    fibre_force_x_plus: s.fibre_force_plus.first().copied().unwrap_or(0.0),
+                    fiber_force_x_plus: s.fiber_force_plus.first().copied().unwrap_or(0.0),
                 });
             } else if topic.ends_with("/flow/profiles") {
                 if let Ok(p) = decode::<FlowProfiles>(m.data) {
@@ -126,7 +129,7 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
     out.status.dedup_by(|a, b| a.t_plus == b.t_plus);
     out.profiles.sort_by(|a, b| a.t_plus.total_cmp(&b.t_plus));
     out.profiles.dedup_by(|a, b| a.t_plus == b.t_plus);
-    out.fibre_mass_plus = masses.values().sum();
+    out.fiber_mass_plus = masses.values().sum();
     Ok(out)
 }
 
@@ -234,7 +237,7 @@ pub fn scalar_batches(
     let t: Vec<f64> = f.status.iter().map(|s| s.t_plus).collect();
     let col = |g: &dyn Fn(&StatusRow) -> f64| -> Vec<f64> { f.status.iter().map(g).collect() };
     let tau_w = |s: &StatusRow| (s.re_tau / h).powi(2);
-    let fibres = |s: &StatusRow| -s.fibre_force_x_plus * h / v;
+    let fibers = |s: &StatusRow| -s.fiber_force_x_plus * h / v;
     let est = |x: Vec<f64>| batch_values(&t, &x, from, batches);
     vec![
         ("re_tau", est(col(&|s| s.re_tau))),
@@ -247,10 +250,10 @@ pub fn scalar_batches(
         ),
         ("pressure_gradient", est(col(&|s| s.pressure_gradient))),
         ("wall_shear", est(col(&tau_w))),
-        ("fibre_force_x", est(col(&fibres))),
+        ("fiber_force_x", est(col(&fibers))),
         (
             "budget_residual",
-            est(col(&|s| s.pressure_gradient - tau_w(s) - fibres(s))),
+            est(col(&|s| s.pressure_gradient - tau_w(s) - fibers(s))),
         ),
     ]
 }
@@ -262,7 +265,7 @@ pub const PROFILE_NAMES: [&str; 6] = [
     "v_rms",
     "w_rms",
     "minus_uv",
-    "fibre_stress",
+    "fiber_stress",
 ];
 
 /// The shear stress the fibres carry across the channel (wall units): what the mean
@@ -272,7 +275,7 @@ pub const PROFILE_NAMES: [&str; 6] = [
 /// (ascending, above the wall at 0 where U = 0), `u` and `minus_uv` their values; dU/dy
 /// by the three-point formula on the uneven rows (exact for a quadratic), one-sided at the
 /// last row.
-pub fn fibre_stress(y: &[f64], u: &[f64], minus_uv: &[f64], pi: f64, h_plus: f64) -> Vec<f64> {
+pub fn fiber_stress(y: &[f64], u: &[f64], minus_uv: &[f64], pi: f64, h_plus: f64) -> Vec<f64> {
     let n = y.len();
     (0..n)
         .map(|j| {
@@ -361,7 +364,7 @@ pub fn profile_batches(f: &FlowSeries, from: f64) -> (Vec<f64>, Vec<[Vec<f64>; 6
         let pi = mean_pressure_gradient(f, t0, t1)
             .or_else(|| mean_pressure_gradient(f, from, f64::INFINITY))
             .unwrap_or(f64::NAN);
-        b[5] = fibre_stress(&y, &b[0], &b[4], pi, f.half_height_plus());
+        b[5] = fiber_stress(&y, &b[0], &b[4], pi, f.half_height_plus());
         out.push(b);
     }
     (y, out)
@@ -437,7 +440,7 @@ pub fn report(
     let _ = writeln!(
         md,
         "\nProfiles: {} batches{}{}; `flow_profiles.csv`, `flow_mean_velocity.png`, \
-         `flow_rms.png`. Budget: pressure_gradient = wall_shear + fibre_force_x (outer \
+         `flow_rms.png`. Budget: pressure_gradient = wall_shear + fiber_force_x (outer \
          units); the residual is what the time average leaves.",
         ours_b.len(),
         if runs.len() > 1 {
@@ -760,13 +763,13 @@ mod tests {
     /// stress (−u'v' = a·y) fall short of Π(1 − y/h) by c(1 − y/h) gives back exactly that
     /// shortfall (both to 1e-12, the quadratic's derivative being exact).
     #[test]
-    fn fibre_stress_is_what_the_momentum_balance_leaves() {
+    fn fiber_stress_is_what_the_momentum_balance_leaves() {
         let (h, pi) = (150.0, 1.02);
         let y: Vec<f64> = (0..40)
             .map(|j| 0.33 * (1.11f64).powi(j) + 0.2 * j as f64)
             .collect();
         let laminar: Vec<f64> = y.iter().map(|y| pi * (y - y * y / (2.0 * h))).collect();
-        let s = fibre_stress(&y, &laminar, &vec![0.0; y.len()], pi, h);
+        let s = fiber_stress(&y, &laminar, &vec![0.0; y.len()], pi, h);
         assert!(s.iter().all(|x| x.abs() < 1e-12), "{s:?}");
         let (a, c) = (0.004, 0.3);
         // dU/dy = (Π − c)(1 − y/h) − a y
@@ -775,7 +778,7 @@ mod tests {
             .map(|y| (pi - c) * (y - y * y / (2.0 * h)) - 0.5 * a * y * y)
             .collect();
         let uv: Vec<f64> = y.iter().map(|y| a * y).collect();
-        let s = fibre_stress(&y, &u, &uv, pi, h);
+        let s = fiber_stress(&y, &u, &uv, pi, h);
         for (sj, yj) in s.iter().zip(&y) {
             assert!((sj - c * (1.0 - yj / h)).abs() < 1e-12, "{sj} at y+ {yj}");
         }
@@ -795,7 +798,7 @@ mod tests {
                 re_tau: 160.0,
                 bulk_velocity: 15.5,
                 pressure_gradient: tau_w + 0.05,
-                fibre_force_x_plus: -0.05 * v / 150.0,
+                fiber_force_x_plus: -0.05 * v / 150.0,
             })
             .collect();
         let f = FlowSeries {
@@ -807,7 +810,7 @@ mod tests {
             .into_iter()
             .map(|(n, e)| (n, e.unwrap()))
             .collect();
-        assert!((s["fibre_force_x"].mean - 0.05).abs() < 1e-12);
+        assert!((s["fiber_force_x"].mean - 0.05).abs() < 1e-12);
         assert!(s["budget_residual"].mean.abs() < 1e-12);
         assert!((s["skin_friction_cf"].mean - 2.0 * tau_w / 15.5f64.powi(2)).abs() < 1e-12);
     }

@@ -11,7 +11,7 @@
 use anyhow::{Context, Result};
 use fiberflow_fiber::FiberNodeConfig;
 use fiberflow_fiber_model::contact;
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::group::FiberGroup;
 use fiberflow_fiber_model::FluidSample;
 use nalgebra::{Matrix3, Vector3};
 use std::time::Instant;
@@ -20,7 +20,7 @@ use std::time::Instant;
 const BOX_PLUS: [f64; 3] = [942.48, 300.0, 471.24];
 
 pub struct ContactOptions {
-    pub fibres: usize,
+    pub fibers: usize,
     pub near_wall: bool,
     pub steps: usize,
     pub rounds: usize,
@@ -87,10 +87,10 @@ fn near_wall_flow(r: &Vector3<f64>) -> FluidSample {
     }
 }
 
-fn build(o: &ContactOptions, contact: bool) -> Result<FibreGroup> {
+fn build(o: &ContactOptions, contact: bool) -> Result<FiberGroup> {
     let text = format!(
         "group = \"bench\"\ncase = \"case1\"\nplacement = {{ kind = \"random\", count = {}, seed = 1{} }}\n{}",
-        o.fibres,
+        o.fibers,
         if o.near_wall {
             ", band_plus = [1.0, 31.0]"
         } else {
@@ -169,7 +169,7 @@ fn minor_faults() -> f64 {
 }
 
 /// Steps `group` `warmup` times, then `steps` times counted.
-fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> Result<Round> {
+fn run(mut group: FiberGroup, warmup: usize, steps: usize, near_wall: bool) -> Result<Round> {
     let dt = 0.2;
     let mut r = Round {
         closest_over_d: f64::INFINITY,
@@ -188,12 +188,12 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
             .map(if near_wall { near_wall_flow } else { flow })
             .collect();
         let (t, f0) = (Instant::now(), minor_faults());
-        group.step(&fluid, dt)?;
+        let did = group.step(&fluid, dt)?.contact;
         if step >= warmup {
             r.wall += t.elapsed().as_secs_f64();
             r.faults += minor_faults() - f0;
-            r.contacts += group.last_contact().contacts.len() as f64;
-            r.candidates += group.last_contact().candidates as f64;
+            r.contacts += did.contacts.len() as f64;
+            r.candidates += did.candidates as f64;
             if group.contact().is_some() {
                 let centres: Vec<[f64; 3]> = group
                     .segment_centres()
@@ -206,9 +206,9 @@ fn run(mut group: FibreGroup, warmup: usize, steps: usize, near_wall: bool) -> R
             }
         }
         if group.contact().is_some() {
-            let fibres = group.fibres();
-            for (a, i, _, _, distance) in contact::overlaps(&fibres, &period) {
-                let d = fibres[a].props[i].shape.diameter;
+            let fibers = group.fibers();
+            for (a, i, _, _, distance) in contact::overlaps(&fibers, &period) {
+                let d = fibers[a].props[i].shape.diameter;
                 r.closest_over_d = r.closest_over_d.min(distance / d);
             }
         }
@@ -238,14 +238,14 @@ pub fn run_contact(o: &ContactOptions) -> Result<()> {
         // the band is a tenth of the channel's height
         (
             "in a band 1-31 wall units from the lower wall",
-            10.0 * crowding(o.fibres),
+            10.0 * crowding(o.fibers),
         )
     } else {
-        ("at random in the fine-grid box", crowding(o.fibres))
+        ("at random in the fine-grid box", crowding(o.fibers))
     };
     println!(
         "{} case-1 fibres {where_} (crowding N = {n:.2} there), placed in {:.1} s; {} steps per round after {} not counted",
-        o.fibres,
+        o.fibers,
         t.elapsed().as_secs_f64(),
         o.steps,
         o.warmup

@@ -150,11 +150,11 @@ fn main() -> Result<()> {
             compare,
             slice_ms,
         } => scale::run(&scale::BenchOptions {
-            fibres_file: fibers_file,
+            fibers_file,
             flow_only_file,
             two_launchers,
             two_launchers_file,
-            fibres: fibers,
+            fibers,
             transports,
             steps,
             repeats,
@@ -171,7 +171,7 @@ fn main() -> Result<()> {
             friction,
             near_wall,
         } => contact::run_contact(&contact::ContactOptions {
-            fibres: fibers,
+            fibers,
             near_wall,
             steps,
             rounds,
@@ -183,7 +183,7 @@ fn main() -> Result<()> {
             rounds,
             threads,
         } => stages::run_stages(&stages::StagesOptions {
-            fibres: fibers as usize,
+            fibers: fibers as usize,
             rounds: rounds as usize,
             threads,
         }),

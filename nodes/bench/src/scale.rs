@@ -22,10 +22,10 @@ use std::time::Instant;
 pub struct BenchOptions {
     /// Launch file with the flow and six fibre groups (`placement.per_layer` is set per
     /// configuration); 0 fibres runs `flow_only` instead.
-    pub fibres_file: PathBuf,
+    pub fibers_file: PathBuf,
     pub flow_only_file: PathBuf,
     /// Total fibre counts (multiples of 30: six groups of five layers).
-    pub fibres: Vec<u64>,
+    pub fibers: Vec<u64>,
     pub transports: Vec<String>,
     /// Coupling steps per run; `None`: the launch files' `run.steps` (they must agree).
     pub steps: Option<u64>,
@@ -87,7 +87,7 @@ impl std::str::FromStr for Compare {
 /// One configuration of a round.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Config {
-    pub(crate) fibres: u64,
+    pub(crate) fibers: u64,
     /// The transport, or [`TWO_LAUNCHERS`].
     pub(crate) transport: String,
     /// The compared key's setting (`key=value`), if any.
@@ -116,7 +116,7 @@ fn configurations(o: &BenchOptions) -> Vec<Config> {
         None => t.to_string(),
     };
     let runs = o
-        .fibres
+        .fibers
         .iter()
         .flat_map(|&n| o.transports.iter().map(move |t| (n, t.clone())))
         .chain(
@@ -134,7 +134,7 @@ fn configurations(o: &BenchOptions) -> Vec<Config> {
         };
         for s in these {
             v.push(Config {
-                fibres: n,
+                fibers: n,
                 label: label(&t, s),
                 baseline: label(baseline_of(&t), &settings[0]),
                 transport: t.clone(),
@@ -151,7 +151,7 @@ fn configurations(o: &BenchOptions) -> Vec<Config> {
             .position(|t| label(t, &settings[0]) == c.baseline)
             .unwrap_or(o.transports.len())
     };
-    v.sort_by_key(|c| (block(c), c.fibres > 0));
+    v.sort_by_key(|c| (block(c), c.fibers > 0));
     v
 }
 
@@ -252,7 +252,7 @@ pub(crate) struct Figures {
     pub(crate) flow_publish_s: f64,
     pub(crate) group_publish_s: f64,
     /// The groups' mean fibre step.
-    pub(crate) fibre_step_s: f64,
+    pub(crate) fiber_step_s: f64,
     /// The flow node waiting for states (fibre step + transport on the groups' side).
     pub(crate) waiting_s: f64,
     pub(crate) recording_s: f64,
@@ -289,14 +289,14 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();
         // fibre nodes sharing a process (`run.fiber_processes`) share a log, and each
         // one's `cpu_s` is their process's: counted once, the largest
-        let mut fibre_process_cpu_s: f64 = 0.0;
+        let mut fiber_process_cpu_s: f64 = 0.0;
         for line in text.lines() {
             let v = fields(line);
             let g = |k: &str| v.get(k).copied().unwrap_or(0.0);
             let flow_line = line.contains("where the flow node's time went");
             let group_line = line.contains("where the group's time went");
             if group_line && !one_process {
-                fibre_process_cpu_s = fibre_process_cpu_s.max(g("cpu_s"));
+                fiber_process_cpu_s = fiber_process_cpu_s.max(g("cpu_s"));
             } else if flow_line || (!one_process && line.contains("time went")) {
                 f.nodes_cpu_s += g("cpu_s");
             }
@@ -311,20 +311,20 @@ fn read_figures(outs: &[PathBuf], process_s: f64, one_process: bool) -> Result<F
                     .unwrap_or(f.field_step_s + f.sampling_s + f.flow_publish_s + f.waiting_s);
             } else if line.contains("where the group's time went") {
                 groups += 1.0;
-                f.fibre_step_s += g("fibre_step_s");
+                f.fiber_step_s += g("fiber_step_s");
                 f.group_publish_s += g("encoding_and_publishing_s");
             } else if line.contains("where the recorder's time went") {
                 f.recording_s = g("writing_s");
             }
         }
-        f.nodes_cpu_s += fibre_process_cpu_s;
+        f.nodes_cpu_s += fiber_process_cpu_s;
     }
     if f.loop_s == 0.0 {
         let dirs: Vec<String> = outs.iter().map(|o| o.display().to_string()).collect();
         bail!("{}: the flow node logged no timing line", dirs.join(", "));
     }
     if groups > 0.0 {
-        f.fibre_step_s /= groups;
+        f.fiber_step_s /= groups;
         f.group_publish_s /= groups;
     }
     Ok(f)
@@ -366,11 +366,11 @@ fn steps_per_run(given: Option<u64>, files: &[(&Path, u64)]) -> Result<u64> {
 /// The scale benchmark. Long (≈140 lines): its rounds of alternating runs in order (a
 /// benchmark harness, not part of the product binary).
 pub fn run(o: &BenchOptions) -> Result<()> {
-    if o.fibres.iter().any(|n| n % 30 != 0) {
+    if o.fibers.iter().any(|n| n % 30 != 0) {
         bail!("--fibers: every count must be a multiple of 30 (six groups of five layers)");
     }
     let mut files = Vec::new();
-    for f in [&o.fibres_file, &o.flow_only_file] {
+    for f in [&o.fibers_file, &o.flow_only_file] {
         let (lf, _) = fiberflow_launcher::launchfile::LaunchFile::load_with(f, &[])?;
         files.push((f.as_path(), lf.run.steps));
     }
@@ -410,7 +410,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
         match o.slice_ms {
             None => {
                 for &(i, c) in order {
-                    bar.set_message(format!("{} fibres, {}", c.fibres, c.label));
+                    bar.set_message(format!("{} fibres, {}", c.fibers, c.label));
                     let cpu0 = fiberflow_bus::usage::children_cpu_s();
                     let run = start_run(o, &exe, steps, c, i, r)?;
                     let mut failed = None;
@@ -427,7 +427,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     if let Some(st) = failed {
                         bail!(
                             "{} fibres over {} failed ({st}); logs in {}",
-                            c.fibres,
+                            c.fibers,
                             c.label,
                             run.out.display()
                         );
@@ -435,7 +435,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                     let mut f = read_figures(&run.dirs, wall, c.transport == "inproc")?;
                     f.cpu_s = cpu;
                     results
-                        .entry((c.fibres, c.label.clone()))
+                        .entry((c.fibers, c.label.clone()))
                         .or_default()
                         .push(f);
                     bar.inc(1);
@@ -470,7 +470,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                         let st = s.failed.map(|st| st.to_string()).unwrap_or_default();
                         bail!(
                             "{} fibres over {} failed ({st}); logs in {}",
-                            c.fibres,
+                            c.fibers,
                             c.label,
                             out.display()
                         );
@@ -483,7 +483,7 @@ pub fn run(o: &BenchOptions) -> Result<()> {
                         f.cpu_s = s.cpu_s;
                         apply_clean_steps(&mut f, dirs, &s.pauses, steps)?;
                         results
-                            .entry((c.fibres, c.label.clone()))
+                            .entry((c.fibers, c.label.clone()))
                             .or_default()
                             .push(f);
                         bar.inc(1);
@@ -535,7 +535,7 @@ fn start_run(
     i: usize,
     r: usize,
 ) -> Result<Started> {
-    let (n, transport) = (&c.fibres, &c.transport);
+    let (n, transport) = (&c.fibers, &c.transport);
     let two = transport == TWO_LAUNCHERS;
     let out = o.out.join(if two {
         format!("{n}-two-launchers-{i}-{r}")
@@ -547,7 +547,7 @@ fn start_run(
     } else if *n == 0 {
         &o.flow_only_file
     } else {
-        &o.fibres_file
+        &o.fibers_file
     };
     let sets = run_sets(o.record, steps, c, i, r);
     // (launcher arguments, its output folder): one launcher, or head and worker
@@ -591,7 +591,7 @@ fn start_run(
 
 /// The `--set`s of configuration `c` (number `i`) in round `r`.
 fn run_sets(record: bool, steps: u64, c: &Config, i: usize, r: usize) -> Vec<String> {
-    let n = c.fibres;
+    let n = c.fibers;
     // a run id of its own: runs alive at once (`--slice-ms`) on one host must not share
     // topics (over iceoryx2 a topic is a service of the host, found by name)
     let id: String = format!("bench-{n}-{}-{i}-{r}", c.transport)
@@ -657,7 +657,7 @@ fn apply_clean_steps(
     f.sampling_s = c.sampling_s * n;
     f.waiting_s = c.waiting_s * n;
     f.flow_publish_s = c.publishing_s * n;
-    f.fibre_step_s = f64::NAN;
+    f.fiber_step_s = f64::NAN;
     f.group_publish_s = f64::NAN;
     f.recording_s = f64::NAN;
     f.process_s = f64::NAN;
@@ -844,7 +844,7 @@ mod tests {
                 .map(|r| {
                     let base = 30.0 + r as f64;
                     let idle = 1.05 * base;
-                    match (c.fibres, c.transport.as_str(), c.setting.as_deref()) {
+                    match (c.fibers, c.transport.as_str(), c.setting.as_deref()) {
                         (0, _, _) => base,
                         (300, "iceoryx2", Some("run.fiber_scheduling=normal")) => {
                             idle * [0.98, 0.99, 1.01, 0.97][r]
@@ -854,7 +854,7 @@ mod tests {
                     }
                 })
                 .collect();
-            results.insert((c.fibres, c.label.clone()), runs(&walls));
+            results.insert((c.fibers, c.label.clone()), runs(&walls));
         }
         let md = compared_table(&results, &configs, o.compare.as_ref().unwrap());
         let rows: Vec<&str> = md.lines().skip(2).collect();
@@ -914,11 +914,11 @@ mod tests {
         assert_eq!(steps_per_run(Some(30), &[(a, 150), (b, 20)]).unwrap(), 30);
     }
 
-    fn options(fibres: &[u64], transports: &[&str], compare: Option<&str>) -> BenchOptions {
+    fn options(fibers: &[u64], transports: &[&str], compare: Option<&str>) -> BenchOptions {
         BenchOptions {
-            fibres_file: "f.toml".into(),
+            fibers_file: "f.toml".into(),
             flow_only_file: "0.toml".into(),
-            fibres: fibres.to_vec(),
+            fibers: fibers.to_vec(),
             transports: transports.iter().map(|t| t.to_string()).collect(),
             steps: Some(20),
             repeats: 1,
@@ -942,7 +942,7 @@ mod tests {
         );
         let got: Vec<(u64, String, Option<String>, String)> = configurations(&o)
             .into_iter()
-            .map(|c| (c.fibres, c.label, c.setting, c.baseline))
+            .map(|c| (c.fibers, c.label, c.setting, c.baseline))
             .collect();
         let idle = "run.fiber_scheduling=idle";
         let normal = "run.fiber_scheduling=normal";
@@ -968,7 +968,7 @@ mod tests {
         // without --compare the rows are the transports, as before
         let plain: Vec<String> = configurations(&options(&[0, 300], &["zenoh"], None))
             .into_iter()
-            .map(|c| format!("{} {} {}", c.fibres, c.label, c.baseline))
+            .map(|c| format!("{} {} {}", c.fibers, c.label, c.baseline))
             .collect();
         assert_eq!(plain, ["0 zenoh zenoh", "300 zenoh zenoh"]);
         for bad in [
@@ -1050,7 +1050,7 @@ mod tests {
         let configs = configurations(&o);
         let names: Vec<String> = configs
             .iter()
-            .map(|c| format!("{} {}", c.fibres, c.label))
+            .map(|c| format!("{} {}", c.fibers, c.label))
             .collect();
         assert_eq!(
             names,
@@ -1071,13 +1071,13 @@ mod tests {
         for (k, c) in configs.iter().enumerate() {
             let base = configs
                 .iter()
-                .rposition(|b| b.fibres == 0 && b.label == c.baseline)
+                .rposition(|b| b.fibers == 0 && b.label == c.baseline)
                 .expect("a flow-only run for every baseline");
             assert!(base <= k, "{names:?}");
             assert!(
                 configs[base..=k]
                     .iter()
-                    .all(|x| x.fibres > 0 || x.label == c.baseline),
+                    .all(|x| x.fibers > 0 || x.label == c.baseline),
                 "{names:?}"
             );
         }
@@ -1103,7 +1103,7 @@ mod tests {
         results.insert((300, TWO_LAUNCHERS.to_string()), vec![run(3.0)]);
         let o = options(&[0, 300], &["iceoryx2", "zenoh"], None);
         let o = BenchOptions {
-            fibres: vec![0],
+            fibers: vec![0],
             two_launchers: vec![300],
             ..o
         };
@@ -1140,7 +1140,7 @@ mod tests {
         ] {
             std::fs::write(
                 logs.join(format!("{g}.log")),
-                format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"2.000\"\n"),
+                format!("x INFO fiberflow_fiber::serve: where the group's time went steps=20 waiting_for_samples_s=\"9.0\" fiber_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"2.000\"\n"),
             )
             .unwrap();
         }
@@ -1151,7 +1151,7 @@ mod tests {
         .unwrap();
         let f = read_figures(&[dir.clone(), worker], 12.0, false).unwrap();
         assert_eq!(f.loop_s, 7.5);
-        assert_eq!((f.fibre_step_s, f.group_publish_s), (2.0, 0.25));
+        assert_eq!((f.fiber_step_s, f.group_publish_s), (2.0, 0.25));
         assert_eq!((f.recording_s, f.process_s), (0.125, 12.0));
         // the flow node, both groups and the recorder
         assert_eq!(f.nodes_cpu_s, 14.5);
@@ -1171,16 +1171,16 @@ mod tests {
         // process's, counted once (the larger); the stages still average over the groups
         std::fs::remove_file(logs.join("case1.log")).unwrap();
         let line = |g: &str, s: &str, cpu: &str| {
-            format!("x INFO fiberflow_fiber::serve: where the group's time went group={g} steps=20 fibre_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"{cpu}\"\n")
+            format!("x INFO fiberflow_fiber::serve: where the group's time went group={g} steps=20 fiber_step_s=\"{s}\" encoding_and_publishing_s=\"0.250\" cpu_s=\"{cpu}\"\n")
         };
         std::fs::write(
-            logs.join("fibres-1.log"),
+            logs.join("fibers-1.log"),
             line("case1", "1.000", "2.000") + &line("case2", "3.000", "2.250"),
         )
         .unwrap();
         let f = read_figures(std::slice::from_ref(&dir), 12.0, false).unwrap();
         assert_eq!(f.nodes_cpu_s, 10.0 + 2.25 + 0.5);
-        assert_eq!(f.fibre_step_s, 2.0);
+        assert_eq!(f.fiber_step_s, 2.0);
         std::fs::remove_dir_all(&dir).ok();
     }
 }

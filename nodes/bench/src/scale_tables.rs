@@ -55,20 +55,20 @@ pub(crate) fn compared_table(
     let mut md = format!(
         "| fibres | transport | over {first}, round by round: median (min–max) | 95% interval of that median (bootstrap over rounds) | rounds in which it was the faster |\n|---|---|---|---|---|\n"
     );
-    for c in configs.iter().filter(|c| c.fibres > 0) {
+    for c in configs.iter().filter(|c| c.fibers > 0) {
         let Some(setting) = c.setting.as_deref().filter(|s| *s != first) else {
             continue;
         };
         let Some(reference) = configs.iter().find(|r| {
-            r.fibres == c.fibres
+            r.fibers == c.fibers
                 && r.transport == c.transport
                 && r.setting.as_deref() == Some(first.as_str())
         }) else {
             continue;
         };
         let (Some(runs), Some(refs)) = (
-            results.get(&(c.fibres, c.label.clone())),
-            results.get(&(reference.fibres, reference.label.clone())),
+            results.get(&(c.fibers, c.label.clone())),
+            results.get(&(reference.fibers, reference.label.clone())),
         ) else {
             continue;
         };
@@ -81,7 +81,7 @@ pub(crate) fn compared_table(
         let _ = writeln!(
             md,
             "| {} | {}, {setting} | {m:.3} ({lo:.3}–{hi:.3}) | {:.3}–{:.3} | {faster} of {} |",
-            c.fibres,
+            c.fibers,
             c.transport,
             ci.lo,
             ci.hi,
@@ -154,7 +154,7 @@ pub(crate) fn table(
             stage_ms(per(v, |f| f.sampling_s)),
             stage_ms(per(v, |f| f.flow_publish_s)),
             stage_ms(per(v, |f| f.waiting_s)),
-            stage_ms(per(v, |f| f.fibre_step_s)),
+            stage_ms(per(v, |f| f.fiber_step_s)),
             stage_ms(per(v, |f| f.group_publish_s)),
             stage_ms(per(v, |f| f.recording_s)),
             match median(v.iter().map(|f| f.process_s).collect()) {

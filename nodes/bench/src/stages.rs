@@ -17,7 +17,7 @@
 //!   carries from step to step), and per pair of segments the pair shares' arithmetic of
 //!   the long-wave path (u = Σ_b c_b r_b², a degree-5 polynomial in u) over the held lanes
 //!   in single precision (no square root, range reduction or division);
-//! - fibre step (a fibre node's `FibreGroup::step`, viscous + inertial drag, no contact):
+//! - fibre step (a fibre node's `FiberGroup::step`, viscous + inertial drag, no contact):
 //!   per segment its state as the group stores it (six 3-vectors: centre, axis, velocity,
 //!   angular velocity, normal, force; 144 bytes) read and written once and its fluid
 //!   sample (12 values) read once, with one add per value;
@@ -28,16 +28,20 @@
 //!   recorder's options: zstd level 1 in 4 MB chunks, as `fiberflow_recorder::write_options`
 //!   gives them, in the system's temporary folder): the same bytes written once into a new
 //!   plain file there.
+//!
+//! Size (≈ 680 lines before the tests): each stage sits beside its floor kernel, so that a
+//! reader sees what the floor leaves out, and all of them share one case (fibres, grid,
+//! samples).
 
 use anyhow::{Context, Result};
 use fiberflow_dns::sample::Interpolation;
 use fiberflow_dns::spread::{spread, BodyForce};
 use fiberflow_dns::{DnsConfig, Grid, InitialField, Solver};
-use fiberflow_fiber_model::fibre::Fibre;
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::fiber::Fiber;
+use fiberflow_fiber_model::group::FiberGroup;
 use fiberflow_fiber_model::{DragModel, FluidSample, ModelParams};
 use fiberflow_flow::sampling::{Field, PieceSamples};
-use fiberflow_flow::self_induced::{History, Widths, PER_FIBRE};
+use fiberflow_flow::self_induced::{History, Widths, PER_FIBER};
 use fiberflow_messages::FiberGroupState;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -51,13 +55,13 @@ const HELD_MODES: usize = 41;
 
 /// What `fiberflow-bench stages` runs.
 pub struct StagesOptions {
-    pub fibres: usize,
+    pub fibers: usize,
     pub rounds: usize,
     pub threads: Vec<usize>,
 }
 
 /// The case's fibres: segment centres (wall units, 3 per point) and forces (3 per point).
-fn fibres(n: usize) -> (Vec<f64>, Vec<f64>) {
+fn fibers(n: usize) -> (Vec<f64>, Vec<f64>) {
     let pi = std::f64::consts::PI;
     let mut rng = fiberflow_dns::init::SplitMix64::new(0x0dd_5eed);
     let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
@@ -169,7 +173,7 @@ struct Case {
     floor_memory: Vec<f64>,
     /// The fibre step: the case's fibres as a group, a fluid sample per segment, and the
     /// floor's state (18 values per segment) and samples (12).
-    group: FibreGroup,
+    group: FiberGroup,
     fluid: Vec<FluidSample>,
     floor_state: Vec<f64>,
     floor_samples: Vec<f64>,
@@ -185,7 +189,7 @@ struct Case {
 
 /// The case's fibres as a group of case-1 fibres (N = 7, l+ 3, d+ 0.232, ρ 1150) with the
 /// fibre nodes' drag, and a fluid sample per segment (a shear and a gradient).
-fn fibre_group(centre: &[f64]) -> Result<(FibreGroup, Vec<FluidSample>)> {
+fn fiber_group(centre: &[f64]) -> Result<(FiberGroup, Vec<FluidSample>)> {
     let params = ModelParams {
         drag: DragModel {
             viscosity: 1.0,
@@ -198,7 +202,7 @@ fn fibre_group(centre: &[f64]) -> Result<(FibreGroup, Vec<FluidSample>)> {
         tikhonov: 0.0,
         wall_half_height: Some(RE_TAU),
     };
-    let fibres = centre
+    let fibers = centre
         .chunks_exact(3 * SEGMENTS)
         .map(|c| {
             let first = Vector3::new(c[0], c[1], c[2]);
@@ -208,7 +212,7 @@ fn fibre_group(centre: &[f64]) -> Result<(FibreGroup, Vec<FluidSample>)> {
                 c[3 * SEGMENTS - 1],
             );
             let mid = 0.5 * (first + last);
-            Fibre::straight(
+            Fiber::straight(
                 mid,
                 last - first,
                 &[3.0; SEGMENTS],
@@ -218,7 +222,7 @@ fn fibre_group(centre: &[f64]) -> Result<(FibreGroup, Vec<FluidSample>)> {
             .context("a case fibre")
         })
         .collect::<Result<Vec<_>>>()?;
-    let group = FibreGroup::new(params, fibres);
+    let group = FiberGroup::new(params, fibers);
     let fluid = group
         .segment_centres()
         .iter()
@@ -239,7 +243,7 @@ impl Case {
         };
         let solver = Solver::new(cfg).context("the fine grid's solver")?;
         let g = solver.grid.clone();
-        let (centre, force) = fibres(n);
+        let (centre, force) = fibers(n);
         let points: Vec<[f64; 3]> = centre
             .chunks_exact(3)
             .map(|c| {
@@ -259,11 +263,11 @@ impl Case {
             let c = |x: f64, a: usize| (x * table.inv[a]).max(0.0) as u64 % table.n[a] as u64;
             (c(p[2], 2) * (g.ny as u64 + 1) + c(p[1] + 1.0, 1)) * g.nx as u64 + c(p[0], 0)
         };
-        let mut fibres_by_cell: Vec<(u64, u32)> = (0..n)
+        let mut fibers_by_cell: Vec<(u64, u32)> = (0..n)
             .map(|f| (cell_of(&points[SEGMENTS * f]), f as u32))
             .collect();
-        fibres_by_cell.sort_unstable();
-        let cell_order = fibres_by_cell
+        fibers_by_cell.sort_unstable();
+        let cell_order = fibers_by_cell
             .iter()
             .flat_map(|&(_, f)| (0..SEGMENTS as u32).map(move |s| SEGMENTS as u32 * f + s))
             .collect();
@@ -289,7 +293,7 @@ impl Case {
             plane_start[k + 1] += plane_start[k];
         }
         let widths = Widths::new(&g, RE_TAU);
-        let (group, fluid) = fibre_group(&centre)?;
+        let (group, fluid) = fiber_group(&centre)?;
         let segments = SEGMENTS * n;
         let state_msg = FiberGroupState {
             schema_version: fiberflow_messages::SCHEMA_VERSION,
@@ -318,7 +322,7 @@ impl Case {
             body: BodyForce::zeros(&g),
             floor_field: vec![0.0; 3 * g.padded_len()],
             floor_out: vec![0.0; 12 * points.len()],
-            floor_memory: vec![0.0; PER_FIBRE * n],
+            floor_memory: vec![0.0; PER_FIBER * n],
             velocity: vec![0.0; centre.len()],
             spf: vec![SEGMENTS as u32; n],
             field: Field::dns(solver, Interpolation::Trilinear),
@@ -404,12 +408,12 @@ impl Case {
         );
     }
 
-    fn fibre_step(&mut self) {
+    fn fiber_step(&mut self) {
         // a failed step (it cannot fail for these straight fibres) would show as no time
         let _ = self.group.step(&self.fluid[..], 0.2);
     }
 
-    fn fibre_step_floor(&mut self) {
+    fn fiber_step_floor(&mut self) {
         let chunk = 7 * 64;
         self.floor_state
             .par_chunks_mut(18 * chunk)
@@ -456,10 +460,11 @@ impl Case {
                 env!("CARGO_PKG_VERSION"),
             )
             .create(std::io::BufWriter::new(file))?;
+            let kind = fiberflow_messages::Kind::FiberGroupState;
             let schema = w.add_schema(
-                "fiberflow_msgs/msg/FiberGroupState",
+                kind.type_name(),
                 "ros2msg",
-                fiberflow_messages::schema::text("fiberflow_msgs/msg/FiberGroupState").as_bytes(),
+                fiberflow_messages::schema::kind_text(kind).as_bytes(),
             )?;
             let channel = w.add_channel(
                 schema,
@@ -511,7 +516,7 @@ impl Case {
         let coeff: [Vec<f32>; 3] =
             std::array::from_fn(|b| (0..lanes).map(|q| 1e-6 * (q + b + 1) as f32).collect());
         self.floor_memory
-            .par_chunks_mut(PER_FIBRE)
+            .par_chunks_mut(PER_FIBER)
             .zip(centre.par_chunks(3 * SEGMENTS))
             .with_min_len(16)
             .for_each_init(
@@ -536,7 +541,7 @@ impl Case {
                             );
                         }
                     }
-                    m[PER_FIBRE - 1] += share.iter().map(|&s| s as f64).sum::<f64>();
+                    m[PER_FIBER - 1] += share.iter().map(|&s| s as f64).sum::<f64>();
                 },
             );
     }
@@ -588,7 +593,7 @@ type Stage = fn(&mut Case);
 /// floor once each (the order alternating between rounds), after one warm-up call each.
 pub fn run_stages(opts: &StagesOptions) -> Result<()> {
     anyhow::ensure!(
-        opts.fibres > 0 && opts.rounds > 0,
+        opts.fibers > 0 && opts.rounds > 0,
         "--fibers and --rounds must be at least 1"
     );
     anyhow::ensure!(
@@ -596,13 +601,13 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
         "--threads: thread counts in 1..=256, e.g. 1,2 (got {:?})",
         opts.threads
     );
-    let mut case = Case::new(opts.fibres)?;
-    let segments = (opts.fibres * SEGMENTS) as f64;
+    let mut case = Case::new(opts.fibers)?;
+    let segments = (opts.fibers * SEGMENTS) as f64;
     let stages: [(&str, Stage, Stage); 6] = [
         ("sampling", Case::sampling, Case::sampling_floor),
         ("spreading", Case::spreading, Case::spreading_floor),
         ("correction", Case::correction, Case::correction_floor),
-        ("fibre step", Case::fibre_step, Case::fibre_step_floor),
+        ("fibre step", Case::fiber_step, Case::fiber_step_floor),
         ("state out", Case::state_out, Case::state_out_floor),
         ("recording", Case::recording, Case::recording_floor),
     ];
@@ -643,7 +648,7 @@ pub fn run_stages(opts: &StagesOptions) -> Result<()> {
     };
     println!(
         "{} fibres of {SEGMENTS} segments, fine grid 192 x 64 x 64, {} rounds (median, min-max)\n",
-        opts.fibres, opts.rounds
+        opts.fibers, opts.rounds
     );
     println!("| stage | threads | wall ms | CPU ns per segment | floor wall ms | floor CPU ns per segment | stage / floor (CPU) |");
     println!("|---|---|---|---|---|---|---|");
@@ -681,15 +686,15 @@ mod tests {
     /// The stages and their floors run on a few fibres on one and two threads, and a
     /// thread count of 0 is refused by name.
     #[test]
-    fn stages_run_on_a_few_fibres_and_refuse_no_threads() {
+    fn stages_run_on_a_few_fibers_and_refuse_no_threads() {
         let ok = run_stages(&StagesOptions {
-            fibres: 40,
+            fibers: 40,
             rounds: 1,
             threads: vec![1, 2],
         });
         assert!(ok.is_ok(), "{ok:?}");
         let err = run_stages(&StagesOptions {
-            fibres: 40,
+            fibers: 40,
             rounds: 1,
             threads: vec![0],
         });

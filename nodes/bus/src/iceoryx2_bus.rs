@@ -6,8 +6,8 @@
 //! event (named by its iceoryx2 node id), and the publisher reads the topic's subscribers'
 //! node ids from the service and notifies only their events. One receive thread per
 //! process blocks on its event and drains the subscribers into the callers' channels.
-//! (Waking every process of the run at every publish cost the flow node ≈ 0.5 ms per
-//! message at paper size: eight receive threads scheduled onto two busy cores.) iceoryx2 has no wildcard subscriptions, so the bus is given the run's
+//! (Waking every process of the run at every publish would schedule every receive thread
+//! onto the busy cores at each message.) iceoryx2 has no wildcard subscriptions, so the bus is given the run's
 //! topic list and a pattern subscribes to every matching topic. Publishers use
 //! back-pressure (retry until delivered), so lockstep messages are never lost.
 //!
@@ -340,8 +340,8 @@ impl Bus for Iceoryx2Bus {
         self.wake_subscribers(topic)
     }
 
-    /// Encoded straight into the loaned shared memory, not zeroed first (42 MB of samples
-    /// per step at 6 × 10⁴ fibres).
+    /// Encoded straight into the loaned shared memory, not zeroed first (at scale the
+    /// samples are tens of MB a step).
     fn publish_message(&self, topic: &str, msg: &dyn Outgoing) -> Result<(), BusError> {
         self.with_publisher(topic, |p| {
             let mut sample = p.loan_slice_uninit(msg.len()).map_err(terr)?;

@@ -1,8 +1,8 @@
 //! A publisher on a thread of its own. [`Outbox::send`] hands a message over and returns at
 //! once; the messages go out in the order they were handed over. A node's loop then goes
 //! on computing while the transport copies the payload, notifies the subscribers and the
-//! scheduler wakes them (on two busy cores, waking six fibre processes one by one held the
-//! flow node ≈ 2 ms per step at paper size).
+//! scheduler wakes them (on busy cores, waking the subscribers one by one would otherwise
+//! hold the node's loop).
 
 use crate::{BusError, BusHandle, Outgoing};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};

@@ -17,6 +17,9 @@
 //! so a publisher that exits at once loses none. Smaller
 //! messages travel in the session's own buffers: zenoh's implicit shared memory (on by
 //! default for 3 kB and more) is off, since it has no such hold.
+//!
+//! Size (≈ 610 lines before the tests): the session's set-up (TLS, access control) and the
+//! shared-memory pools it publishes through are one transport.
 
 use crate::{Bus, BusError, Outgoing, Payload, Subscription};
 use std::sync::mpsc::channel;
@@ -29,8 +32,8 @@ use zenoh::Wait;
 
 /// Messages from this size on are written into shared memory (smaller ones are cheaper
 /// to copy than to hand over as a shared buffer). 16 KiB puts a 50-fibre group's ≈ 34 kB
-/// samples and states there: at paper size the coupled step was 1% shorter than with
-/// 64 KiB, in turns (docs/history/performance.md, "Coupling overhead at paper size").
+/// samples and states there (the choice against 64 KiB: docs/history/performance.md,
+/// "Coupling overhead at paper size").
 pub const SHM_MIN_BYTES: usize = 16 * 1024;
 
 /// How long a peer's open waits for the rendezvous it connects to and for the peers that
@@ -49,8 +52,7 @@ pub const SHM_MIN_POOL_BYTES: usize = 32 << 20;
 /// transmit tasks ran on pools of their own, so every batch woke two or three threads,
 /// each wake-up preempting a DNS pool thread on a busy core; on one worker the poller
 /// runs the tasks itself. The launcher starts the nodes of a one-host zenoh run with it
-/// (paper size, in turns: the coupled step 1.5% shorter, faster in 14 of 16 rounds;
-/// docs/history/performance.md, "Coupling overhead at paper size"). Test
+/// (measured: docs/history/performance.md, "Coupling overhead at paper size"). Test
 /// `one_thread_runtime_carries_messages_on_one_thread`.
 pub const ONE_THREAD_RUNTIME: &str =
     "(rx: (handover: acc), tx: (handover: acc), net: (handover: acc), app: (handover: acc))";
@@ -695,8 +697,8 @@ mod tests {
     }
 
     /// A peer whose rendezvous does not answer fails to open (after [`PEER_OPEN_WAIT_MS`]),
-    /// and the error names the endpoint (it used to open without a connection and leave
-    /// the node to wait for messages that could not come).
+    /// and the error names the endpoint (rather than opening without a connection and
+    /// leaving the node to wait for messages that cannot come).
     #[test]
     fn open_fails_naming_a_rendezvous_that_does_not_answer() {
         let port = std::net::TcpListener::bind("127.0.0.1:0")

@@ -78,7 +78,7 @@ pub fn analyze_cmd(
         // realisations: each run's fibres in its own folder, the flow pooled
         let out = out.unwrap_or_else(|| realisations_folder(&folder_of(&runs[0])));
         for r in runs {
-            let table = analyze::fibres(r, &folder_of(r).join("analysis"), coil_thresholds)?;
+            let table = analyze::fibers(r, &folder_of(r).join("analysis"), coil_thresholds)?;
             println!("{}:\n{table}", r.display());
         }
         match analyze::modulation(runs, unladen, transient_plus, batches, &out)? {
@@ -88,7 +88,7 @@ pub fn analyze_cmd(
         return Ok(());
     };
     let out = out.unwrap_or_else(|| folder_of(one).join("analysis"));
-    let table = analyze::fibres(one, &out, coil_thresholds)?;
+    let table = analyze::fibers(one, &out, coil_thresholds)?;
     println!("{table}");
     if let Some(md) = analyze::modulation(
         std::slice::from_ref(one),
@@ -150,12 +150,12 @@ pub fn view_cmd(
         .with_context(|| format!("viewing {}", mcap.display()))?;
     tracing::info!(
         groups = s.groups,
-        fibres = s.fibres,
+        fibers = s.fibers,
         shown = s.shown,
         coiling_events = s.events,
         flow_slices = s.slices,
         contact_states = s.contact_states,
-        floc_fibres = s.floc_fibres,
+        floc_fibers = s.floc_fibers,
         "scene written"
     );
     Ok(())

@@ -125,7 +125,7 @@ fn bench_body_force(c: &mut Criterion) {
     laden.set_body_force(&points, &forces);
     for (name, s) in [
         ("coarse_one_way", &mut plain),
-        ("coarse_body_force_300_fibres", &mut laden),
+        ("coarse_body_force_300_fibers", &mut laden),
     ] {
         group.bench_function(name, |b| {
             b.iter(|| {
@@ -135,7 +135,7 @@ fn bench_body_force(c: &mut Criterion) {
             })
         });
     }
-    group.bench_function("spread_300_fibres", |b| {
+    group.bench_function("spread_300_fibers", |b| {
         b.iter(|| laden.set_body_force(&points, &forces))
     });
     // 10⁵ seven-segment fibres on the fine grid, listed fibre by fibre as the flow node
@@ -158,7 +158,7 @@ fn bench_body_force(c: &mut Criterion) {
         .collect();
     let mut fine = solver(192);
     group.sample_size(10);
-    group.bench_function("spread_1e5_fibres_fine", |b| {
+    group.bench_function("spread_1e5_fibers_fine", |b| {
         b.iter(|| fine.set_body_force(&points, &forces))
     });
     group.finish();

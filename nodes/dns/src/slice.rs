@@ -91,7 +91,7 @@ pub fn streaks(g: &Grid, vel: &Velocity, re_tau: f64, y_plus: f64) -> Plane {
 /// force `f`, outer units) in the streaks' plane ([`streaks`]: same row, same samples), in
 /// wall units (a+ = a/Re_τ): where the fibres push the near-wall fluid forward (> 0) or
 /// hold it back.
-pub fn fibre_force_plane(g: &Grid, f: &Velocity, re_tau: f64, y_plus: f64) -> Plane {
+pub fn fiber_force_plane(g: &Grid, f: &Velocity, re_tau: f64, y_plus: f64) -> Plane {
     let (j, _) = row_near(g, re_tau, y_plus);
     let mut values = Vec::with_capacity(g.nx * g.nz);
     for k in 1..=g.nz {
@@ -190,10 +190,10 @@ mod tests {
     /// The force plane lies where the streaks do and carries the body force there, in wall
     /// units (the field's u component divided by Re_τ, no mean removed).
     #[test]
-    fn fibre_force_plane_is_the_body_force_in_the_streaks_plane() {
+    fn fiber_force_plane_is_the_body_force_in_the_streaks_plane() {
         let g = grid();
         let (vel, fluct) = streaky(&g);
-        let p = fibre_force_plane(&g, &vel, 150.0, 15.0);
+        let p = fiber_force_plane(&g, &vel, 150.0, 15.0);
         let s = streaks(&g, &vel, 150.0, 15.0);
         assert_eq!(
             (&p.u_plus, &p.v_plus, p.origin_plus),

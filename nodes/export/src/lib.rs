@@ -573,9 +573,9 @@ mod tests {
             use arrow_array::types::{UInt32Type, UInt64Type};
             let step = b.column(0).as_primitive::<UInt64Type>();
             let group = b.column(2).as_string::<i32>();
-            let fibre = b.column(3).as_primitive::<UInt32Type>();
+            let fiber = b.column(3).as_primitive::<UInt32Type>();
             (0..b.num_rows())
-                .map(|i| (step.value(i), group.value(i).to_string(), fibre.value(i)))
+                .map(|i| (step.value(i), group.value(i).to_string(), fiber.value(i)))
                 .collect::<Vec<_>>()
         };
         let got: Vec<_> = batches.iter().flat_map(key).collect();

@@ -21,7 +21,7 @@ pub fn state(
         // the slice's touched segments are ascending: walked beside its segments
         let mut touched = s.contact_segment.iter().enumerate().peekable();
         for (f, &n) in s.segments_per_fiber.iter().enumerate() {
-            let fibre = s.first_fiber + f as u32;
+            let fiber = s.first_fiber + f as u32;
             for k in 0..n {
                 let contact = match touched.peek() {
                     Some(&(j, &at)) if at as usize == seg => {
@@ -34,7 +34,7 @@ pub fn state(
                     w.push(Value::U64(s.step));
                     w.push(Value::F64(s.t_plus));
                     w.push(Value::Text(&s.group));
-                    w.push(Value::U32(fibre));
+                    w.push(Value::U32(fiber));
                     w.push(Value::U32(k));
                     w.push(Value::U32(n));
                     w.push(Value::F64(s.segment_length[f]));
@@ -64,7 +64,7 @@ pub fn state(
                     w.push(Value::U64(s.step));
                     w.push(Value::F64(s.t_plus));
                     w.push(Value::Text(&s.group));
-                    w.push(Value::U32(fibre));
+                    w.push(Value::U32(fiber));
                     w.push(Value::U32(k));
                     w.push_f64s(force);
                     w.push(Value::U32(count));
@@ -104,7 +104,7 @@ pub fn flow(s: &FlowStatus, w: &mut TableWriter) -> Result<(), ExportError> {
     w.push(Value::Opt(Some(s.re_tau).filter(|x| !x.is_nan())));
     w.push(Value::F64(s.pressure_gradient));
     for c in 0..3 {
-        w.push(Value::Opt(s.fibre_force_plus.get(c).copied()));
+        w.push(Value::Opt(s.fiber_force_plus.get(c).copied()));
     }
     w.end_row()
 }

@@ -8,7 +8,7 @@
 //! Not covered here (the group falls back to `step::step`): joint twisting stiffness, the
 //! Tikhonov solve and the loads diagnostics.
 
-use crate::fibre::{Segment, SegmentProps};
+use crate::fiber::{Segment, SegmentProps};
 use crate::lanes::{F4, LANES, M3, V3};
 use crate::step::{Fluid, FluidSample, ModelParams};
 use nalgebra::Vector3;
@@ -148,7 +148,7 @@ pub struct Scratch {
     v_new: Vec<V3>,
     w_new: Vec<V3>,
     /// Translational resistance A_i and the fluid velocity at each segment (the
-    /// hydrodynamic force at the new velocity, [`crate::fibre::Segment::f`]).
+    /// hydrodynamic force at the new velocity, [`crate::fiber::Segment::f`]).
     ra: Vec<Axi>,
     vel: Vec<V3>,
 }
@@ -519,7 +519,7 @@ fn kernel(
     Ok(())
 }
 
-/// `Fibre::rechain` in every lane: segments re-chained outward from the middle one.
+/// `Fiber::rechain` in every lane: segments re-chained outward from the middle one.
 #[inline(always)]
 fn rechain(seg: &mut [LaneSeg], consts: &[LaneConsts], stride: usize) {
     let n = seg.len();
@@ -574,8 +574,8 @@ fn wall_contact(seg: &mut [LaneSeg], consts: &[LaneConsts], stride: usize, half_
 
 #[cfg(test)]
 mod tests {
-    use crate::fibre::Fibre;
-    use crate::group::FibreGroup;
+    use crate::fiber::Fiber;
+    use crate::group::FiberGroup;
     use crate::hydro::DragModel;
     use crate::step::{Fluid, FluidSample, ModelParams};
     use nalgebra::{Matrix3, Vector3};
@@ -606,14 +606,14 @@ mod tests {
     /// Fibres in every situation the step distinguishes: moving and spinning, at rest,
     /// and touching a wall (centres within a fibre length of x2 = ±150); segment lengths
     /// and diameters vary, so a change in the order of operations shows in the bits.
-    fn fibres(count: usize, segments: usize, seed: &mut u64) -> Vec<Fibre> {
-        fibres_of(count, &[segments], false, seed)
+    fn fibers(count: usize, segments: usize, seed: &mut u64) -> Vec<Fiber> {
+        fibers_of(count, &[segments], false, seed)
     }
 
     /// `count` fibres with `segments[k % len]` segments each; `alike`: every segment of
     /// every fibre has the same length, diameter and density (the group keeps one set of
     /// constants), else they vary.
-    fn fibres_of(count: usize, segments: &[usize], alike: bool, seed: &mut u64) -> Vec<Fibre> {
+    fn fibers_of(count: usize, segments: &[usize], alike: bool, seed: &mut u64) -> Vec<Fiber> {
         (0..count)
             .map(|k| {
                 let segments = segments[k % segments.len()];
@@ -636,7 +636,7 @@ mod tests {
                 } else {
                     1150.0 + 1150.0 * (k % 2) as f64
                 };
-                let mut f = Fibre::straight(
+                let mut f = Fiber::straight(
                     Vector3::new(500.0 * rnd(seed), y, 200.0 * rnd(seed)),
                     axis,
                     &lengths,
@@ -655,7 +655,7 @@ mod tests {
             .collect()
     }
 
-    fn fluid(g: &FibreGroup, seed: &mut u64, still: bool) -> Vec<FluidSample> {
+    fn fluid(g: &FiberGroup, seed: &mut u64, still: bool) -> Vec<FluidSample> {
         g.segment_centres()
             .iter()
             .map(|r| {
@@ -672,7 +672,7 @@ mod tests {
             .collect()
     }
 
-    fn bits(g: &FibreGroup) -> Vec<u64> {
+    fn bits(g: &FiberGroup) -> Vec<u64> {
         (0..g.len())
             .flat_map(|k| g.segments(k))
             .flat_map(|s| [s.r, s.z, s.v, s.w, s.n])
@@ -700,10 +700,10 @@ mod tests {
             (&[7, 7, 7, 7, 3, 7, 7, 7], true, 0.0, 0.0),
             (&[7, 7, 7, 7, 3, 7, 7, 7], false, 0.05, 0.0),
         ] {
-            let fs = fibres_of(11, segments, alike, &mut seed);
-            let mut batched = FibreGroup::new(params(bending, gravity), fs.clone());
+            let fs = fibers_of(11, segments, alike, &mut seed);
+            let mut batched = FiberGroup::new(params(bending, gravity), fs.clone());
             let mut serial = batched.clone();
-            let mut single = FibreGroup::new(params(bending, gravity), fs);
+            let mut single = FiberGroup::new(params(bending, gravity), fs);
             for step in 0..25 {
                 let still = step == 0 && gravity == 0.0;
                 let fl = fluid(&batched, &mut seed, still);
@@ -724,8 +724,8 @@ mod tests {
     fn samples_read_in_place_step_like_decoded_samples() {
         let mut seed = 11u64;
         for (count, segments) in [(9, &[7, 4][..]), (600, &[7][..])] {
-            let fs = fibres_of(count, segments, false, &mut seed);
-            let mut decoded = FibreGroup::new(params(0.05, 0.0), fs);
+            let fs = fibers_of(count, segments, false, &mut seed);
+            let mut decoded = FiberGroup::new(params(0.05, 0.0), fs);
             let mut wire = decoded.clone();
             let fl = fluid(&decoded, &mut seed, false);
             let le = |xs: &mut dyn Iterator<Item = f64>| -> Vec<u8> {
@@ -763,22 +763,22 @@ mod tests {
 
     /// A fibre whose system cannot be solved is named by its index in the group.
     #[test]
-    fn a_non_finite_fibre_is_named() {
+    fn a_non_finite_fiber_is_named() {
         let mut seed = 3u64;
-        let mut g = FibreGroup::new(params(0.0, 0.0), fibres(6, 7, &mut seed));
+        let mut g = FiberGroup::new(params(0.0, 0.0), fibers(6, 7, &mut seed));
         let mut fl = fluid(&g, &mut seed, false);
         fl[5 * 7 + 2].vel.x = f64::NAN;
         match g.step(&fl, 0.2) {
-            Err(crate::FibreError::Singular { fibre }) => assert_eq!(fibre, 5),
+            Err(crate::FiberError::Singular { fiber }) => assert_eq!(fiber, 5),
             other => panic!("expected fibre 5 to fail, got {other:?}"),
         }
     }
 
     /// The group's metrics, read from the lane storage, are those of each fibre.
     #[test]
-    fn group_metrics_are_each_fibres_metrics() {
+    fn group_metrics_are_each_fibers_metrics() {
         let mut seed = 5u64;
-        let mut g = FibreGroup::new(params(0.0, 0.0), fibres_of(9, &[7, 4], false, &mut seed));
+        let mut g = FiberGroup::new(params(0.0, 0.0), fibers_of(9, &[7, 4], false, &mut seed));
         for _ in 0..3 {
             let fl = fluid(&g, &mut seed, false);
             g.step(&fl, 0.2).expect("step");
@@ -786,15 +786,15 @@ mod tests {
         let ms = g.metrics();
         assert_eq!(ms.len(), 9);
         for (k, m) in ms.iter().enumerate() {
-            assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
+            assert_eq!(*m, crate::metrics::metrics(&g.fiber(k)), "fibre {k}");
         }
         assert!(ms.iter().any(|m| m.sigma2 > 0.0), "the fibres bent");
         // blocks of equally long fibres (read four at a time) with a partial last block,
         // one-segment fibres (σ² = 0), and a fibre folded back on itself (Σẑ_i = 0)
         for (count, segments) in [(9, &[7][..]), (6, &[1][..]), (7, &[2][..])] {
-            let mut g = FibreGroup::new(
+            let mut g = FiberGroup::new(
                 params(0.0, 0.0),
-                fibres_of(count, segments, false, &mut seed),
+                fibers_of(count, segments, false, &mut seed),
             );
             let fl = fluid(&g, &mut seed, false);
             g.step(&fl, 0.2).expect("step");
@@ -808,7 +808,7 @@ mod tests {
             for (k, m) in ms.iter().enumerate() {
                 assert_eq!(
                     *m,
-                    crate::metrics::metrics(&g.fibre(k)),
+                    crate::metrics::metrics(&g.fiber(k)),
                     "{segments:?}: fibre {k}"
                 );
             }
@@ -818,8 +818,8 @@ mod tests {
         }
         // a group large enough to be stepped and measured in parallel (and so a step on
         // the pool and one on this thread give the same bits)
-        let big = fibres_of(600, &[7], true, &mut seed);
-        let mut g = FibreGroup::new(params(0.0, 0.0), big);
+        let big = fibers_of(600, &[7], true, &mut seed);
+        let mut g = FiberGroup::new(params(0.0, 0.0), big);
         assert!(g.segment_count() >= crate::group::PARALLEL_MIN_SEGMENTS);
         let mut here = g.clone();
         let fl = fluid(&g, &mut seed, false);
@@ -827,7 +827,7 @@ mod tests {
         here.step_serial(&fl, 0.2).expect("serial step");
         assert_eq!(bits(&g), bits(&here));
         for (k, m) in g.metrics().iter().enumerate() {
-            assert_eq!(*m, crate::metrics::metrics(&g.fibre(k)), "fibre {k}");
+            assert_eq!(*m, crate::metrics::metrics(&g.fiber(k)), "fibre {k}");
         }
     }
 
@@ -835,12 +835,12 @@ mod tests {
     /// order, bit for bit (fibres of two lengths, so blocks of unequal fibres too): the
     /// centres alone, appended to what the arrays held, or all four vectors with `full`.
     #[test]
-    fn state_arrays_are_each_fibres_segments_in_order() {
+    fn state_arrays_are_each_fibers_segments_in_order() {
         let mut seed = 7u64;
-        let mut g = FibreGroup::new(params(0.0, 0.0), fibres_of(9, &[7, 4], false, &mut seed));
+        let mut g = FiberGroup::new(params(0.0, 0.0), fibers_of(9, &[7, 4], false, &mut seed));
         let fl = fluid(&g, &mut seed, false);
         g.step(&fl, 0.2).expect("step");
-        let want = |f: fn(&crate::fibre::Segment) -> Vector3<f64>| -> Vec<u64> {
+        let want = |f: fn(&crate::fiber::Segment) -> Vector3<f64>| -> Vec<u64> {
             (0..g.len())
                 .flat_map(|k| g.segments(k).collect::<Vec<_>>())
                 .flat_map(|s| {

@@ -3,8 +3,8 @@
 //! Wall units: lengths in ν/u_tau, velocities in u_tau, time in ν/u_tau², fluid density 1,
 //! so the dynamic viscosity is 1 as well.
 
-use crate::error::FibreError;
-use crate::fibre::{Fibre, SegmentProps};
+use crate::error::FiberError;
+use crate::fiber::{Fiber, SegmentProps};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -159,14 +159,14 @@ pub fn five_layers(
 }
 
 /// Builds a straight fibre of `n` equal segments for a placement.
-pub fn build_fibre(
+pub fn build_fiber(
     pl: &Placement,
     n: usize,
     length_plus: f64,
     diameter_plus: f64,
     density_ratio: f64,
-) -> Result<Fibre, FibreError> {
-    Fibre::straight(
+) -> Result<Fiber, FiberError> {
+    Fiber::straight(
         pl.centre,
         pl.axis,
         &vec![length_plus; n],
@@ -203,7 +203,7 @@ mod tests {
     }
 
     #[test]
-    fn layout_has_fifty_fibres_inside_the_channel() {
+    fn layout_has_fifty_fibers_inside_the_channel() {
         let p = five_layers([942.48, 300.0, 471.24], 10, 15.0, 50.0);
         assert_eq!(p.len(), 50);
         for pl in &p {

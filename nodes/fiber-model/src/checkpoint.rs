@@ -14,7 +14,7 @@
 //! (temp file, fsync, rename). Files of the earlier formats are read: `FFGRPCK1` (five
 //! arrays) with zero forces, `FFGRPCK2` (six) with no contact load.
 
-use crate::group::FibreGroup;
+use crate::group::FiberGroup;
 use nalgebra::Vector3;
 use std::path::Path;
 
@@ -50,20 +50,20 @@ pub struct GroupSnapshot {
     pub velocity: Vec<f64>,
     pub angular_velocity: Vec<f64>,
     pub normal: Vec<f64>,
-    /// Hydrodynamic force of the last step ([`crate::fibre::Segment::f`]).
+    /// Hydrodynamic force of the last step ([`crate::fiber::Segment::f`]).
     pub force: Vec<f64>,
-    /// Contact load of the last step ([`FibreGroup::contact_load`]).
+    /// Contact load of the last step ([`FiberGroup::contact_load`]).
     pub contact: crate::contact::SegmentLoad,
 }
 
 impl GroupSnapshot {
     /// Captures the group's state at `step`.
-    pub fn capture(group: &FibreGroup, step: u64) -> Self {
+    pub fn capture(group: &FiberGroup, step: u64) -> Self {
         let n = group.segment_count();
         let mut s = Self {
             step,
             segments_per_fiber: (0..group.len())
-                .map(|k| group.fibre_len(k) as u32)
+                .map(|k| group.fiber_len(k) as u32)
                 .collect(),
             centre: Vec::with_capacity(3 * n),
             axis: Vec::with_capacity(3 * n),
@@ -85,9 +85,9 @@ impl GroupSnapshot {
     }
 
     /// Puts this state into `group` (built from the same configuration).
-    pub fn restore(&self, group: &mut FibreGroup) -> Result<(), String> {
+    pub fn restore(&self, group: &mut FiberGroup) -> Result<(), String> {
         let shape: Vec<u32> = (0..group.len())
-            .map(|k| group.fibre_len(k) as u32)
+            .map(|k| group.fiber_len(k) as u32)
             .collect();
         if shape != self.segments_per_fiber {
             return Err(format!(
@@ -101,7 +101,7 @@ impl GroupSnapshot {
                 group.segment_count()
             ));
         }
-        let flat = crate::fibre::FlatSegments {
+        let flat = crate::fiber::FlatSegments {
             centre: &self.centre,
             axis: &self.axis,
             velocity: &self.velocity,
@@ -117,7 +117,7 @@ impl GroupSnapshot {
         };
         let mut i = 0;
         for k in 0..group.len() {
-            for j in 0..group.fibre_len(k) {
+            for j in 0..group.fiber_len(k) {
                 group.set_segment(k, j, flat.get(i, f(i)));
                 i += 1;
             }
@@ -308,15 +308,15 @@ fn fnv1a(b: &[u8]) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fibre::Fibre;
+    use crate::fiber::Fiber;
     use crate::step::{step, FluidSample, ModelParams};
     use crate::DragModel;
     use nalgebra::Matrix3;
 
-    fn group() -> FibreGroup {
-        let fibres = (0..3)
+    fn group() -> FiberGroup {
+        let fibers = (0..3)
             .map(|k| {
-                Fibre::straight(
+                Fiber::straight(
                     Vector3::new(k as f64, 0.1 * k as f64, 0.0),
                     Vector3::new(0.0, 1.0, 0.2).normalize(),
                     &[3.0; 7],
@@ -338,10 +338,10 @@ mod tests {
             tikhonov: 0.0,
             wall_half_height: None,
         };
-        FibreGroup::new(params, fibres)
+        FiberGroup::new(params, fibers)
     }
 
-    fn shear(g: &FibreGroup) -> Vec<FluidSample> {
+    fn shear(g: &FiberGroup) -> Vec<FluidSample> {
         let mut grad = Matrix3::zeros();
         grad[(0, 1)] = 0.3;
         g.segment_centres()
@@ -386,7 +386,7 @@ mod tests {
         std::fs::remove_file(&path).ok();
         // sanity of the single-fibre API on the restored group
         let f0 = shear(&b)[..7].to_vec();
-        let mut one = b.fibre(0);
+        let mut one = b.fiber(0);
         step(b.params(), &mut one, &f0, dt).unwrap();
     }
 

@@ -9,7 +9,7 @@ pub mod checkpoint;
 pub mod contact;
 pub mod dense;
 pub mod error;
-pub mod fibre;
+pub mod fiber;
 pub mod group;
 pub mod hydro;
 pub mod lanes;
@@ -17,7 +17,7 @@ pub mod metrics;
 pub mod step;
 pub mod suspension;
 
-pub use error::FibreError;
-pub use fibre::{Fibre, Segment};
+pub use error::FiberError;
+pub use fiber::{Fiber, Segment};
 pub use hydro::DragModel;
 pub use step::{FluidSample, ModelParams};

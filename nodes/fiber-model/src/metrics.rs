@@ -1,11 +1,11 @@
 //! Per-fibre shape and orientation metrics (paper §4.3).
 
-use crate::fibre::{Fibre, Segment, SegmentProps};
+use crate::fiber::{Fiber, Segment, SegmentProps};
 use nalgebra::Vector3;
 
 /// Metrics of one fibre at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FibreMetrics {
+pub struct FiberMetrics {
     /// Mass-weighted centre of mass (unwrapped).
     pub centre_of_mass: Vector3<f64>,
     /// Orientation ẑ = Σẑ_i / |Σẑ_i|.
@@ -19,12 +19,12 @@ pub struct FibreMetrics {
 }
 
 /// The metrics of fibre `f`.
-pub fn metrics(f: &Fibre) -> FibreMetrics {
+pub fn metrics(f: &Fiber) -> FiberMetrics {
     metrics_of(&f.segments, &f.props)
 }
 
 /// The metrics of the fibre whose segments are `segments`, with properties `props`.
-pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FibreMetrics {
+pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FiberMetrics {
     metrics_from(segments.iter().map(|s| (s.r, s.z)), props)
 }
 
@@ -33,7 +33,7 @@ pub fn metrics_of(segments: &[Segment], props: &[SegmentProps]) -> FibreMetrics 
 pub fn metrics_from(
     rz: impl Iterator<Item = (Vector3<f64>, Vector3<f64>)> + Clone,
     props: &[SegmentProps],
-) -> FibreMetrics {
+) -> FiberMetrics {
     let n = rz.clone().count();
     let mut com = Vector3::zeros();
     let mut mass = 0.0;
@@ -58,7 +58,7 @@ pub fn metrics_from(
     } else {
         0.0
     };
-    // the free ends, as the first and last of `Fibre::joints`
+    // the free ends, as the first and last of `Fiber::joints`
     let end_to_end = match (rz.clone().next(), rz.last(), props.first(), props.last()) {
         (Some((ra, za)), Some((rb, zb)), Some(pa), Some(pb)) => {
             let start = ra - 0.5 * pa.shape.length * za;
@@ -67,7 +67,7 @@ pub fn metrics_from(
         }
         _ => 0.0,
     };
-    FibreMetrics {
+    FiberMetrics {
         centre_of_mass: com,
         orientation: zhat,
         z1: zhat.x,

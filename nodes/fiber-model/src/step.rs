@@ -26,8 +26,8 @@
 //! for these segments) to ω∥ Δt ≈ 9, and the fibre then whipped and folded
 //! (docs/contact.md). The scheme stays first order.
 
-use crate::error::FibreError;
-use crate::fibre::Fibre;
+use crate::error::FiberError;
+use crate::fiber::Fiber;
 use crate::hydro::{resistance_axisymmetric, Axisymmetric, AxisymmetricResistance, DragModel};
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 
@@ -190,20 +190,20 @@ pub struct Loads {
 /// Advances one fibre by Δt. `fluid[i]` is the sample at segment i's centre at t_{n−1}.
 pub fn step(
     p: &ModelParams,
-    f: &mut Fibre,
+    f: &mut Fiber,
     fluid: &[FluidSample],
     dt: f64,
-) -> Result<(), FibreError> {
+) -> Result<(), FiberError> {
     step_inner(p, f, fluid, dt, None)
 }
 
 /// [`step`] that also returns the loads at the new velocities.
 pub fn step_with_loads(
     p: &ModelParams,
-    f: &mut Fibre,
+    f: &mut Fiber,
     fluid: &[FluidSample],
     dt: f64,
-) -> Result<Loads, FibreError> {
+) -> Result<Loads, FiberError> {
     let mut loads = Loads::default();
     step_inner(p, f, fluid, dt, Some(&mut loads))?;
     Ok(loads)
@@ -217,14 +217,14 @@ const MAX_STACK: usize = 16;
 /// as one system, and reads top to bottom like the paper's algorithm.
 fn step_inner(
     p: &ModelParams,
-    f: &mut Fibre,
+    f: &mut Fiber,
     fluid: &[FluidSample],
     dt: f64,
     mut loads: Option<&mut Loads>,
-) -> Result<(), FibreError> {
+) -> Result<(), FiberError> {
     let n = f.len();
     if fluid.len() != n {
-        return Err(FibreError::SampleCount {
+        return Err(FiberError::SampleCount {
             expected: n,
             got: fluid.len(),
         });
@@ -260,7 +260,7 @@ fn step_inner(
             par: m_dt + r.a.par,
         }
         .inverse()
-        .ok_or(FibreError::Singular { fibre: 0 })?;
+        .ok_or(FiberError::Singular { fiber: 0 })?;
         let s_t = m_dt * s.v + r.a.apply(&s.z, &fl.vel) + fw;
         let inertia = Axisymmetric {
             perp: pr.inertia_perp,
@@ -275,7 +275,7 @@ fn step_inner(
             par: inertia.par / dt + r.c.par,
         }
         .inverse()
-        .ok_or(FibreError::Singular { fibre: 0 })?;
+        .ok_or(FiberError::Singular { fiber: 0 })?;
         let mut bend = Vector3::zeros();
         if p.bending_stiffness != 0.0 {
             if i + 1 < n {
@@ -335,7 +335,7 @@ fn step_inner(
             // block Thomas; each pivot block is inverted once
             let mut dinv: smallvec_like::Buf<Matrix3<f64>> = smallvec_like::Buf::new(nj);
             let mut rp: smallvec_like::Buf<Vector3<f64>> = smallvec_like::Buf::new(nj);
-            let singular = || FibreError::Singular { fibre: 0 };
+            let singular = || FiberError::Singular { fiber: 0 };
             dinv[0] = diag(0).try_inverse().ok_or_else(singular)?;
             rp[0] = rhs(0);
             for k in 1..nj {
@@ -382,7 +382,7 @@ fn step_inner(
         .iter()
         .all(|s| s.v.iter().chain(s.w.iter()).all(|x| x.is_finite()))
     {
-        return Err(FibreError::Singular { fibre: 0 });
+        return Err(FiberError::Singular { fiber: 0 });
     }
     for s in f.segments.iter_mut() {
         s.r += dt * s.v;
@@ -456,14 +456,14 @@ pub fn rotate_pair(
 
 /// Frictionless, inelastic wall contact: if a segment end leaves |x2| <= H, the whole fibre
 /// is translated back along ê2 (so joints stay closed) and wall-ward ê2 velocities are zeroed.
-pub fn wall_contact(f: &mut Fibre, half_height: f64) {
+pub fn wall_contact(f: &mut Fiber, half_height: f64) {
     let shift = wall_shift(f, half_height);
     shift_from_wall(f, shift);
 }
 
 /// How far along ê2 fibre `f` must move to bring every segment end back within |x2| <= H
 /// (0 when it is inside).
-pub fn wall_shift(f: &Fibre, half_height: f64) -> f64 {
+pub fn wall_shift(f: &Fiber, half_height: f64) -> f64 {
     // the joints' x2 (as Fibre::joints computes them, without allocating)
     let (mut ymin, mut ymax) = (f64::INFINITY, f64::NEG_INFINITY);
     for (s, p) in f.segments.iter().zip(&f.props) {
@@ -486,7 +486,7 @@ pub fn wall_shift(f: &Fibre, half_height: f64) -> f64 {
 
 /// Moves `f` by `shift` along ê2 away from a wall and zeroes its segments' velocities
 /// towards that wall (nothing when `shift` is 0).
-pub fn shift_from_wall(f: &mut Fibre, shift: f64) {
+pub fn shift_from_wall(f: &mut Fiber, shift: f64) {
     if shift == 0.0 {
         return;
     }
@@ -509,7 +509,7 @@ fn solve_dense_tikhonov(
     rhs: &dyn Fn(usize) -> Vector3<f64>,
     lambda: f64,
     y: &mut smallvec_like::Buf<Vector3<f64>>,
-) -> Result<(), FibreError> {
+) -> Result<(), FiberError> {
     let dim = 3 * nj;
     let mut a = DMatrix::<f64>::zeros(dim, dim);
     let mut b = DVector::<f64>::zeros(dim);
@@ -526,7 +526,7 @@ fn solve_dense_tikhonov(
         b.fixed_view_mut::<3, 1>(3 * k, 0).copy_from(&rhs(k));
     }
     let x =
-        crate::dense::tikhonov_solve(&a, &b, lambda).ok_or(FibreError::Singular { fibre: 0 })?;
+        crate::dense::tikhonov_solve(&a, &b, lambda).ok_or(FiberError::Singular { fiber: 0 })?;
     for k in 0..nj {
         y[k] = Vector3::new(x[3 * k], x[3 * k + 1], x[3 * k + 2]);
     }

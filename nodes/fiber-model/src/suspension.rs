@@ -163,12 +163,12 @@ pub fn random_suspension_avoiding(
     let (mut attempts, mut misses) = (0, 0);
     while out.len() < s.count {
         if misses == MAX_MISSES {
-            let fibre_volume = std::f64::consts::PI * 0.25 * s.diameter_plus.powi(2) * length;
+            let fiber_volume = std::f64::consts::PI * 0.25 * s.diameter_plus.powi(2) * length;
             return Err(SuspensionError::Crowded {
                 count: s.count,
                 placed: out.len(),
                 attempts,
-                fraction: out.len() as f64 * fibre_volume / (lx * height * lz),
+                fraction: out.len() as f64 * fiber_volume / (lx * height * lz),
             });
         }
         attempts += 1;
@@ -325,7 +325,7 @@ mod tests {
     /// (checked by brute force over a sample of fibres against all), and the same fibres
     /// from the same seed.
     #[test]
-    fn no_two_fibres_overlap_and_the_seed_fixes_them() {
+    fn no_two_fibers_overlap_and_the_seed_fixes_them() {
         let s = case1(52_000);
         let a = random_suspension(&s).unwrap();
         assert_eq!(a.len(), 52_000);

@@ -4,8 +4,8 @@
 //! `PARALLEL_MIN_SEGMENTS`) in SIMD lanes and fibre by fibre, from decoded samples and
 //! from the wire bytes a fibre node reads in place.
 
-use fiberflow_fiber_model::fibre::Fibre;
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::fiber::Fiber;
+use fiberflow_fiber_model::group::FiberGroup;
 use fiberflow_fiber_model::step::Fluid;
 use fiberflow_fiber_model::{DragModel, FluidSample, ModelParams};
 use nalgebra::{Matrix3, Vector3};
@@ -42,7 +42,7 @@ static ALLOCATOR: Counting = Counting;
 
 /// 50 fibres of 7 segments (SIMD lanes) and, with `mixed`, one of 5 after them (its
 /// block is stepped fibre by fibre), with inertial drag, gravity and bending.
-fn group(mixed: bool) -> FibreGroup {
+fn group(mixed: bool) -> FiberGroup {
     let params = ModelParams {
         drag: DragModel {
             viscosity: 1.0,
@@ -55,10 +55,10 @@ fn group(mixed: bool) -> FibreGroup {
         tikhonov: 0.0,
         wall_half_height: Some(150.0),
     };
-    let mut fibres: Vec<Fibre> = (0..50)
+    let mut fibers: Vec<Fiber> = (0..50)
         .map(|i| {
             let a = i as f64 * 0.37;
-            Fibre::straight(
+            Fiber::straight(
                 Vector3::new(i as f64, a.sin() * 100.0, 3.0 * i as f64),
                 Vector3::new(a.cos(), 1.0, a.sin()),
                 &[3.0; 7],
@@ -69,8 +69,8 @@ fn group(mixed: bool) -> FibreGroup {
         })
         .collect();
     if mixed {
-        fibres.push(
-            Fibre::straight(
+        fibers.push(
+            Fiber::straight(
                 Vector3::new(7.0, 20.0, 9.0),
                 Vector3::new(0.0, 1.0, 0.0),
                 &[3.0; 5],
@@ -80,10 +80,10 @@ fn group(mixed: bool) -> FibreGroup {
             .expect("valid fibre"),
         );
     }
-    FibreGroup::new(params, fibres)
+    FiberGroup::new(params, fibers)
 }
 
-fn samples(g: &FibreGroup) -> Vec<FluidSample> {
+fn samples(g: &FiberGroup) -> Vec<FluidSample> {
     g.segment_centres()
         .iter()
         .map(|r| FluidSample {
@@ -109,7 +109,11 @@ fn allocations(f: impl FnOnce()) -> usize {
 fn a_step_allocates_nothing_after_the_first() {
     let mut fresh = group(true);
     let fluid = samples(&fresh);
-    assert!(allocations(|| fresh.step(&fluid, 0.01).expect("step")) > 0);
+    assert!(
+        allocations(|| {
+            fresh.step(&fluid, 0.01).expect("step");
+        }) > 0
+    );
     for mixed in [false, true] {
         let mut g = group(mixed);
         let fluid = samples(&g);

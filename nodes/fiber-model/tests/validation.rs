@@ -1,7 +1,7 @@
 //! Validation of the fibre model against analytic limits (tolerances stated per test).
 
 use fiberflow_fiber_model::cases::{paper_diameter_plus, relaxation_time_plus};
-use fiberflow_fiber_model::fibre::Fibre;
+use fiberflow_fiber_model::fiber::Fiber;
 use fiberflow_fiber_model::hydro::cox_equivalent_aspect_ratio;
 use fiberflow_fiber_model::metrics::metrics;
 use fiberflow_fiber_model::step::{step, step_with_loads, FluidSample, ModelParams};
@@ -31,12 +31,12 @@ fn shear(s: f64) -> impl Fn(&Vector3<f64>) -> FluidSample {
     }
 }
 
-fn samples(f: &Fibre, flow: &dyn Fn(&Vector3<f64>) -> FluidSample) -> Vec<FluidSample> {
+fn samples(f: &Fiber, flow: &dyn Fn(&Vector3<f64>) -> FluidSample) -> Vec<FluidSample> {
     f.segments.iter().map(|s| flow(&s.r)).collect()
 }
 
-fn straight(n: usize, l: f64, d: f64, rho: f64, axis: Vector3<f64>) -> Fibre {
-    Fibre::straight(Vector3::zeros(), axis, &vec![l; n], &vec![d; n], rho).unwrap()
+fn straight(n: usize, l: f64, d: f64, rho: f64, axis: Vector3<f64>) -> Fiber {
+    Fiber::straight(Vector3::zeros(), axis, &vec![l; n], &vec![d; n], rho).unwrap()
 }
 
 /// A segment released at rest in uniform flow relaxes with τ = m/(3πηl X^A) along and
@@ -153,12 +153,12 @@ fn length_for_re(re: f64) -> f64 {
 
 /// Time for the in-plane angle of `orient(f)` to turn by 2π in simple shear S = 1.
 fn measure_period(
-    f: &mut Fibre,
+    f: &mut Fiber,
     p: &ModelParams,
     dt: f64,
     t_max: f64,
-    orient: impl Fn(&Fibre) -> Vector3<f64>,
-    mut each: impl FnMut(&Fibre),
+    orient: impl Fn(&Fiber) -> Vector3<f64>,
+    mut each: impl FnMut(&Fiber),
 ) -> f64 {
     let flow = shear(1.0);
     let angle = |z: Vector3<f64>| z.y.atan2(z.x);
@@ -371,7 +371,7 @@ fn slender_segment_rotation_is_stable() {
 }
 
 /// Kinetic energy, translational and rotational, of a fibre.
-fn kinetic_energy(f: &Fibre) -> f64 {
+fn kinetic_energy(f: &Fiber) -> f64 {
     f.segments
         .iter()
         .zip(&f.props)
@@ -480,7 +480,7 @@ fn twisting_stiffness_relaxes_twist() {
 
 /// Wall contact: a fibre pushed towards a wall never leaves |x2| <= H.
 #[test]
-fn wall_contact_keeps_fibre_inside() {
+fn wall_contact_keeps_fiber_inside() {
     let mut p = params(1.0);
     p.wall_half_height = Some(20.0);
     let mut f = straight(7, 3.0, 0.232, 1150.0, Vector3::new(0.0, 1.0, 0.0));
@@ -500,13 +500,13 @@ fn wall_contact_keeps_fibre_inside() {
 /// Invalid fibres give a named error.
 #[test]
 fn invalid_input_is_named() {
-    let e = Fibre::straight(Vector3::zeros(), Vector3::x(), &[], &[], 1.0).unwrap_err();
+    let e = Fiber::straight(Vector3::zeros(), Vector3::x(), &[], &[], 1.0).unwrap_err();
     assert!(e.to_string().contains("segments"), "{e}");
-    let e = Fibre::straight(Vector3::zeros(), Vector3::x(), &[0.1], &[0.2], 1.0).unwrap_err();
+    let e = Fiber::straight(Vector3::zeros(), Vector3::x(), &[0.1], &[0.2], 1.0).unwrap_err();
     assert!(e.to_string().contains("length"), "{e}");
-    let e = Fibre::straight(Vector3::zeros(), Vector3::x(), &[3.0], &[0.2], -1.0).unwrap_err();
+    let e = Fiber::straight(Vector3::zeros(), Vector3::x(), &[3.0], &[0.2], -1.0).unwrap_err();
     assert!(e.to_string().contains("density"), "{e}");
-    let e = Fibre::straight(Vector3::zeros(), Vector3::x(), &[3.0], &[f64::NAN], 1.0).unwrap_err();
+    let e = Fiber::straight(Vector3::zeros(), Vector3::x(), &[3.0], &[f64::NAN], 1.0).unwrap_err();
     assert!(e.to_string().contains("diameter"), "{e}");
 }
 

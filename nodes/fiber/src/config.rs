@@ -1,12 +1,12 @@
 //! Fibre-group configuration (the `[[fibers]]` tables of a launch file), in wall units.
 
 use fiberflow_fiber_model::cases::{
-    build_fibre, five_layers, paper_diameter_plus, Layer, PaperCase, Placement,
+    build_fiber, five_layers, paper_diameter_plus, Layer, PaperCase, Placement,
 };
 use fiberflow_fiber_model::contact::{self, ContactParams};
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::group::FiberGroup;
 use fiberflow_fiber_model::suspension::{random_suspension_avoiding, Placed, Suspension};
-use fiberflow_fiber_model::{DragModel, FibreError, ModelParams};
+use fiberflow_fiber_model::{DragModel, FiberError, ModelParams};
 use fiberflow_messages::pieces::{split, Piece};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -192,14 +192,14 @@ pub struct PhysicalProperties {
 }
 
 impl PhysicalProperties {
-    fn check(&self, group: &str) -> Result<(), FibreError> {
+    fn check(&self, group: &str) -> Result<(), FiberError> {
         for (k, v) in [
             ("kinematic_viscosity_m2_s", self.kinematic_viscosity_m2_s),
             ("friction_velocity_m_s", self.friction_velocity_m_s),
             ("fluid_density_kg_m3", self.fluid_density_kg_m3),
         ] {
             if !(v > 0.0 && v.is_finite()) {
-                return Err(FibreError::Config(format!(
+                return Err(FiberError::Config(format!(
                     "fibers[{group}].physical.{k} must be positive and finite (got {v})"
                 )));
             }
@@ -239,7 +239,7 @@ fn default_metrics_every() -> u64 {
 
 /// A built group plus per-fibre layer tags.
 pub struct BuiltGroup {
-    pub group: FibreGroup,
+    pub group: FiberGroup,
     pub layers: Vec<u8>,
 }
 
@@ -260,7 +260,7 @@ impl BuiltGroup {
 pub fn build_suspension(
     members: &[FiberNodeConfig],
     box_plus: [f64; 3],
-) -> Result<Vec<BuiltGroup>, FibreError> {
+) -> Result<Vec<BuiltGroup>, FiberError> {
     let mut placed = Vec::new();
     let mut built: Vec<BuiltGroup> = Vec::with_capacity(members.len());
     for m in members {
@@ -276,7 +276,7 @@ pub fn build_suspension(
         }
         built.push(b);
     }
-    let all: Vec<_> = built.iter().flat_map(|b| b.group.fibres()).collect();
+    let all: Vec<_> = built.iter().flat_map(|b| b.group.fibers()).collect();
     let period = [Some(box_plus[0]), None, Some(box_plus[2])];
     let overlaps = contact::overlaps(&all, &period);
     if let Some(&(a, i, b, j, dist)) = overlaps.first() {
@@ -290,7 +290,7 @@ pub fn build_suspension(
             }
             format!("fibre {k}")
         };
-        return Err(FibreError::Config(format!(
+        return Err(FiberError::Config(format!(
             "suspensions: the start overlaps: segment {i} of {} and segment {j} of {} are {dist:.4} apart, closer than their contact distance ({} pairs in all); place the groups at random (placement.kind = \"random\") so that each keeps clear of those before it",
             name(a),
             name(b),
@@ -322,7 +322,7 @@ impl FiberNodeConfig {
     }
 
     /// Validates and builds the group for a channel box (wall units).
-    pub fn build(&self, box_plus: [f64; 3]) -> Result<BuiltGroup, FibreError> {
+    pub fn build(&self, box_plus: [f64; 3]) -> Result<BuiltGroup, FiberError> {
         self.build_avoiding(box_plus, &[])
     }
 
@@ -332,7 +332,7 @@ impl FiberNodeConfig {
         &self,
         box_plus: [f64; 3],
         placed: &[Placed],
-    ) -> Result<BuiltGroup, FibreError> {
+    ) -> Result<BuiltGroup, FiberError> {
         let (l, d, rho) = self.checked_sizes()?;
         let placements = self.placements(box_plus, l, d, placed)?;
         if self.shards == 0 || self.shards as usize > placements.len() {
@@ -342,10 +342,10 @@ impl FiberNodeConfig {
                 self.shards.to_string(),
             );
         }
-        let mut fibres = Vec::with_capacity(placements.len());
+        let mut fibers = Vec::with_capacity(placements.len());
         let mut layers = Vec::with_capacity(placements.len());
         for p in &placements {
-            fibres.push(build_fibre(p, self.segments, l, d, rho)?);
+            fibers.push(build_fiber(p, self.segments, l, d, rho)?);
             layers.push(p.layer.index());
         }
         let params = ModelParams {
@@ -360,7 +360,7 @@ impl FiberNodeConfig {
             tikhonov: self.tikhonov,
             wall_half_height: self.wall_contact.then_some(0.5 * box_plus[1]),
         };
-        let mut group = FibreGroup::new(params, fibres);
+        let mut group = FiberGroup::new(params, fibers);
         group.set_contact(self.contact_params(box_plus, &group)?);
         Ok(BuiltGroup { group, layers })
     }
@@ -370,8 +370,8 @@ impl FiberNodeConfig {
     fn contact_params(
         &self,
         box_plus: [f64; 3],
-        group: &FibreGroup,
-    ) -> Result<Option<ContactParams>, FibreError> {
+        group: &FiberGroup,
+    ) -> Result<Option<ContactParams>, FiberError> {
         let Some(c) = &self.contact else {
             return Ok(None);
         };
@@ -392,9 +392,9 @@ impl FiberNodeConfig {
             // the group's model walls are set when it steps
             wall_half_height: None,
         };
-        let overlaps = contact::overlaps(&group.fibres(), &params.period);
+        let overlaps = contact::overlaps(&group.fibers(), &params.period);
         if let Some(&(a, i, b, j, dist)) = overlaps.first() {
-            return Err(FibreError::Config(format!(
+            return Err(FiberError::Config(format!(
                 "fibers[{}].contact: the start overlaps: segment {i} of fibre {a} and segment {j} of fibre {b} are {dist:.4} apart, closer than a diameter ({} pairs in all); start from placement.kind = \"random\" with min_distance_plus >= diameter_plus",
                 self.group,
                 overlaps.len()
@@ -404,8 +404,8 @@ impl FiberNodeConfig {
     }
 
     /// The error for key `key` of this group outside `range`.
-    fn bad<T>(&self, key: &str, range: &str, got: String) -> Result<T, FibreError> {
-        Err(FibreError::Config(format!(
+    fn bad<T>(&self, key: &str, range: &str, got: String) -> Result<T, FiberError> {
+        Err(FiberError::Config(format!(
             "fibers[{}].{key} must be {range} (got {got})",
             self.group
         )))
@@ -413,7 +413,7 @@ impl FiberNodeConfig {
 
     /// Checks the group's name and scalar keys (each error names its key and range) and
     /// gives the resolved segment length, diameter and density ratio.
-    fn checked_sizes(&self) -> Result<(f64, f64, f64), FibreError> {
+    fn checked_sizes(&self) -> Result<(f64, f64, f64), FiberError> {
         if self.group.is_empty()
             || !self
                 .group
@@ -483,7 +483,7 @@ impl FiberNodeConfig {
         l: f64,
         d: f64,
         placed: &[Placed],
-    ) -> Result<Vec<Placement>, FibreError> {
+    ) -> Result<Vec<Placement>, FiberError> {
         Ok(match &self.placement {
             PlacementConfig::Layers {
                 per_layer,
@@ -540,7 +540,7 @@ impl FiberNodeConfig {
                     },
                     placed,
                 )
-                .map_err(|e| FibreError::Config(format!("fibers[{}].{e}", self.group)))?
+                .map_err(|e| FiberError::Config(format!("fibers[{}].{e}", self.group)))?
             }
             PlacementConfig::Explicit { centres, axes } => {
                 if centres.len() != axes.len() || centres.is_empty() {
@@ -565,7 +565,7 @@ impl FiberNodeConfig {
     }
 
     /// The fibre nodes of the group: `shards` contiguous slices of its fibres.
-    pub fn pieces(&self, box_plus: [f64; 3]) -> Result<Vec<Piece>, FibreError> {
+    pub fn pieces(&self, box_plus: [f64; 3]) -> Result<Vec<Piece>, FiberError> {
         let built = self.build(box_plus)?;
         let total = built.group.len() as u32;
         Ok(split(total, self.shards)
@@ -579,7 +579,7 @@ impl FiberNodeConfig {
                 fibers: n,
                 group_fibers: total,
                 segments: (first as usize..(first + n) as usize)
-                    .map(|k| built.group.fibre_len(k))
+                    .map(|k| built.group.fiber_len(k))
                     .sum(),
             })
             .collect())
@@ -719,15 +719,15 @@ mod tests {
         let period = [Some(b[0]), None, Some(b[2])];
         let alone: Vec<_> = members
             .iter()
-            .flat_map(|m| m.build(b).unwrap().group.fibres())
+            .flat_map(|m| m.build(b).unwrap().group.fibers())
             .collect();
         assert!(!contact::overlaps(&alone, &period).is_empty());
         let together = build_suspension(&members, b).unwrap();
-        let all: Vec<_> = together.iter().flat_map(|g| g.group.fibres()).collect();
+        let all: Vec<_> = together.iter().flat_map(|g| g.group.fibers()).collect();
         assert!(contact::overlaps(&all, &period).is_empty());
         assert_eq!(
-            together[0].group.fibres(),
-            members[0].build(b).unwrap().group.fibres()
+            together[0].group.fibers(),
+            members[0].build(b).unwrap().group.fibers()
         );
         assert_eq!(together[1].group.len(), 1500);
     }

@@ -10,8 +10,8 @@ use crate::config::{build_suspension, BuiltGroup, FiberNodeConfig};
 use crate::serve::FiberNodeError;
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::contact::exchange::{ContactSolved, FreeStep, OtherPiece};
-use fiberflow_fiber_model::group::FibreGroup;
-use fiberflow_fiber_model::FibreError;
+use fiberflow_fiber_model::group::{FiberGroup, StepReport};
+use fiberflow_fiber_model::FiberError;
 use fiberflow_messages::pieces::Piece;
 use fiberflow_messages::sanity::Sane;
 use fiberflow_messages::topics::Topics;
@@ -45,7 +45,7 @@ pub(crate) fn touching(
     own: &Piece,
     members: &[FiberNodeConfig],
     box_plus: [f64; 3],
-) -> Result<Touching, FibreError> {
+) -> Result<Touching, FiberError> {
     let (groups, built) = if members.is_empty() {
         (vec![cfg.clone()], vec![cfg.build(box_plus)?])
     } else {
@@ -62,12 +62,12 @@ pub(crate) fn touching(
             if p.group == own.group && p.index == own.index {
                 order = offset + first;
             } else if cfg.contact.is_some() {
-                let fibres = if solves {
-                    b.group.slice(first, p.fibers as usize).fibres()
+                let fibers = if solves {
+                    b.group.slice(first, p.fibers as usize).fibers()
                 } else {
                     Vec::new()
                 };
-                others.push((p.clone(), OtherPiece::new(first, offset + first, fibres)));
+                others.push((p.clone(), OtherPiece::new(first, offset + first, fibers)));
             }
         }
         offset += b.group.len();
@@ -76,7 +76,7 @@ pub(crate) fn touching(
         }
     }
     let whole = whole.ok_or_else(|| {
-        FibreError::Config(format!("group {} is not in its own suspension", cfg.group))
+        FiberError::Config(format!("group {} is not in its own suspension", cfg.group))
     })?;
     Ok(Touching {
         whole,
@@ -241,14 +241,14 @@ impl Exchange {
         &mut self,
         bus: &BusHandle,
         node: &str,
-        group: &mut FibreGroup,
+        group: &mut FiberGroup,
         order: usize,
         step: u64,
         t_plus: f64,
         dt: f64,
         timeout: Duration,
         alive: &mut dyn FnMut() -> Result<(), FiberNodeError>,
-    ) -> Result<(), FiberNodeError> {
+    ) -> Result<StepReport, FiberNodeError> {
         let t0 = Instant::now();
         if let Role::Member {
             free, free_topic, ..
@@ -264,7 +264,7 @@ impl Exchange {
         }
         let waited = self.wait(bus, node, group, order, step, timeout, alive);
         self.exchange_s += t0.elapsed().as_secs_f64();
-        waited?;
+        let mut report = waited?.unwrap_or_default();
         if let Role::Solver {
             others,
             parts,
@@ -279,7 +279,7 @@ impl Exchange {
             }
             let mut done: Vec<ContactSolved> =
                 parts.iter_mut().map(|m| take_solved(&mut m.0)).collect();
-            group.resolve_contact_for(order, others, dt, &mut done);
+            report = group.resolve_contact_for(order, others, dt, &mut done);
             for (m, filled) in parts.iter_mut().zip(done) {
                 put_solved(&mut m.0, filled);
             }
@@ -291,28 +291,28 @@ impl Exchange {
             }
             self.exchange_s += t1.elapsed().as_secs_f64();
         }
-        Ok(())
+        Ok(report)
     }
 
     /// The wait of [`Self::contact`]: for every other piece's free step (first piece), or
-    /// for this piece's part, which it takes (any other piece).
+    /// for this piece's part, which it takes (any other piece: what the part did).
     #[allow(clippy::too_many_arguments)]
     fn wait(
         &mut self,
         bus: &BusHandle,
         node: &str,
-        group: &mut FibreGroup,
+        group: &mut FiberGroup,
         order: usize,
         step: u64,
         timeout: Duration,
         alive: &mut dyn FnMut() -> Result<(), FiberNodeError>,
-    ) -> Result<(), FiberNodeError> {
+    ) -> Result<Option<StepReport>, FiberNodeError> {
         let from = Instant::now();
         let mut resend_at = from + RESEND_AFTER;
         loop {
             if let Role::Solver { others, .. } = &self.role {
                 if others.iter().all(|o| o.step == Some(step)) {
-                    return Ok(());
+                    return Ok(None);
                 }
             }
             alive()?;
@@ -414,7 +414,7 @@ impl Exchange {
                         continue;
                     }
                     match group.apply_contact_solved(order, &take_solved(&mut m)) {
-                        Ok(()) => return Ok(()),
+                        Ok(report) => return Ok(Some(report)),
                         Err(e) => drops.drop_one(&topic, &format!("inconsistent: {e}")),
                     }
                 }

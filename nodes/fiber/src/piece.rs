@@ -10,8 +10,8 @@ use crate::serve::{FiberNodeError, RunSettings};
 use crate::tally::{ContactTally, StepTimes};
 use fiberflow_bus::{BusError, BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_fiber_model::checkpoint::{CheckpointError, GroupSnapshot};
-use fiberflow_fiber_model::group::FibreGroup;
-use fiberflow_fiber_model::metrics::FibreMetrics;
+use fiberflow_fiber_model::group::{FiberGroup, StepReport};
+use fiberflow_fiber_model::metrics::FiberMetrics;
 use fiberflow_fiber_model::step::Fluid;
 use fiberflow_messages::checkpoints;
 use fiberflow_messages::pieces::Piece;
@@ -31,7 +31,7 @@ pub(crate) struct ServedPiece {
     pub(crate) t: Topics,
     pub(crate) bus: BusHandle,
     pub(crate) piece: Piece,
-    pub(crate) group: FibreGroup,
+    pub(crate) group: FiberGroup,
     pub(crate) run_id: String,
     /// The step the run starts (or resumes) from.
     pub(crate) start: u64,
@@ -52,7 +52,7 @@ pub(crate) struct ServedPiece {
     pub(crate) state_msg: Encode<FiberGroupState>,
     pub(crate) state_topic: String,
     /// Refilled every step like the state (the per-fibre metrics and their message).
-    pub(crate) fibre_metrics: Vec<FibreMetrics>,
+    pub(crate) fiber_metrics: Vec<FiberMetrics>,
     pub(crate) metrics_msg: Encode<FiberGroupMetrics>,
     pub(crate) metrics_topic: String,
     pub(crate) full_states_every: u64,
@@ -165,7 +165,7 @@ impl ServedPiece {
             first_fiber: piece.first_fiber,
             group_fibers: piece.group_fibers,
             segments_per_fiber: (0..group.len())
-                .map(|k| group.fibre_len(k) as u32)
+                .map(|k| group.fiber_len(k) as u32)
                 .collect(),
             segment_length: (0..group.len())
                 .map(|k| group.props(k).first().map_or(0.0, |p| p.shape.length))
@@ -201,7 +201,7 @@ impl ServedPiece {
         Ok(Self {
             state_topic: t.fiber_state(&name),
             metrics_topic: t.fiber_metrics(&name),
-            fibre_metrics: Vec::new(),
+            fiber_metrics: Vec::new(),
             metrics_msg,
             node,
             name,
@@ -334,14 +334,14 @@ impl ServedPiece {
             // again complete (the recorder keeps the last state 0, the flow node ignores it)
             self.publish_state(0)?;
         }
-        if self.exchange.is_none() {
-            self.group.step(fluid, self.dt)?;
+        let report = if self.exchange.is_none() {
+            self.group.step(fluid, self.dt)?
         } else {
             self.group.step_free(fluid, self.dt)?;
             drop(samples);
-            self.resolve_with_other_shards(k, step_timeout)?;
-        }
-        self.tally.record(&self.node, k + 1, &self.group);
+            self.resolve_with_other_shards(k, step_timeout)?
+        };
+        self.tally.record(&self.node, k + 1, &self.group, &report);
         self.times.stepping_s += t0.elapsed().as_secs_f64();
         Ok(())
     }
@@ -353,9 +353,9 @@ impl ServedPiece {
         &mut self,
         k: u64,
         step_timeout: Duration,
-    ) -> Result<(), FiberNodeError> {
+    ) -> Result<StepReport, FiberNodeError> {
         let Some(mut x) = self.exchange.take() else {
-            return Ok(());
+            return Ok(StepReport::default());
         };
         let (flow_hb, node, start, watch, stop) = (
             &mut self.flow_hb,
@@ -426,7 +426,7 @@ impl ServedPiece {
             group = %self.node,
             steps = self.steps - self.start,
             waiting_for_samples_s = format!("{:.3}", self.times.waiting_s),
-            fibre_step_s = format!("{:.3}", self.times.stepping_s),
+            fiber_step_s = format!("{:.3}", self.times.stepping_s),
             encoding_and_publishing_s = format!("{:.3}", self.times.publishing_s),
             cpu_s = format!("{:.3}", fiberflow_bus::usage::process_cpu_s() - self.cpu_from),
             "where the group's time went"
@@ -437,8 +437,8 @@ impl ServedPiece {
                 steps = self.steps - self.start,
                 steps_with_a_locked_floc = self.tally.locked_steps,
                 steps_left_closer_than_0_99_d = self.tally.unresolved_steps,
-                steps_with_fibres_kept_at_their_start = self.tally.frozen_steps,
-                fibres_kept_at_their_start = self.tally.frozen_fibres,
+                steps_with_fibers_kept_at_their_start = self.tally.frozen_steps,
+                fibers_kept_at_their_start = self.tally.frozen_fibers,
                 solves_for_the_suspension = self.exchange.as_ref().is_some_and(|x| x.solves()),
                 exchanging_s = format!(
                     "{:.3}",

@@ -40,8 +40,8 @@ impl ServedPiece {
 
     /// Publishes the per-fibre metrics of step `step`.
     pub(crate) fn publish_metrics(&mut self, step: u64) -> Result<(), BusError> {
-        self.group.metrics_into(&mut self.fibre_metrics);
-        let ms = &self.fibre_metrics;
+        self.group.metrics_into(&mut self.fiber_metrics);
+        let ms = &self.fiber_metrics;
         let n = ms.len().max(1) as f64;
         let m = &mut self.metrics_msg.0;
         m.step = step;

@@ -12,7 +12,7 @@ use crate::piece::ServedPiece;
 use fiberflow_bus::{BusError, BusHandle, DropCounter};
 use fiberflow_fiber_model::checkpoint::CheckpointError;
 use fiberflow_fiber_model::group::PARALLEL_MIN_SEGMENTS;
-use fiberflow_fiber_model::FibreError;
+use fiberflow_fiber_model::FiberError;
 use fiberflow_messages::{Lifecycle, RunAnnouncement};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 #[derive(Debug, thiserror::Error)]
 pub enum FiberNodeError {
     #[error(transparent)]
-    Model(#[from] FibreError),
+    Model(#[from] FiberError),
     #[error(transparent)]
     Bus(#[from] BusError),
     #[error(transparent)]

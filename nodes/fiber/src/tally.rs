@@ -2,7 +2,7 @@
 //! what the contact solve could not do (pairs left overlapping, fibres locked into one
 //! body, fibres kept where they started).
 
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::group::{FiberGroup, StepReport};
 
 /// Wall seconds of a node over the run, by part of the step.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -25,16 +25,17 @@ pub(crate) struct ContactTally {
     pub locked_steps: u64,
     /// Steps whose solve kept fibres where they started, and how many in all.
     pub frozen_steps: u64,
-    pub frozen_fibres: u64,
+    pub frozen_fibers: u64,
 }
 
 impl ContactTally {
-    /// Counts what the last contact solve of `group` (at `step`) left undone, and says so.
-    pub fn record(&mut self, node: &str, step: u64, group: &FibreGroup) {
+    /// Counts what the contact solve of `group`'s step to `step` (its `report`) left
+    /// undone, and says so.
+    pub fn record(&mut self, node: &str, step: u64, group: &FiberGroup, report: &StepReport) {
         let Some(c) = group.contact() else {
             return;
         };
-        let out = group.last_contact();
+        let out = &report.contact;
         let d = group.props(0).first().map_or(0.0, |p| p.shape.diameter);
         if out.worst_gap < -0.01 * d {
             if self.unresolved_steps.is_multiple_of(100) {
@@ -44,7 +45,7 @@ impl ContactTally {
                     worst_gap_over_d = out.worst_gap / d,
                     sweeps = out.sweeps,
                     max_sweeps = c.sweeps,
-                    contacts = group.contact_pairs(),
+                    contacts = report.pairs,
                     steps_so_far = self.unresolved_steps + 1,
                     "contact left a pair closer than 0.99 d (raise fibers.contact.sweeps?)"
                 );
@@ -56,7 +57,7 @@ impl ContactTally {
                 tracing::info!(
                     node,
                     step,
-                    fibres = out.locked.len(),
+                    fibers = out.locked.len(),
                     steps_so_far = self.locked_steps + 1,
                     "contact locked fibres the sweeps could not separate (they moved as one body this step)"
                 );
@@ -68,13 +69,13 @@ impl ContactTally {
                 tracing::info!(
                     node,
                     step,
-                    fibres = out.frozen.len(),
+                    fibers = out.frozen.len(),
                     steps_so_far = self.frozen_steps + 1,
                     "contact kept fibres where they started the step (still overlapping when the rounds ran out)"
                 );
             }
             self.frozen_steps += 1;
-            self.frozen_fibres += out.frozen.len() as u64;
+            self.frozen_fibers += out.frozen.len() as u64;
         }
     }
 }

@@ -1,24 +1,24 @@
 //! The two-way feedback's cost per step (docs/two-way.md, "Cost"), two threads as on the
 //! reference machine:
-//! - `correct_and_advance_1e4_case1_fibres`: one `History::correct_and_advance` over 10^4
+//! - `correct_and_advance_1e4_case1_fibers`: one `History::correct_and_advance` over 10^4
 //!   case-1 fibres (7 segments of 3 wall units, random places and directions in the fine
 //!   grid's channel, random forces), the memories carried from step to step as in a run;
 //! - at paper size (300 such fibres in six pieces of 50 on the coarse 64³ grid, as the
-//!   quick launch): spreading their forces on the grid (`spread_300_fibres`), the
-//!   correction of the six pieces (`correct_300_fibres`), and the correction's weights
+//!   quick launch): spreading their forces on the grid (`spread_300_fibers`), the
+//!   correction of the six pieces (`correct_300_fibers`), and the correction's weights
 //!   computed once at start (`weights_coarse_grid`).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use fiberflow_dns::Grid;
 use fiberflow_flow::self_induced::{History, Widths};
 
-const FIBRES: usize = 10_000;
+const FIBERS: usize = 10_000;
 const SEGMENTS: usize = 7;
 const RE_TAU: f64 = 150.0;
 
 /// `fibres` straight case-1 fibres at random places and directions in the channel of
 /// grid `g`, with random forces: (centres, forces), wall units, 3 per segment.
-fn fibres(fibres: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
+fn fibers(fibers: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
     let pi = std::f64::consts::PI;
     let mut x = seed;
     let mut rnd = move || {
@@ -28,7 +28,7 @@ fn fibres(fibres: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
         (x >> 11) as f64 / (1u64 << 53) as f64
     };
     let (mut centre, mut force) = (Vec::new(), Vec::new());
-    for _ in 0..fibres {
+    for _ in 0..fibers {
         let c = [rnd() * 2.0 * pi, rnd() * 1.8 - 0.9, rnd() * pi].map(|v| v * RE_TAU);
         let p = [rnd() - 0.5, rnd() - 0.5, rnd() - 0.5];
         let n = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
@@ -45,8 +45,8 @@ fn bench(c: &mut Criterion) {
     let pi = std::f64::consts::PI;
     let g = Grid::new(192, 64, 64, 2.0 * pi, pi, RE_TAU, Some(0.33)).expect("grid");
     let widths = Widths::new(&g, RE_TAU);
-    let (centre, force) = fibres(FIBRES, 0x0dd_5eed);
-    let spf = vec![SEGMENTS as u32; FIBRES];
+    let (centre, force) = fibers(FIBERS, 0x0dd_5eed);
+    let spf = vec![SEGMENTS as u32; FIBERS];
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
         .build()
@@ -54,9 +54,9 @@ fn bench(c: &mut Criterion) {
     let mut history = History::default();
     let mut velocity = vec![0.0; centre.len()];
     let mut group = c.benchmark_group("self_induced");
-    group.throughput(Throughput::Elements(FIBRES as u64));
+    group.throughput(Throughput::Elements(FIBERS as u64));
     group.sample_size(20);
-    group.bench_function("correct_and_advance_1e4_case1_fibres", |b| {
+    group.bench_function("correct_and_advance_1e4_case1_fibers", |b| {
         b.iter(|| {
             velocity.iter_mut().for_each(|v| *v = 0.0);
             pool.install(|| {
@@ -84,7 +84,7 @@ fn paper_size(c: &mut Criterion) {
         .build()
         .expect("pool");
     let widths = pool.install(|| Widths::new(&g, RE_TAU));
-    let pieces: Vec<(Vec<f64>, Vec<f64>)> = (0..6).map(|p| fibres(50, 0x5eed + p)).collect();
+    let pieces: Vec<(Vec<f64>, Vec<f64>)> = (0..6).map(|p| fibers(50, 0x5eed + p)).collect();
     let spf = vec![SEGMENTS as u32; 50];
     let points: Vec<[f64; 3]> = pieces
         .iter()
@@ -106,10 +106,10 @@ fn paper_size(c: &mut Criterion) {
     let mut group = c.benchmark_group("feedback_paper_size");
     group.throughput(Throughput::Elements(300));
     group.sample_size(20);
-    group.bench_function("spread_300_fibres", |b| {
+    group.bench_function("spread_300_fibers", |b| {
         b.iter(|| pool.install(|| fiberflow_dns::spread::spread(&g, &points, &forces, &mut body)))
     });
-    group.bench_function("correct_300_fibres", |b| {
+    group.bench_function("correct_300_fibers", |b| {
         b.iter(|| {
             pool.install(|| {
                 use rayon::prelude::*;

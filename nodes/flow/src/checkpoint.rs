@@ -14,7 +14,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 const ANALYTIC_MAGIC: &[u8; 8] = b"FFANALYT";
-/// Version 2: per mode also the mean square offsets (`self_induced::PER_FIBRE`).
+/// Version 2: per mode also the mean square offsets (`self_induced::PER_FIBER`).
 const HISTORY_MAGIC: &[u8; 8] = b"FFSELF02";
 const HISTORY_MAGIC_V1: &[u8; 8] = b"FFSELF01";
 const HISTORY_FILE: &str = "self-induced.bin";
@@ -121,7 +121,7 @@ pub fn read_histories(dir: &Path) -> Result<Histories, FlowError> {
         let first = u32::from_le_bytes(take(4)?.try_into().map_err(|_| bad())?);
         let n = usize::try_from(word(take(8)?)).map_err(|_| bad())?;
         let raw = take(n.checked_mul(8).ok_or_else(bad)?)?;
-        if n % crate::self_induced::PER_FIBRE != 0 {
+        if n % crate::self_induced::PER_FIBER != 0 {
             return Err(bad());
         }
         let memory = raw.chunks_exact(8).map(word).map(f64::from_bits).collect();
@@ -169,7 +169,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("ff-self-ckpt-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let mut h = Histories::new();
-        let memory: Vec<f64> = (0..2 * crate::self_induced::PER_FIBRE)
+        let memory: Vec<f64> = (0..2 * crate::self_induced::PER_FIBER)
             .map(|i| (i as f64).sqrt() - 3.0)
             .collect();
         h.insert(("case1".into(), 7), History { memory });

@@ -4,6 +4,10 @@
 //! forces on the fluid), then advance the field to t_{k+1} while each fibre's own
 //! disturbance leaves its samples (two-way) and the samples and the viewers' slices go out,
 //! and report the field's status.
+//!
+//! Size (≈ 690 lines before the tests): the stages share the step's state ([`Coupling`]: the
+//! pieces, the samples in flight, the timers) and run in the loop's order; apart, each would
+//! take the whole struct.
 
 use crate::config::FlowNodeConfig;
 use crate::error::FlowError;
@@ -17,6 +21,7 @@ use fiberflow_dns::stats::RunningStats;
 use fiberflow_dns::StepReport;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::Lifecycle;
+use fiberflow_messages::NodeRole;
 use fiberflow_messages::{encode, FiberGroupState, FlowSamples, FlowStatus, SCHEMA_VERSION};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -72,8 +77,8 @@ pub(crate) enum PendingWidths {
 impl PendingWidths {
     /// Starts computing the weights on a thread of their own when the run needs them (a
     /// two-way run on the DNS with the history correction): started before the flow node
-    /// waits for its nodes to join, so that the wait hides them (≈0.5 s of CPU on the
-    /// coarse grid).
+    /// waits for its nodes to join, so that the wait hides them (a quadrature per grid row:
+    /// a fraction of a second of CPU).
     pub(crate) fn start(cfg: &FlowNodeConfig, run: &RunInfo, field: &Field) -> Option<Self> {
         match (field, run.two_way, cfg.self_induced) {
             (Field::Dns(d), true, crate::config::SelfInduced::History) => {
@@ -233,7 +238,7 @@ impl<'a> Coupling<'a> {
         if run.remote_pieces.is_empty() {
             return Ok(());
         }
-        let fibres_in = k.checked_sub(1).filter(|&c| {
+        let fibers_in = k.checked_sub(1).filter(|&c| {
             c >= run.start_step
                 && fiberflow_messages::checkpoints::is_checkpoint_step(
                     c,
@@ -241,9 +246,12 @@ impl<'a> Coupling<'a> {
                     run.steps,
                 )
         });
-        let remote_recorder = run.remote_pieces.iter().any(|(n, _)| n == "recorder");
+        let remote_recorder = run
+            .remote_pieces
+            .iter()
+            .any(|(n, _)| NodeRole::Recorder.is(n));
         let committed = remote_recorder.then(|| self.states.recorder_committed());
-        for c in self.unconfirmed.ready(fibres_in, committed) {
+        for c in self.unconfirmed.ready(fibers_in, committed) {
             let dir = fiberflow_messages::checkpoints::step_dir(root, c);
             // where each piece is: its node and the host whose run folder holds its file
             let mut text = format!(
@@ -467,7 +475,7 @@ impl<'a> Coupling<'a> {
                     bulk_velocity: 0.0,
                     re_tau: 0.0,
                     pressure_gradient: 0.0,
-                    fibre_force_plus: vec![],
+                    fiber_force_plus: vec![],
                 })
             }
             Field::Dns(d) => d,
@@ -507,7 +515,7 @@ impl<'a> Coupling<'a> {
                 f64::NAN
             },
             pressure_gradient: r.forcing,
-            fibre_force_plus: if run.two_way {
+            fiber_force_plus: if run.two_way {
                 self.feedback.total_plus.to_vec()
             } else {
                 vec![]
@@ -559,7 +567,7 @@ impl<'a> Coupling<'a> {
         self.step_times.flush();
         let dropped = self.states.drops().total();
         heartbeat(&self.bus, &self.t, Lifecycle::Done, run.steps, dropped)?;
-        if run.expected_nodes.iter().any(|n| n == "recorder") {
+        if run.expected_nodes.iter().any(|n| NodeRole::Recorder.is(n)) {
             await_recorder_finishing(&self.bus, &self.t, &mut self.hb_in, run, dropped)?;
         }
         let mut drops = self.states.drops().clone();
@@ -671,12 +679,12 @@ struct Unconfirmed {
 }
 
 impl Unconfirmed {
-    /// Adds `fibres_in` (a checkpoint step whose remote fibre nodes are confirmed) and
+    /// Adds `fibers_in` (a checkpoint step whose remote fibre nodes are confirmed) and
     /// returns, oldest first, the steps now confirmed for the whole run: all of them without
     /// a remote recorder (`committed` None), else those through the newest step it has
     /// said is on its disk (`committed` Some(None): nothing yet).
-    fn ready(&mut self, fibres_in: Option<u64>, committed: Option<Option<u64>>) -> Vec<u64> {
-        self.steps.extend(fibres_in);
+    fn ready(&mut self, fibers_in: Option<u64>, committed: Option<Option<u64>>) -> Vec<u64> {
+        self.steps.extend(fibers_in);
         let through = match committed {
             None => u64::MAX,
             Some(None) => return Vec::new(),

@@ -1,7 +1,6 @@
 //! e^x of many arguments at once, for the self-induced correction's drift factors
 //! e^{−½ Σ_b ⟨k_b²⟩⟨o_b²⟩} (docs/two-way.md, "Self-induced velocity"): one per (mode,
-//! component) of every fibre, which the C library's `exp` took one call at a time (≈ an
-//! eighth of the correction). Plain arithmetic in one branch-free loop, so that it
+//! component) of every fibre, which the C library's `exp` takes one call at a time. Plain arithmetic in one branch-free loop, so that it
 //! vectorises, with AVX2 or AVX-512 where the processor has them, and gives the same bits
 //! on every path (no fused multiply-adds: Rust does not contract them). Within 4e-16 of
 //! `f64::exp` relative (test `exp_is_the_library_exp`); arguments below −700 give

@@ -8,6 +8,7 @@ use crate::run::RunInfo;
 use fiberflow_bus::{BusHandle, DropCounter, Encode, Inbox};
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::Lifecycle;
+use fiberflow_messages::NodeRole;
 use fiberflow_messages::{lifecycle, FiberGroupState, FlowSamples, Heartbeat};
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -67,10 +68,10 @@ impl Peers {
         while let Some((_, hb)) = hb_in.recv::<Heartbeat>(wait) {
             wait = Duration::ZERO;
             self.heard.insert(hb.node.clone(), Instant::now());
-            if hb.node == "recorder" && hb.state == Lifecycle::Running {
+            if NodeRole::Recorder.is(&hb.node) && hb.state == Lifecycle::Running {
                 self.recorded = self.recorded.max(hb.step);
             }
-            if hb.node == "recorder" && hb.state == Lifecycle::Committed {
+            if NodeRole::Recorder.is(&hb.node) && hb.state == Lifecycle::Committed {
                 self.committed = self.committed.max(Some(hb.step));
             }
             if hb.state == Lifecycle::Ready {
@@ -231,7 +232,7 @@ impl States {
     ) -> Result<(), FlowError> {
         // the recorder tells how far it has recorded by the fibre states it holds: with no
         // fibre group there are none to wait for (and it would never say it got further)
-        if !run.expected_nodes.iter().any(|n| n == "recorder") || run.pieces.is_empty() {
+        if !run.expected_nodes.iter().any(|n| NodeRole::Recorder.is(n)) || run.pieces.is_empty() {
             return Ok(());
         }
         let wait_from = Instant::now();

@@ -9,6 +9,7 @@ use fiberflow_dns::stats::{ProfileRow, Profiles};
 use fiberflow_dns::Solver;
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::Lifecycle;
+use fiberflow_messages::NodeRole;
 use fiberflow_messages::{encode, FlowProfiles, FlowSlice, Heartbeat, SCHEMA_VERSION};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -51,7 +52,7 @@ pub(crate) fn await_recorder_finishing(
             // FINISHING names the run's last step; DONE (file complete) carries step 0
             let finishing = (hb.state == Lifecycle::Finishing && hb.step == run.steps)
                 || hb.state == Lifecycle::Done;
-            if hb.node == "recorder" && finishing {
+            if NodeRole::Recorder.is(&hb.node) && finishing {
                 return Ok(());
             }
         }
@@ -99,8 +100,8 @@ pub(crate) fn publish_slices(
     if let Some(f) = solver.body_force() {
         planes.push((
             force,
-            fiberflow_messages::palette::FIBRE_FORCE_QUANTITY,
-            slice::fibre_force_plane(g, f, re, cfg.streaks_y_plus),
+            fiberflow_messages::palette::FIBER_FORCE_QUANTITY,
+            slice::fiber_force_plane(g, f, re, cfg.streaks_y_plus),
         ));
     }
     for (name, quantity, p) in planes {

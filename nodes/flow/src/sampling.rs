@@ -16,12 +16,10 @@ pub type PointSample = ([f64; 3], [f64; 9]);
 pub type PieceSamples = (Vec<f64>, Vec<f64>);
 
 /// From this many points per step on, the trilinear sampler reads per-step tables, four
-/// points at a time. On the fine grid, one thread (bench `sample_4e5_points_by_cell`, 4.2 ×
-/// 10⁵ points): 50 ms direct, 25 ms from the tables, which cost 7 ms to fill (two
-/// threads). In the flow node the direct sampler was the faster at 2.1 × 10⁵ points
-/// (sampling 0.36–0.40 s against 0.49–0.56 s over 20 steps, three alternated pairs) and
-/// level at 4.2 × 10⁵ (0.78–0.83 s against 0.72–0.93 s). Both give the same bits, so the
-/// choice never shows in a result.
+/// points at a time: filling the tables is a pass over the whole field, which pays only
+/// when many points read them (the measurements that set the threshold:
+/// docs/performance.md, "Sampling", and docs/history/code-comments.md). Both give the
+/// same bits, so the choice never shows in a result.
 pub const TABLES_MIN_POINTS: usize = 400_000;
 
 /// The field the flow node serves.
@@ -61,7 +59,7 @@ impl Field {
         match self {
             Field::Analytic(a) => {
                 let a = *a;
-                sample_fibres(
+                sample_fibers(
                     pieces,
                     reuse,
                     |_| 0,
@@ -116,9 +114,9 @@ impl Field {
                         + wrap(p[0], g.dx, g.nx)
                 };
                 if tables {
-                    sample_fibres(pieces, reuse, cell, from_tables)
+                    sample_fibers(pieces, reuse, cell, from_tables)
                 } else {
-                    sample_fibres(pieces, reuse, cell, one_by_one(direct))
+                    sample_fibers(pieces, reuse, cell, one_by_one(direct))
                 }
             }
         }
@@ -149,7 +147,7 @@ pub fn one_by_one(
 /// points, each point counts as its own fibre); the fibres of all pieces are sampled in
 /// the order of `cell` of their first point. The output reuses
 /// the buffers of `reuse` in order (every value is written, so what they held never shows).
-pub fn sample_fibres(
+pub fn sample_fibers(
     pieces: &[(&[f64], &[u32])],
     reuse: Vec<PieceSamples>,
     cell: impl Fn(&[f64]) -> u64 + Sync,
@@ -166,7 +164,7 @@ pub fn sample_fibres(
             (v, g)
         })
         .collect();
-    let mut fibres = Vec::new();
+    let mut fibers = Vec::new();
     for ((centres, segments_per_fiber), (vel, grad)) in pieces.iter().zip(out.iter_mut()) {
         let n = centres.len() / 3;
         let counted: u64 = segments_per_fiber.iter().map(|&c| c as u64).sum();
@@ -180,23 +178,23 @@ pub fn sample_fibres(
             let (c0, c1) = c.split_at(3 * len);
             let (v0, v1) = std::mem::take(&mut v).split_at_mut(3 * len);
             let (g0, g1) = std::mem::take(&mut g).split_at_mut(9 * len);
-            fibres.push((0, c0, v0, g0));
+            fibers.push((0, c0, v0, g0));
             (c, v, g) = (c1, v1, g1);
         }
     }
-    // the keys and the sort in parallel too (serial, they held one core idle for ≈ 3 ms
-    // per step at 6 × 10⁴ fibres); the order of equal keys does not matter: every point
+    // the keys and the sort in parallel too (serial, they would hold the other core idle);
+    // the order of equal keys does not matter: every point
     // is sampled on its own into its own slot
-    fibres
+    fibers
         .par_iter_mut()
         .with_min_len(4096)
         .for_each(|f| f.0 = if f.1.len() >= 3 { cell(&f.1[..3]) } else { 0 });
-    fibres.par_sort_unstable_by_key(|f| f.0);
+    fibers.par_sort_unstable_by_key(|f| f.0);
     // in cell order a fibre's arrays lie anywhere in the states and samples (tens of MB at
     // scale): the arrays of the fibre two ahead are fetched into cache while this one is
     // sampled (a third of the sampling time went to waiting for the centres)
-    let per_task = fibres_per_task(fibres.len());
-    fibres.par_chunks_mut(per_task).for_each(|chunk| {
+    let per_task = fibers_per_task(fibers.len());
+    fibers.par_chunks_mut(per_task).for_each(|chunk| {
         for i in 0..chunk.len() {
             if let Some((_, c, v, g)) = chunk.get(i + 2) {
                 prefetch(c);
@@ -215,8 +213,8 @@ pub fn sample_fibres(
 /// tasks (at paper size 5 tasks of 64 kept it mostly idle: `sampling_s` over 300 steps
 /// 0.111 / 0.119 / 0.116 s against 0.109 / 0.100 / 0.105 s with tasks of 16, alternated;
 /// this rule gives 18).
-fn fibres_per_task(fibres: usize) -> usize {
-    (fibres / 16).clamp(8, 64)
+fn fibers_per_task(fibers: usize) -> usize {
+    (fibers / 16).clamp(8, 64)
 }
 
 /// Asks the CPU to bring `data` into cache (a hint: no effect on any value).
@@ -268,7 +266,7 @@ mod tests {
         real_sampler_in_cell_order(700);
     }
 
-    fn real_sampler_in_cell_order(fibres: usize) {
+    fn real_sampler_in_cell_order(fibers: usize) {
         let mut cfg = fiberflow_dns::DnsConfig::with_cells(16, 12, 8);
         cfg.init = fiberflow_dns::InitialField::Turbulent {
             amplitude: 0.3,
@@ -284,7 +282,7 @@ mod tests {
             x ^= x << 17;
             (x >> 11) as f64 / (1u64 << 53) as f64
         };
-        let lens: Vec<u32> = (0..fibres).map(|k| 1 + (k % 9) as u32).collect();
+        let lens: Vec<u32> = (0..fibers).map(|k| 1 + (k % 9) as u32).collect();
         let n: usize = lens.iter().map(|&l| l as usize).sum();
         let centres: Vec<f64> = (0..n)
             .flat_map(|_| {
@@ -327,19 +325,19 @@ mod tests {
         let want_v: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).0).collect();
         let want_g: Vec<f64> = centres.chunks(3).flat_map(|p| fake(p).1).collect();
         for counts in [&lens[..], &lens[1..], &[]] {
-            let out = sample_fibres(&[(&centres, counts)], Vec::new(), cell, one_by_one(fake));
+            let out = sample_fibers(&[(&centres, counts)], Vec::new(), cell, one_by_one(fake));
             assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
             // reused buffers, too short, too long or the right size with stale values,
             // give the same answer
             for len in [5, 3 * n, 20 * n] {
                 let stale = vec![(vec![f64::NAN; len], vec![-1.0; 3 * len])];
-                let out = sample_fibres(&[(&centres, counts)], stale, cell, one_by_one(fake));
+                let out = sample_fibers(&[(&centres, counts)], stale, cell, one_by_one(fake));
                 assert_eq!(out, vec![(want_v.clone(), want_g.clone())]);
             }
         }
         // several pieces sampled in one pass: each gets its own points' samples
         let (a, b) = centres.split_at(3 * 400);
-        let out = sample_fibres(
+        let out = sample_fibers(
             &[(a, &[]), (b, &lens[..3])],
             Vec::new(),
             cell,

@@ -265,15 +265,15 @@ impl Widths {
 
 /// From this many fibres in a piece on (≈ 16 MB of memories), the correction works in
 /// tasks of 16 fibres and fetches each next fibre's memories ahead.
-const PREFETCH_FROM_FIBRES: usize = 4096;
+const PREFETCH_FROM_FIBERS: usize = 4096;
 
 /// Values per fibre in [`History::memory`]: per mode its force memory (3), its weight, the
 /// mean offset of its impulses behind the fibre (3) and their mean square offset (3); then
 /// the fibre's last mean centre, the last mean fluid velocity it sampled (3 each) and
 /// whether they are set.
-pub const PER_FIBRE: usize = 10 * MODES + 7;
+pub const PER_FIBER: usize = 10 * MODES + 7;
 
-/// The memories of every fibre of one piece ([`PER_FIBRE`] each, fibre-major): the state
+/// The memories of every fibre of one piece ([`PER_FIBER`] each, fibre-major): the state
 /// the correction carries from step to step (and in coupled checkpoints).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct History {
@@ -296,7 +296,7 @@ impl History {
         velocity: &mut [f64],
     ) {
         self.memory
-            .resize(PER_FIBRE * segments_per_fiber.len(), 0.0);
+            .resize(PER_FIBER * segments_per_fiber.len(), 0.0);
         // e^{−2νλ dt} and (1 − e^{−2νλ dt})/(2νλ)
         let fade: [(f64, f64); MODES] = std::array::from_fn(|k| {
             let a = 2.0 * lambda(k);
@@ -310,7 +310,7 @@ impl History {
         let mut first = 0usize;
         for (&n, m) in segments_per_fiber
             .iter()
-            .zip(self.memory.chunks_exact_mut(PER_FIBRE))
+            .zip(self.memory.chunks_exact_mut(PER_FIBER))
         {
             let n = n as usize;
             let (v, tail) = std::mem::take(&mut rest_v).split_at_mut(3 * n);
@@ -328,7 +328,7 @@ impl History {
         // the fibre after this one are fetched into cache while this one is worked on (its
         // pair shares are the bulk of the work); few: a fibre a task, which balances the
         // threads best
-        let per_task = if pieces.len() >= PREFETCH_FROM_FIBRES {
+        let per_task = if pieces.len() >= PREFETCH_FROM_FIBERS {
             16
         } else {
             1
@@ -344,16 +344,16 @@ impl History {
                         crate::sampling::prefetch(v);
                     }
                     let (n, c, f, v, m) = &mut chunk[i];
-                    fibre(widths, re_tau, dt_plus, &fade, *n, c, f, v, m, share);
+                    fiber(widths, re_tau, dt_plus, &fade, *n, c, f, v, m, share);
                 }
             });
     }
 }
 
 /// One fibre's correction and advance ([`History::correct_and_advance`]): `centre`,
-/// `force` and `velocity` its segments' (3 each), `m` its [`PER_FIBRE`] memories.
+/// `force` and `velocity` its segments' (3 each), `m` its [`PER_FIBER`] memories.
 /// Long (≈105 lines): the correction's steps for one fibre's segments, in order.
-fn fibre(
+fn fiber(
     widths: &Widths,
     re_tau: f64,
     dt_plus: f64,
@@ -589,7 +589,7 @@ mod tests {
     /// then exact to second order in the offsets: a mean offset alone under-counts a trail's
     /// spread (for an exponential trail by half).
     #[test]
-    fn memories_keep_the_mean_square_offset_of_a_slipping_fibre() {
+    fn memories_keep_the_mean_square_offset_of_a_slipping_fiber() {
         let g = Grid::with_stretch(8, 8, 8, 1.0, 1.0, 0.0).unwrap();
         let widths = Widths::new(&g, 150.0);
         let (dt, s, steps) = (0.2, 0.3, 60);
@@ -638,15 +638,15 @@ mod tests {
     /// ahead) gives each fibre the bits it gets in a piece of few (a fibre a task), over
     /// three steps: the fetching changes no value.
     #[test]
-    fn many_fibres_in_a_piece_give_the_bits_of_few() {
+    fn many_fibers_in_a_piece_give_the_bits_of_few() {
         let g = Grid::with_stretch(16, 16, 16, 6.0, 3.0, 0.0).unwrap();
         let widths = Widths::new(&g, 150.0);
-        let fibres = PREFETCH_FROM_FIBRES + 7;
+        let fibers = PREFETCH_FROM_FIBERS + 7;
         let mut rng = fiberflow_dns::init::SplitMix64::new(0x2545_f491);
         let mut rnd = move || 0.5 * (rng.symmetric() + 1.0);
-        let spf = vec![7u32; fibres];
+        let spf = vec![7u32; fibers];
         let (mut centre, mut force) = (Vec::new(), Vec::new());
-        for _ in 0..fibres {
+        for _ in 0..fibers {
             let c = [rnd() * 900.0, rnd() * 270.0 - 135.0, rnd() * 450.0];
             for s in 0..7 {
                 centre
@@ -655,13 +655,13 @@ mod tests {
             }
         }
         let (mut whole, mut parts) = (History::default(), vec![History::default(); 5]);
-        let per_part = fibres.div_ceil(5);
+        let per_part = fibers.div_ceil(5);
         for step in 0..3 {
             let mut v_whole = vec![0.01 * step as f64; centre.len()];
             whole.correct_and_advance(&widths, 150.0, 0.2, &spf, &centre, &force, &mut v_whole);
             let mut v_parts = vec![0.01 * step as f64; centre.len()];
             for (p, h) in parts.iter_mut().enumerate() {
-                let fs = p * per_part..((p + 1) * per_part).min(fibres);
+                let fs = p * per_part..((p + 1) * per_part).min(fibers);
                 let seg = 21 * fs.start..21 * fs.end;
                 h.correct_and_advance(
                     &widths,

@@ -21,7 +21,7 @@ fn window(fine: bool, correct: bool) -> (f64, f64) {
 }
 
 #[test]
-fn settling_fibre_matches_one_way_with_the_correction() {
+fn settling_fiber_matches_one_way_with_the_correction() {
     for fine in [false, true] {
         let (lo, hi) = window(fine, true);
         eprintln!("fine {fine}: two-way / one-way over t+ 100-150 in [{lo:.4}, {hi:.4}]");

@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 const RE_TAU: f64 = 20.0;
 
 #[test]
-fn fixed_fibre_array_balances_driving_against_walls_and_drag() {
+fn fixed_fiber_array_balances_driving_against_walls_and_drag() {
     let mut cfg = DnsConfig::with_cells(16, 32, 8);
     cfg.lx = 2.0;
     cfg.lz = 1.0;

@@ -4,13 +4,13 @@ use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
 /// Fibre analysis; writes `summary.md` and returns the table.
-pub fn fibres(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String> {
+pub fn fibers(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String> {
     if coil_thresholds.is_empty() || !coil_thresholds.iter().all(|t| *t > 0.0 && t.is_finite()) {
         anyhow::bail!("--coil-thresholds must be positive numbers (got {coil_thresholds:?})");
     }
-    let a = fiberflow_analysis::fibres::analyse(mcap, out, coil_thresholds)
+    let a = fiberflow_analysis::fibers::analyse(mcap, out, coil_thresholds)
         .with_context(|| format!("analysing {}", mcap.display()))?;
-    let table = fiberflow_analysis::fibres::summary_table(&a.summaries);
+    let table = fiberflow_analysis::fibers::summary_table(&a.summaries);
     let md = format!(
         "# Fibre analysis of {}\n\n\
          MSD_23 slope: least squares of log MSD against log lag over the fit window.\n\

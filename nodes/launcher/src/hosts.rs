@@ -14,6 +14,7 @@ use anyhow::{bail, Context, Result};
 use fiberflow_bus::Inbox;
 use fiberflow_messages::checkpoints::{piece, step_dir, step_of, REMOTE_PIECE};
 use fiberflow_messages::Lifecycle;
+use fiberflow_messages::NodeRole;
 use fiberflow_messages::{lifecycle, Heartbeat};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -48,7 +49,13 @@ impl Role {
         let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
             return Ok(Self::Single);
         };
-        if spec.launch.host(host)?.nodes.iter().any(|n| n == "flow") {
+        if spec
+            .launch
+            .host(host)?
+            .nodes
+            .iter()
+            .any(|n| NodeRole::Flow.is(n))
+        {
             let remote = !crate::nodes::remote_pieces(spec)?.is_empty();
             Ok(Self::Head { remote })
         } else {
@@ -181,7 +188,7 @@ pub fn worker_hosts(lf: &crate::launchfile::LaunchFile) -> Vec<String> {
     lf.network
         .iter()
         .flat_map(|n| &n.hosts)
-        .filter(|h| !h.nodes.iter().any(|n| n == "flow"))
+        .filter(|h| !h.nodes.iter().any(|n| NodeRole::Flow.is(n)))
         .map(|h| h.name.clone())
         .collect()
 }

@@ -14,6 +14,7 @@ use anyhow::{bail, Context, Result};
 use fiberflow_bus::{BusHandle, Inbox, Transport};
 use fiberflow_messages::topics::Topics;
 use fiberflow_messages::FlowStatus;
+use fiberflow_messages::NodeRole;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -84,7 +85,7 @@ pub fn launch(file: &Path, opts: LaunchOptions) -> Result<LaunchOutcome> {
     signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
     let nodes = nodes_here(&lf, host.as_deref(), transport)?;
-    let records_here = nodes.iter().any(|n| n == "recorder");
+    let records_here = nodes.iter().any(|n| NodeRole::Recorder.is(n));
     let launch_file_name = file
         .file_name()
         .map(|s| s.to_string_lossy().to_string())
@@ -282,7 +283,7 @@ fn run_folder(lf: &LaunchFile, resume: Option<&Path>, out: Option<PathBuf>) -> R
 /// multi-host launch file's share for `--host`.
 fn nodes_here(lf: &LaunchFile, host: Option<&str>, transport: Transport) -> Result<Vec<String>> {
     let mut nodes = vec!["flow".to_string()];
-    nodes.extend(lf.fibre_nodes()?);
+    nodes.extend(lf.fiber_nodes()?);
     if lf.recorder.enabled {
         nodes.push("recorder".into());
     }
@@ -314,7 +315,7 @@ fn after_the_run(lf: &LaunchFile, m: &Path, out_dir: &Path) -> Result<()> {
         .collect();
     println!("recording: {} ({})", m.display(), names.join(", "));
     if lf.run.analyze {
-        let table = crate::analyze::fibres(
+        let table = crate::analyze::fibers(
             m,
             &out_dir.join("analysis"),
             &fiberflow_analysis::coiling::DEFAULT_THRESHOLDS,
@@ -344,7 +345,7 @@ fn after_the_run(lf: &LaunchFile, m: &Path, out_dir: &Path) -> Result<()> {
             "Rerun scene: {} ({} of {} fibres shown, {} coiling events, {} flow slices; rerun {})",
             rrd.display(),
             s.shown,
-            s.fibres,
+            s.fibers,
             s.events,
             s.slices,
             rrd.display()
@@ -523,7 +524,7 @@ mod tests {
         std::fs::create_dir_all(out.join("config")).unwrap();
         let base = NodeSpec::inproc(lf.clone(), text, out.to_path_buf());
         let mut nodes = vec!["flow".to_string()];
-        nodes.extend(lf.fibre_nodes().unwrap());
+        nodes.extend(lf.fiber_nodes().unwrap());
         nodes.push("recorder".into());
         run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
         std::fs::read(out.join("run.mcap")).unwrap()
@@ -589,7 +590,7 @@ mod tests {
             count: Default::default(),
         });
         let mut nodes = vec!["flow".to_string()];
-        nodes.extend(lf.fibre_nodes().unwrap());
+        nodes.extend(lf.fiber_nodes().unwrap());
         let t0 = std::time::Instant::now();
         let r = run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false)));
         let e = format!("{:#}", r.expect_err("the run fails"));
@@ -617,7 +618,7 @@ mod tests {
     /// silent after `run.liveness_s` (3 s) and ends the run naming them — before, the pulse
     /// beat on and the run waited for the stuck call.
     #[test]
-    fn a_fibre_node_whose_loop_hangs_is_found_silent() {
+    fn a_fiber_node_whose_loop_hangs_is_found_silent() {
         let (e, _) = breaking_run(
             "inproc-hang",
             &["run.liveness_s=3"],
@@ -659,7 +660,7 @@ mod tests {
             })
         };
         let mut nodes = vec!["flow".to_string()];
-        nodes.extend(lf.fibre_nodes().unwrap());
+        nodes.extend(lf.fiber_nodes().unwrap());
         run_inproc_on(bus, &base, &nodes, Arc::new(AtomicBool::new(false))).unwrap();
         recorder.join().unwrap().unwrap();
         let bytes = std::fs::read(dir.join("run.mcap")).unwrap();

@@ -1,10 +1,15 @@
 //! Launch files (TOML): one run — its flow node, fibre groups and recorder — checked up
 //! front with errors that name the key.
+//!
+//! Size (≈ 630 lines before the tests): every table's schema and its checks, in the file's
+//! order; the `--set` overrides and renamed keys are `overrides.rs`, the keys' reference
+//! `keys.rs`.
 
 use anyhow::{bail, Context, Result};
 use fiberflow_bus::Transport;
 use fiberflow_fiber::FiberNodeConfig;
 use fiberflow_flow::{FlowNodeConfig, FlowSource};
+use fiberflow_messages::NodeRole;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -414,11 +419,11 @@ impl LaunchFile {
                 self.recorder.states_every_steps
             );
         }
-        let fibre_nodes = self.pieces().map(|p| p.len()).unwrap_or(0);
-        if r.fiber_processes as usize > fibre_nodes.max(1) {
+        let fiber_nodes = self.pieces().map(|p| p.len()).unwrap_or(0);
+        if r.fiber_processes as usize > fiber_nodes.max(1) {
             bail!(
                 "run.fiber_processes must be in 0..={} (the fibre nodes; 0 = a process each) (got {})",
-                fibre_nodes.max(1),
+                fiber_nodes.max(1),
                 r.fiber_processes
             );
         }
@@ -436,7 +441,7 @@ impl LaunchFile {
             if !names.insert(f.group.clone()) {
                 bail!("fibers: group name {:?} is used twice", f.group);
             }
-            if ["flow", "recorder", "launcher"].contains(&f.group.as_str()) {
+            if NodeRole::of(&f.group) != NodeRole::Fiber || f.group == "launcher" {
                 bail!(
                     "fibers[{}].group: the names flow, recorder and launcher are reserved",
                     f.group
@@ -539,7 +544,7 @@ impl LaunchFile {
             bail!("network.allowed_common_names must list the certificate names of the hosts");
         }
         let mut all = vec!["flow".to_string()];
-        all.extend(self.fibre_nodes()?);
+        all.extend(self.fiber_nodes()?);
         if self.recorder.enabled {
             all.push("recorder".into());
         }
@@ -617,7 +622,7 @@ impl LaunchFile {
     }
 
     /// The fibre nodes: one per group, or `<group>.<i>` per shard of a sharded group.
-    pub fn fibre_nodes(&self) -> Result<Vec<String>> {
+    pub fn fiber_nodes(&self) -> Result<Vec<String>> {
         Ok(self.pieces()?.iter().map(|p| p.node()).collect())
     }
 }

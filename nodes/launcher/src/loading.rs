@@ -14,18 +14,18 @@ pub const ONE_WAY_MASS_LOADING_LIMIT: f64 = 0.1;
 /// units.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Loading {
-    pub fibre_mass: f64,
-    pub fibre_volume: f64,
+    pub fiber_mass: f64,
+    pub fiber_volume: f64,
     pub fluid_mass: f64,
-    pub fibres: usize,
+    pub fibers: usize,
 }
 
 impl Loading {
     pub fn mass_loading(&self) -> f64 {
-        self.fibre_mass / self.fluid_mass
+        self.fiber_mass / self.fluid_mass
     }
     pub fn volume_fraction(&self) -> f64 {
-        self.fibre_volume / self.fluid_mass
+        self.fiber_volume / self.fluid_mass
     }
 }
 
@@ -33,18 +33,18 @@ impl Loading {
 pub fn loading(lf: &LaunchFile) -> Result<Loading> {
     let b = lf.box_plus();
     let mut l = Loading {
-        fibre_mass: 0.0,
-        fibre_volume: 0.0,
+        fiber_mass: 0.0,
+        fiber_volume: 0.0,
         fluid_mass: b[0] * b[1] * b[2],
-        fibres: 0,
+        fibers: 0,
     };
     for f in &lf.fibers {
         let g = f.build(b)?.group;
-        l.fibres += g.len();
+        l.fibers += g.len();
         for k in 0..g.len() {
             let m: f64 = g.props(k).iter().map(|p| p.mass).sum();
-            l.fibre_mass += m;
-            l.fibre_volume += m / g.density(k);
+            l.fiber_mass += m;
+            l.fiber_volume += m / g.density(k);
         }
     }
     Ok(l)
@@ -56,7 +56,7 @@ pub fn loading(lf: &LaunchFile) -> Result<Loading> {
 pub fn describe(lf: &LaunchFile, l: &Loading) -> Vec<String> {
     let mut out = vec![format!(
         "fibres: {} in {} group(s), mass loading {:.3}, volume fraction {:.2e}, coupling {}",
-        l.fibres,
+        l.fibers,
         lf.fibers.len(),
         l.mass_loading(),
         l.volume_fraction(),
@@ -118,7 +118,7 @@ placement = {{ kind = "layers", per_layer = {per_layer} }}
     fn paper_loading_figure() {
         let lf = launch("", 2000);
         let l = loading(&lf).unwrap();
-        assert_eq!(l.fibres, 10_000);
+        assert_eq!(l.fibers, 10_000);
         let (l_plus, d_plus, ratio) = lf.fibers[0].resolved();
         let want = 10_000.0 * 7.0 * ratio * std::f64::consts::PI * 0.25 * d_plus.powi(2) * l_plus
             / (std::f64::consts::TAU * 150.0 * 300.0 * std::f64::consts::PI * 150.0);

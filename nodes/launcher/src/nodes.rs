@@ -7,6 +7,7 @@ use fiberflow_bus::zenoh_bus::{AccessControl, TlsFiles, ZenohBus, ZenohMode, Zen
 use fiberflow_bus::{inproc::InprocBus, BusHandle, Inbox, Transport};
 use fiberflow_flow::serve::RunInfo;
 use fiberflow_messages::Lifecycle;
+use fiberflow_messages::{NodeRole, FLOW_NODE, RECORDER_NODE};
 use fiberflow_recorder::RunMetadata;
 use serde::{Deserialize, Serialize};
 use sha2::Digest;
@@ -88,7 +89,7 @@ pub fn run_topics(lf: &LaunchFile) -> Vec<String> {
     for name in fiberflow_messages::topics::FLOW_SLICE_NAMES {
         v.push(t.flow_slice(name));
     }
-    for n in ["flow", "recorder", "launcher"] {
+    for n in [FLOW_NODE, RECORDER_NODE, "launcher"] {
         v.push(t.heartbeat(n));
     }
     for g in lf.groups() {
@@ -138,7 +139,7 @@ pub fn zenoh_settings(spec: &NodeSpec) -> Result<ZenohSettings> {
         key_prefix: fiberflow_messages::topics::Topics::new(&spec.launch.run.id).prefix(),
         common_names: net.allowed_common_names.clone(),
     });
-    if spec.node == "flow" {
+    if NodeRole::Flow.is(&spec.node) {
         s.mode = ZenohMode::Router;
         s.listen = vec![net.listen.clone().unwrap_or_else(|| net.rendezvous.clone())];
         s.connect = vec![];
@@ -160,7 +161,12 @@ pub fn flow_elsewhere(spec: &NodeSpec) -> Result<bool> {
     let (Some(_), Some(host)) = (&spec.launch.network, &spec.host) else {
         return Ok(false);
     };
-    Ok(!spec.launch.host(host)?.nodes.iter().any(|n| n == "flow"))
+    Ok(!spec
+        .launch
+        .host(host)?
+        .nodes
+        .iter()
+        .any(|n| NodeRole::Flow.is(n)))
 }
 
 /// The fibre nodes (and the recorder) of a multi-host run that live on other hosts than
@@ -236,10 +242,10 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
     let lf = &spec.launch;
     let groups = lf.groups();
     let pieces = lf.pieces()?;
-    let fibre_nodes: Vec<String> = pieces.iter().map(|p| p.node()).collect();
-    match spec.node.as_str() {
-        "flow" => {
-            let mut expected = fibre_nodes.clone();
+    let fiber_nodes: Vec<String> = pieces.iter().map(|p| p.node()).collect();
+    match NodeRole::of(&spec.node) {
+        NodeRole::Flow => {
+            let mut expected = fiber_nodes.clone();
             if lf.recorder.enabled {
                 expected.push("recorder".into());
             }
@@ -301,7 +307,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 crate::hosts::say_complete(&bus, spec)?;
             }
         }
-        "recorder" => {
+        NodeRole::Recorder => {
             let mut meta = RunMetadata {
                 run_id: lf.run.id.clone(),
                 launch_file_name: spec.launch_file_name.clone(),
@@ -310,7 +316,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 git_commit: option_env!("FIBERFLOW_GIT_COMMIT")
                     .unwrap_or("unknown")
                     .into(),
-                transport: spec.transport.to_string(),
+                transport: Some(spec.transport),
                 ..Default::default()
             };
             meta.node_configs
@@ -319,7 +325,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                 meta.node_configs
                     .insert(f.group.clone(), toml::to_string(f).unwrap_or_default());
             }
-            let mut expect = fibre_nodes.clone();
+            let mut expect = fiber_nodes.clone();
             expect.push("flow".into());
             let name = fiberflow_messages::segments::segment_name(spec.segment);
             let path = spec.out_dir.join(&name);
@@ -342,7 +348,7 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
                     .iter()
                     .map(|p| (p.group.clone(), p.first_fiber))
                     .collect(),
-                nodes: fibre_nodes.clone(),
+                nodes: fiber_nodes.clone(),
                 states_every_steps: lf.recorder.states_every_steps,
                 samples: lf.recorder.samples,
                 compression: lf.recorder.compression,
@@ -358,7 +364,9 @@ pub fn run_node(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) -> Resul
             );
             report_drops("recorder", &s.drops);
         }
-        node => run_fibre_nodes(spec, &[node.to_string()], &pieces, bus, &stop)?,
+        NodeRole::Fiber => {
+            run_fiber_nodes(spec, std::slice::from_ref(&spec.node), &pieces, bus, &stop)?
+        }
     }
     Ok(())
 }
@@ -373,7 +381,7 @@ fn in_process_stop(spec: &NodeSpec, stop: &Arc<AtomicBool>) -> Option<Arc<Atomic
     (spec.transport == Transport::Inproc).then(|| stop.clone())
 }
 
-fn run_fibre_nodes(
+fn run_fiber_nodes(
     spec: &NodeSpec,
     names: &[String],
     pieces: &[fiberflow_messages::pieces::Piece],
@@ -436,11 +444,11 @@ pub(crate) fn run_nodes(spec: &NodeSpec, bus: BusHandle, stop: Arc<AtomicBool>) 
     let names: Vec<String> = std::iter::once(spec.node.clone())
         .chain(spec.co_nodes.iter().cloned())
         .collect();
-    // fibre nodes only (the launcher's `fibres-i` processes): `serve_many` runs them all
+    // fibre nodes only (the launcher's `fibers-i` processes): `serve_many` runs them all
     // (the pieces are built once: each build places every fibre of every group)
     if let Ok(pieces) = spec.launch.pieces() {
         if names.iter().all(|n| pieces.iter().any(|p| &p.node() == n)) {
-            return run_fibre_nodes(spec, &names, &pieces, bus, &stop)
+            return run_fiber_nodes(spec, &names, &pieces, bus, &stop)
                 .with_context(|| format!("fibre nodes {} failed", names.join(", ")));
         }
     }
@@ -542,14 +550,14 @@ pub fn node_cmd(spec_path: &Path) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     // the recorder finishes its file on SIGTERM/SIGINT; the other nodes hold nothing that
     // a signal could leave half-written, so they keep the default action and stop at once
-    if spec.node == "recorder" {
+    if NodeRole::Recorder.is(&spec.node) {
         signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())
             .context("installing SIGTERM handler")?;
         signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())
             .context("installing SIGINT handler")?;
     }
-    let fibre_node = !matches!(spec.node.as_str(), "flow" | "recorder");
-    if fibre_node && spec.launch.run.fiber_scheduling == FiberScheduling::Idle {
+    let fiber_node = NodeRole::Fiber.is(&spec.node);
+    if fiber_node && spec.launch.run.fiber_scheduling == FiberScheduling::Idle {
         // before the bus and the thread pool start their threads, which inherit it
         crate::scheduling::run_in_idle_time()?;
         tracing::info!(
@@ -580,7 +588,7 @@ mod tests {
         let file = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../launch/validation/analytic-shear.toml");
         let (lf, text) = LaunchFile::load_with(&file, &["run.step_timeout_s=3600".into()]).unwrap();
-        let waiting = lf.fibre_nodes().unwrap()[0].clone();
+        let waiting = lf.fiber_nodes().unwrap()[0].clone();
         let out = std::env::temp_dir().join(format!("ff-co-nodes-{}", std::process::id()));
         let spec = NodeSpec {
             node: waiting,

@@ -1,7 +1,7 @@
-//! A panic ends the node at once. A node process whose thread panicked used to live on
-//! (its other threads waiting for the dead one) until its peers' step timeout noticed;
-//! now the process exits with status 101 (Rust's panic status) the moment any of its
-//! threads panics, so the launcher sees a dead node and applies `[run.restart]` at once.
+//! A panic ends the node at once: the process exits with status 101 (Rust's panic status)
+//! the moment any of its threads panics, so the launcher sees a dead node and applies
+//! `[run.restart]` at once, rather than the process living on (its other threads waiting
+//! for the dead one) until its peers' step timeout notices.
 //! Nodes run as threads of one process report a panic as that node's failure, at once.
 
 use anyhow::{anyhow, Result};

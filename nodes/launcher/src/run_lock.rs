@@ -76,7 +76,7 @@ pub const FOLDER_LOCK: &str = ".fiberflow.lock";
 
 /// Held by the launcher for as long as it works in a run folder: a second launcher with the
 /// same `--out`, or a `--resume` of a run that is still live, is refused before it touches
-/// anything there (both used to overwrite or prune what the live run was writing).
+/// anything there (either would overwrite or prune what the live run is writing).
 #[derive(Debug)]
 pub struct FolderLock {
     _file: File,

@@ -11,6 +11,7 @@ use crate::launch::progress_thread;
 use crate::nodes::{open_bus, NodeSpec};
 use anyhow::{bail, Context, Result};
 use fiberflow_bus::Transport;
+use fiberflow_messages::NodeRole;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -202,7 +203,7 @@ pub(crate) fn supervise_restarts(
             bail!("{why}; not restarting: it failed with an error before any new checkpoint (see its log)");
         }
         restarts += 1;
-        let recording = if nodes.iter().any(|n| n == "recorder") {
+        let recording = if nodes.iter().any(|n| NodeRole::Recorder.is(n)) {
             format!(
                 ", recording into {}",
                 fiberflow_messages::segments::segment_name(base.segment)
@@ -311,10 +312,10 @@ pub(crate) fn run_processes(
         let mut spec = process_spec(base, &members);
         if !zenoh {
             // shared memory: nothing to configure
-        } else if n == "flow" && loopback_zenoh {
+        } else if NodeRole::Flow.is(&n) && loopback_zenoh {
             spec.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
             spec.zenoh_endpoint_file = Some(endpoint_file.clone());
-        } else if n == "flow" {
+        } else if NodeRole::Flow.is(&n) {
             spec.zenoh_listen = vec![rendezvous.clone()];
         } else {
             spec.zenoh_listen = vec!["tcp/127.0.0.1:0".into()];
@@ -363,11 +364,11 @@ pub(crate) fn run_processes(
             child,
             log,
         });
-        if n == "flow" && loopback_zenoh {
+        if NodeRole::Flow.is(&n) && loopback_zenoh {
             let flow = children.last_mut().context("the flow node's process")?;
             rendezvous = await_endpoint(&endpoint_file, flow, Duration::from_secs(120))?;
             println!("zenoh rendezvous {rendezvous} (loopback only, multicast scouting off)");
-        } else if n == "flow" {
+        } else if NodeRole::Flow.is(&n) {
             std::thread::sleep(Duration::from_millis(200));
         }
     }
@@ -416,18 +417,18 @@ pub(crate) fn process_spec(base: &NodeSpec, members: &[String]) -> NodeSpec {
 
 /// The node processes of one launcher, in start order: (process name, its nodes). The
 /// flow node and the recorder run alone; with `fiber_processes` = N ≥ 1 the fibre nodes
-/// are cut into N runs of consecutive nodes, near-equal in count, named `fibres-1`, …
+/// are cut into N runs of consecutive nodes, near-equal in count, named `fibers-1`, …
 /// (a run of one keeps its node's name); with 0 each is a process of its own.
 pub(crate) fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, Vec<String>)> {
-    let is_fibre = |n: &String| n != "flow" && n != "recorder";
-    let fibres: Vec<&String> = nodes.iter().filter(|n| is_fibre(n)).collect();
+    let is_fiber = |n: &String| NodeRole::Fiber.is(n);
+    let fibers: Vec<&String> = nodes.iter().filter(|n| is_fiber(n)).collect();
     let k = if fiber_processes == 0 {
-        fibres.len()
+        fibers.len()
     } else {
-        (fiber_processes as usize).min(fibres.len())
+        (fiber_processes as usize).min(fibers.len())
     };
     let mut chunks: Vec<Vec<String>> = Vec::new();
-    let mut rest = &fibres[..];
+    let mut rest = &fibers[..];
     for i in 0..k {
         let take = rest.len().div_ceil(k - i);
         let (a, b) = rest.split_at(take);
@@ -437,7 +438,7 @@ pub(crate) fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, 
     let mut out = Vec::new();
     let mut chunks = chunks.into_iter().enumerate();
     for n in nodes {
-        if !is_fibre(n) {
+        if !is_fiber(n) {
             out.push((n.clone(), vec![n.clone()]));
         } else {
             // the fibre processes take the place of the first fibre node (the iterator
@@ -445,7 +446,7 @@ pub(crate) fn processes(nodes: &[String], fiber_processes: u32) -> Vec<(String, 
             for (i, c) in chunks.by_ref() {
                 let name = match &c[..] {
                     [one] => one.clone(),
-                    _ => format!("fibres-{}", i + 1),
+                    _ => format!("fibers-{}", i + 1),
                 };
                 out.push((name, c));
             }
@@ -478,7 +479,7 @@ pub(crate) fn supervise(
             }
             if let Some(st) = n.child.try_wait()? {
                 exited[i] = true;
-                if !st.success() && n.name == "flow" && run_complete.is_file() {
+                if !st.success() && NodeRole::Flow.is(&n.name) && run_complete.is_file() {
                     tracing::warn!(status = %st, "the flow node ended once the run was complete");
                     continue;
                 }
@@ -640,7 +641,7 @@ mod tests {
     /// `run.fiber_processes`: 0 keeps a process per node; N cuts the fibre nodes into N
     /// runs of consecutive nodes, near-equal, between the flow node and the recorder.
     #[test]
-    fn fibre_nodes_are_spread_over_the_processes_asked_for() {
+    fn fiber_nodes_are_spread_over_the_processes_asked_for() {
         let nodes: Vec<String> = ["flow", "a", "b", "c", "d", "e", "recorder"]
             .map(String::from)
             .to_vec();
@@ -660,14 +661,14 @@ mod tests {
         let p = |name: &str, n: &str| (name.to_string(), n.to_string());
         assert_eq!(
             shape(1),
-            [own("flow"), p("fibres-1", "a b c d e"), own("recorder")]
+            [own("flow"), p("fibers-1", "a b c d e"), own("recorder")]
         );
         assert_eq!(
             shape(2),
             [
                 own("flow"),
-                p("fibres-1", "a b c"),
-                p("fibres-2", "d e"),
+                p("fibers-1", "a b c"),
+                p("fibers-2", "d e"),
                 own("recorder")
             ]
         );

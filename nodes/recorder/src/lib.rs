@@ -20,6 +20,7 @@ pub mod recover;
 pub mod ros;
 mod writer;
 
+use fiberflow_messages::NodeRole;
 pub use plan::{write_options, ChunkCompression, RecordPlan};
 pub use recorded::{recorded_steps, Recorded, RECORDED_WINDOW_STEPS};
 pub use writer::t_plus_to_nanos;
@@ -68,7 +69,8 @@ pub struct RunMetadata {
     pub node_configs: BTreeMap<String, String>,
     pub software_version: String,
     pub git_commit: String,
-    pub transport: String,
+    /// The run's transport (None: not said, as in tests that write a file directly).
+    pub transport: Option<fiberflow_bus::Transport>,
 }
 
 /// What was recorded.
@@ -510,7 +512,7 @@ pub fn record(
                     // a node is done when it says so at the run's last step (the launcher
                     // stops the recorder when a node fails; a stray heartbeat must not)
                     if hb.state == Lifecycle::Done && hb.step == plan.steps {
-                        if hb.node == "flow" {
+                        if NodeRole::Flow.is(&hb.node) {
                             // the flow node sends its DONE until it hears this
                             flow_done = true;
                             let ack =
@@ -1167,7 +1169,7 @@ mod tests {
                     bulk_velocity: 15.0,
                     re_tau: 150.0,
                     pressure_gradient: 1.0,
-                    fibre_force_plus: vec![],
+                    fiber_force_plus: vec![],
                 };
                 bus.publish(&t.flow_status(), &encode(&st)).unwrap();
             }

@@ -142,7 +142,10 @@ pub(crate) fn write_provenance(out: &mut Out, meta: &RunMetadata) -> Result<(), 
     );
     m.insert("git_commit".to_string(), meta.git_commit.clone());
     m.insert("schema_version".to_string(), SCHEMA_VERSION.to_string());
-    m.insert("transport".to_string(), meta.transport.clone());
+    m.insert(
+        "transport".to_string(),
+        meta.transport.map(|t| t.to_string()).unwrap_or_default(),
+    );
     m.insert("launch_file".to_string(), meta.launch_file_name.clone());
     out.w
         .write_metadata(&mcap::records::Metadata {

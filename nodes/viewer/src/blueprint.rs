@@ -1,7 +1,7 @@
 //! The layout a first open shows: the gallery and the channel view on the left; on the
 //! right one tab per time series (σ² first) with one plot per case, and the legend and
 //! coiling events below them. Every fibre entity gets, in the channel view and in its
-//! case's plots, a visualizer that maps its custom components (`fibre:*`) onto the standard
+//! case's plots, a visualizer that maps its custom components (`fiber:*`) onto the standard
 //! strip and series visualizers; its series name, colour and width are data on the entity.
 
 use crate::paths;
@@ -18,7 +18,7 @@ use rerun::external::re_sdk_types::Visualizer;
 use rerun::AsComponents;
 
 /// A fibre entity as the blueprint refers to it.
-pub struct FibreEntity {
+pub struct FiberEntity {
     pub path: String,
     /// Its case (fibre group): its lines go into that case's plots.
     pub case: String,
@@ -36,15 +36,15 @@ pub struct PlotTab<'a> {
 pub struct CasePlot<'a> {
     pub title: String,
     pub contents: String,
-    pub fibres: Vec<&'a str>,
+    pub fibers: Vec<&'a str>,
 }
 
 /// The plot tabs for `fibres`: one tab per series of [`paths::SERIES`], in it one plot per
 /// case (cases in order of first appearance). A case's plot holds only its own fibres, so
 /// the wider line of a selected fibre is not buried under hundreds of others.
-pub fn plot_tabs(fibres: &[FibreEntity]) -> Vec<PlotTab<'_>> {
+pub fn plot_tabs(fibers: &[FiberEntity]) -> Vec<PlotTab<'_>> {
     let mut cases: Vec<&str> = Vec::new();
-    for f in fibres {
+    for f in fibers {
         if !cases.contains(&f.case.as_str()) {
             cases.push(&f.case);
         }
@@ -59,7 +59,7 @@ pub fn plot_tabs(fibres: &[FibreEntity]) -> Vec<PlotTab<'_>> {
                 .map(|case| CasePlot {
                     title: format!("{} · {case}", series.short),
                     contents: format!("+ /fibres/{case}/**"),
-                    fibres: fibres
+                    fibers: fibers
                         .iter()
                         .filter(|f| f.case == *case)
                         .map(|f| f.path.as_str())
@@ -128,7 +128,7 @@ pub struct Eye {
 /// Sends the layout for `fibres` to `rec`.
 pub fn send(
     rec: &rerun::RecordingStream,
-    fibres: &[FibreEntity],
+    fibers: &[FiberEntity],
     eye: &Eye,
 ) -> Result<(), ViewerError> {
     let gallery = Spatial2DView::new(
@@ -139,7 +139,7 @@ pub fn send(
     let mut channel = Spatial3DView::new("Channel (x1 streamwise, x2 wall-normal)")
         .with_origin("/")
         .with_contents(["+ /world/**", "+ /fibres/**"]);
-    for f in fibres {
+    for f in fibers {
         // the channel strip, in the gallery strip's colour (σ²)
         let vis = Visualizer::new("Lines3D")
             .with_mappings([
@@ -158,14 +158,14 @@ pub fn send(
             );
         channel = channel.with_override(f.path.as_str(), vis);
     }
-    let tabs: Vec<ContainerLike> = plot_tabs(fibres)
+    let tabs: Vec<ContainerLike> = plot_tabs(fibers)
         .into_iter()
         .map(|tab| {
             let views = tab.plots.into_iter().map(|plot| {
                 let mut v = TimeSeriesView::new(plot.title)
                     .with_origin("/")
                     .with_contents([plot.contents]);
-                for path in plot.fibres {
+                for path in plot.fibers {
                     v = v.with_override(
                         path,
                         mapped("SeriesLines", "Scalars:scalars", tab.component),
@@ -310,35 +310,35 @@ mod tests {
     /// Each tab is one series; each fibre is in exactly one plot of each tab, its case's,
     /// whose filter takes that case's entities only.
     #[test]
-    fn every_fibre_is_plotted_once_per_series_in_its_case() {
-        let fibres: Vec<FibreEntity> = [("case2", 3), ("case1", 2), ("case2", 1)]
+    fn every_fiber_is_plotted_once_per_series_in_its_case() {
+        let fibers: Vec<FiberEntity> = [("case2", 3), ("case1", 2), ("case2", 1)]
             .iter()
             .enumerate()
             .flat_map(|(k, &(case, n))| {
-                (0..n).map(move |i| FibreEntity {
-                    path: format!("fibres/{case}/next/f{k}{i}"),
+                (0..n).map(move |i| FiberEntity {
+                    path: format!("fibers/{case}/next/f{k}{i}"),
                     case: case.to_string(),
                 })
             })
             .collect();
-        let tabs = plot_tabs(&fibres);
+        let tabs = plot_tabs(&fibers);
         let components: Vec<&str> = tabs.iter().map(|t| t.component).collect();
         assert_eq!(components, ["sigma2", "abs_z1", "end_to_end", "x2_plus"]);
         for tab in &tabs {
             let titles: Vec<&str> = tab.plots.iter().map(|p| p.title.as_str()).collect();
             assert_eq!(titles.len(), 2, "one plot per case");
             assert!(titles[0].ends_with("· case2") && titles[1].ends_with("· case1"));
-            for f in &fibres {
+            for f in &fibers {
                 let holding: Vec<&CasePlot> = tab
                     .plots
                     .iter()
-                    .filter(|p| p.fibres.contains(&f.path.as_str()))
+                    .filter(|p| p.fibers.contains(&f.path.as_str()))
                     .collect();
                 assert_eq!(holding.len(), 1, "{} in {}", f.path, tab.title);
                 assert_eq!(holding[0].contents, format!("+ /fibres/{}/**", f.case));
             }
-            assert_eq!(tab.plots[0].fibres.len(), 4);
-            assert_eq!(tab.plots[1].fibres.len(), 2);
+            assert_eq!(tab.plots[0].fibers.len(), 4);
+            assert_eq!(tab.plots[1].fibers.len(), 2);
         }
     }
 }

@@ -152,7 +152,7 @@ mod floc_tests {
     /// box is drawn at its joints, moved back by that period; flocs next to each other by
     /// name get different colours.
     #[test]
-    fn a_floc_fibre_is_drawn_at_its_joints_inside_the_box() {
+    fn a_floc_fiber_is_drawn_at_its_joints_inside_the_box() {
         let s = fiberflow_messages::FiberGroupState {
             segments_per_fiber: vec![2],
             segment_length: vec![3.0],

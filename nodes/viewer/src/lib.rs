@@ -5,7 +5,7 @@
 //! - **Channel**: the same fibres in the periodic box, with the near-wall streaks and a
 //!   cross-section of u' when the recording has flow slices.
 //! - **Per-fibre series**: σ², |z1|, end-to-end distance and wall distance x2+ of each
-//!   fibre; every fibre is one entity (`fibres/<case>/<layer>/f<i>`), so selecting it in any
+//!   fibre; every fibre is one entity (`fibers/<case>/<layer>/f<i>`), so selecting it in any
 //!   view highlights it in all of them.
 //! - **Coiling events**: the first t+ each fibre's σ² reaches each threshold, in a text log
 //!   and as a marker over the fibre in the gallery.
@@ -87,14 +87,14 @@ impl Default for ViewOptions {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SceneSummary {
     pub groups: usize,
-    pub fibres: usize,
+    pub fibers: usize,
     pub shown: usize,
     pub events: usize,
     pub slices: usize,
     /// States whose contact points were logged (with [`ViewOptions::contacts`]).
     pub contact_states: usize,
     /// Fibres drawn in their floc's colour, summed over those states.
-    pub floc_fibres: usize,
+    pub floc_fibers: usize,
 }
 
 /// Colour map for σ² in [0, 1.5]: dark blue (straight) -> teal -> yellow (coiled).
@@ -137,7 +137,7 @@ struct SeriesStyle {
 /// The fibre's styles, logged once as static data on its entity: its series name, colour
 /// and width (every plot of it uses them, so the blueprint carries only the mapping of each
 /// plot's series) and its gallery line width.
-fn log_fibre_style(
+fn log_fiber_style(
     rec: &rerun::RecordingStream,
     path: &str,
     style: &SeriesStyle,
@@ -222,7 +222,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     let eye = channel_camera(box_plus);
     blueprint::send(&rec, &entities, &eye)?;
     for (e, style) in entities.iter().zip(&styles) {
-        log_fibre_style(&rec, &e.path, style)?;
+        log_fiber_style(&rec, &e.path, style)?;
     }
     log_static(&rec, box_plus, &groups, &g, opts)?;
 
@@ -230,7 +230,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     let mut log_err: Option<ViewerError> = None;
     let mut slices = 0usize;
     let mut contact_states = 0usize;
-    let mut floc_fibres = 0usize;
+    let mut floc_fibers = 0usize;
     let mut slice_meshes = slices::Logged::default();
     read::for_each(mcap, |it| {
         if log_err.is_some() {
@@ -252,7 +252,7 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
                 if opts.contacts && due {
                     contact_states += 1;
                     log_contacts(&rec, s, box_plus, dt_plus).and_then(|()| {
-                        floc_fibres += log_flocs(&rec, s, box_plus)?;
+                        floc_fibers += log_flocs(&rec, s, box_plus)?;
                         Ok(())
                     })
                 } else {
@@ -279,8 +279,8 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     if let Some(e) = log_err {
         return Err(e);
     }
-    for fibres in shown.values() {
-        for sh in fibres.values() {
+    for fibers in shown.values() {
+        for sh in fibers.values() {
             let chunks = series_columns(&sh.series)?
                 .into_iter()
                 .chain(shape_columns(&sh.shapes)?);
@@ -294,12 +294,12 @@ pub fn view(mcap: &Path, sink: &Sink, opts: &ViewOptions) -> Result<SceneSummary
     rec.flush_blocking().map_err(err)?;
     Ok(SceneSummary {
         groups: groups.len(),
-        fibres: groups.values().map(|g| g.fibres).sum(),
+        fibers: groups.values().map(|g| g.fibers).sum(),
         shown: entities.len(),
         events,
         slices,
         contact_states,
-        floc_fibres,
+        floc_fibers,
     })
 }
 
@@ -360,7 +360,7 @@ fn survey(mcap: &Path) -> Result<Survey, ViewerError> {
 struct Chosen {
     gallery: gallery::Gallery,
     shown: HashMap<String, HashMap<usize, Shown>>,
-    entities: Vec<blueprint::FibreEntity>,
+    entities: Vec<blueprint::FiberEntity>,
     styles: Vec<SeriesStyle>,
 }
 
@@ -376,12 +376,12 @@ fn choose(groups: &BTreeMap<String, GroupInfo>, opts: &ViewOptions) -> Chosen {
     let mut entities = Vec::new();
     let mut styles = Vec::new();
     for (c, (name, info)) in groups.iter().enumerate() {
-        let digits = paths::digits(info.fibres);
+        let digits = paths::digits(info.fibers);
         let m = shown.entry(name.clone()).or_default();
         for (rank, &f) in chosen[c].iter().enumerate() {
             let layer = info.layer[f];
-            let path = paths::fibre(name, layer, f, digits);
-            entities.push(blueprint::FibreEntity {
+            let path = paths::fiber(name, layer, f, digits);
+            entities.push(blueprint::FiberEntity {
                 path: path.clone(),
                 case: name.clone(),
             });
@@ -525,13 +525,13 @@ fn collect_state(
         if f >= firsts.len() {
             continue;
         }
-        let fibre = shape::shape(s, f, firsts[f]);
+        let fiber = shape::shape(s, f, firsts[f]);
         sh.shapes.push(ShapeRow {
             step: s.step,
             frame,
-            gallery: shape::side_view(&fibre, sh.cell),
-            colour: sigma2_colour(fibre.sigma2),
-            channel: shape::in_box(&fibre, box_plus),
+            gallery: shape::side_view(&fiber, sh.cell),
+            colour: sigma2_colour(fiber.sigma2),
+            channel: shape::in_box(&fiber, box_plus),
         });
     }
 }
@@ -573,7 +573,7 @@ fn unit_columns(
 }
 
 /// A fibre's shown states as `send_columns` input: per row its gallery strip (the standard
-/// `LineStrips2D`, with its σ² colour) and its channel strip (`fibre:channel_strip`).
+/// `LineStrips2D`, with its σ² colour) and its channel strip (`fiber:channel_strip`).
 fn shape_columns(rows: &[ShapeRow]) -> Result<Vec<SeriesChunk>, ViewerError> {
     let times: Vec<(u64, Option<i64>)> = rows.iter().map(|r| (r.step, r.frame)).collect();
     let mut out = Vec::new();
@@ -660,8 +660,8 @@ fn log_events(
     cell_plus: f64,
 ) -> Result<usize, ViewerError> {
     let mut events = Vec::new();
-    for (group, fibres) in shown {
-        for (&f, sh) in fibres {
+    for (group, fibers) in shown {
+        for (&f, sh) in fibers {
             let t: Vec<f64> = sh.sigma2.iter().map(|x| x.1).collect();
             let s2: Vec<f64> = sh.sigma2.iter().map(|x| x.2).collect();
             for (k, &thr) in thresholds.iter().enumerate() {

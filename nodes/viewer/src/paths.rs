@@ -1,5 +1,5 @@
 //! Entity paths of the scene. Each shown fibre is one entity,
-//! `fibres/<case>/<layer>/f<index>`, carrying its gallery strip, its channel strip and its
+//! `fibers/<case>/<layer>/f<index>`, carrying its gallery strip, its channel strip and its
 //! four time series, so selecting it anywhere highlights it everywhere.
 
 /// Name of an initial layer (paper §4.3: near wall, next, middle).
@@ -14,8 +14,8 @@ pub fn layer_name(layer: u8) -> &'static str {
 
 /// The entity of fibre `index` of `group`; indices are zero-padded to `digits` so entities
 /// sort in fibre order.
-pub fn fibre(group: &str, layer: u8, index: usize, digits: usize) -> String {
-    format!("fibres/{group}/{}/f{index:0digits$}", layer_name(layer))
+pub fn fiber(group: &str, layer: u8, index: usize, digits: usize) -> String {
+    format!("fibers/{group}/{}/f{index:0digits$}", layer_name(layer))
 }
 
 /// Digits needed to write every index of a group of `n` fibres.
@@ -24,8 +24,8 @@ pub fn digits(n: usize) -> usize {
 }
 
 /// The coiling-onset marker over a fibre's gallery cell (`fibre` as from [`fibre`]).
-pub fn onset(fibre: &str) -> String {
-    format!("gallery/onsets/{}", fibre.trim_start_matches("fibres/"))
+pub fn onset(fiber: &str) -> String {
+    format!("gallery/onsets/{}", fiber.trim_start_matches("fibers/"))
 }
 
 /// Text log of a case's coiling events.
@@ -41,7 +41,7 @@ pub fn band_label(group: &str) -> String {
 /// The custom components every fibre entity carries (archetype `fibre`): its channel-view
 /// strip and its four time series. Plots and the channel view map them onto the standard
 /// visualizers; the gallery uses the entity's standard `LineStrips2D`.
-pub const ARCHETYPE: &str = "fibre";
+pub const ARCHETYPE: &str = "fiber";
 pub const CHANNEL_STRIP: &str = "channel_strip";
 
 /// One of the four per-fibre time series.
@@ -88,17 +88,17 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fibre_paths_name_case_layer_and_index_in_sort_order() {
+    fn fiber_paths_name_case_layer_and_index_in_sort_order() {
         assert_eq!(digits(50), 2);
         assert_eq!(digits(10_000), 4);
         assert_eq!(digits(1), 1);
-        assert_eq!(fibre("case1", 0, 7, 2), "fibres/case1/near_wall/f07");
-        assert_eq!(fibre("case6", 2, 9999, 4), "fibres/case6/middle/f9999");
+        assert_eq!(fiber("case1", 0, 7, 2), "fibers/case1/near_wall/f07");
+        assert_eq!(fiber("case6", 2, 9999, 4), "fibers/case6/middle/f9999");
         assert_eq!(
-            onset(&fibre("case2", 1, 3, 2)),
+            onset(&fiber("case2", 1, 3, 2)),
             "gallery/onsets/case2/next/f03"
         );
-        let mut v: Vec<String> = (0..12).map(|i| fibre("g", 1, i, digits(12))).collect();
+        let mut v: Vec<String> = (0..12).map(|i| fiber("g", 1, i, digits(12))).collect();
         let sorted = {
             let mut s = v.clone();
             s.sort();
@@ -107,6 +107,6 @@ mod tests {
         assert_eq!(v, sorted);
         v.dedup();
         assert_eq!(v.len(), 12);
-        assert_eq!(component("sigma2"), "fibre:sigma2");
+        assert_eq!(component("sigma2"), "fiber:sigma2");
     }
 }

@@ -79,7 +79,7 @@ pub fn for_each(mcap: &Path, mut f: impl FnMut(Item)) -> Result<(), ViewerError>
 /// What the first pass learns about a group: enough to choose and lay out its fibres.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GroupInfo {
-    pub fibres: usize,
+    pub fibers: usize,
     /// Initial layer per fibre (from the first state).
     pub layer: Vec<u8>,
     /// σ² per fibre at the last step with metrics (or a state).
@@ -103,7 +103,7 @@ impl GroupInfo {
         match item {
             Item::State(s) => {
                 if self.layer.is_empty() {
-                    self.fibres = s.segments_per_fiber.len();
+                    self.fibers = s.segments_per_fiber.len();
                     self.layer = s.layer.clone();
                     self.contour_plus = s
                         .segments_per_fiber

@@ -25,7 +25,7 @@ pub fn first_segments(s: &FiberGroupState) -> Vec<usize> {
 }
 
 /// Fibre `f` of a state whose first segment is `seg0` (centre of mass and σ² as the
-/// analysis computes them, [`fiberflow_analysis::fibres::fibre_of_state`]).
+/// analysis computes them, [`fiberflow_analysis::fibers::fiber_of_state`]).
 pub fn shape(s: &FiberGroupState, f: usize, seg0: usize) -> Shape {
     let n = s.segments_per_fiber.get(f).copied().unwrap_or(0) as usize;
     let l = s.segment_length.get(f).copied().unwrap_or(0.0);
@@ -38,7 +38,7 @@ pub fn shape(s: &FiberGroupState, f: usize, seg0: usize) -> Shape {
             joints.push([0, 1, 2].map(|a| c[a] + 0.5 * l * z[a]));
         }
     }
-    let (com, _, sigma2) = fiberflow_analysis::fibres::fibre_of_state(s, seg0, n);
+    let (com, _, sigma2) = fiberflow_analysis::fibers::fiber_of_state(s, seg0, n);
     Shape {
         joints,
         com,
@@ -135,7 +135,7 @@ mod tests {
     }
 
     #[test]
-    fn straight_fibre_has_zero_sigma2_and_joints_at_segment_ends() {
+    fn straight_fiber_has_zero_sigma2_and_joints_at_segment_ends() {
         let s = state(&[[1.0, 0.0, 0.0]; 4], 3.0);
         let sh = shape(&s, 0, 0);
         assert_eq!(sh.joints.len(), 5);

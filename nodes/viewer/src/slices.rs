@@ -7,7 +7,7 @@ use fiberflow_messages::FlowSlice;
 
 /// Where each sample of a slice is drawn (row by row, `u` fastest): at its own position,
 /// except that a wall-parallel plane is moved onto the nearer wall (y = ±`h_plus`), and
-/// the fibres' force (`fibre_force`, the streaks' plane) is drawn beside the channel, one
+/// the fibres' force (`fiber_force`, the streaks' plane) is drawn beside the channel, one
 /// box width and a gap back along z (beyond the channel as the opening camera, at high z
 /// looking along −z, sees it), so it sits next to the streaks it pushes.
 pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
@@ -15,7 +15,9 @@ pub fn positions(s: &FlowSlice, h_plus: f64) -> Vec<[f32; 3]> {
     let normal_y = a[2] * b[0] - a[0] * b[2];
     let wall_y = (normal_y.abs() > 0.99).then(|| h_plus.copysign(s.origin[1]));
     // beside the channel: the plane's z extent (samples at cell centres) and a twentieth
-    let dz = match (s.name == "fibre_force", s.v_plus.first(), s.v_plus.last()) {
+    // (recordings of schema 4 and before name it "fibre_force")
+    let beside = matches!(s.name.as_str(), "fiber_force" | "fibre_force");
+    let dz = match (beside, s.v_plus.first(), s.v_plus.last()) {
         (true, Some(a), Some(b)) => -1.05 * (a + b),
         _ => 0.0,
     };
@@ -131,8 +133,8 @@ mod tests {
     /// The fibres' force plane lies on the streaks' wall, shifted back along z by its own
     /// extent (first + last sample: cell centres) and a twentieth.
     #[test]
-    fn fibre_force_lies_beside_the_streaks() {
-        let mut s = slice("fibre_force", -135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
+    fn fiber_force_lies_beside_the_streaks() {
+        let mut s = slice("fiber_force", -135.0, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]);
         s.v_plus = vec![5.0, 15.0, 25.0];
         s.values = vec![0.0; 9];
         let p = positions(&s, 150.0);

@@ -394,8 +394,8 @@ pub fn spread(g: &Grid, points: &[[f64; 3]], forces: &[[f64; 3]], out: &mut Body
             [sw, &mut Vec::new()],
         );
     };
-    // 1 / the control volume of each row and component (a division per node took as long
-    // as the rest)
+    // 1 / the control volume of each row and component: a multiplication per node instead
+    // of a division
     let per_volume: [Vec<f64>; 3] = std::array::from_fn(|c| {
         let jmax = if c == 1 { g.ny - 1 } else { g.ny };
         (0..g.ny + 2)

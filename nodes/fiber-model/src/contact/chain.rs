@@ -3,7 +3,7 @@
 
 use super::sweep::{cross_matrix, rigid_motion, At, Rigid};
 use super::Candidate;
-use crate::fibre::Fibre;
+use crate::fiber::Fiber;
 use nalgebra::{Matrix3, Vector3};
 use std::ops::Range;
 
@@ -12,12 +12,12 @@ use std::ops::Range;
 /// segments answers as its segments hinged at every joint (a first version cut it once,
 /// between the pair: a push near that hinge then swung the whole rigid arm, and its far
 /// end flew off faster than the pair had closed).
-pub(super) fn cuts(fibres: &[Fibre], pairs: &[Candidate]) -> Vec<Vec<usize>> {
-    let mut out = vec![Vec::new(); fibres.len()];
+pub(super) fn cuts(fibers: &[Fiber], pairs: &[Candidate]) -> Vec<Vec<usize>> {
+    let mut out = vec![Vec::new(); fibers.len()];
     for c in pairs.iter().filter(|c| c.a.0 == c.b.0) {
         let k = c.a.0;
         if out[k].is_empty() {
-            out[k] = (1..fibres[k].len()).collect();
+            out[k] = (1..fibers[k].len()).collect();
         }
     }
     out
@@ -39,7 +39,7 @@ pub(super) struct Chain {
 }
 
 impl Chain {
-    pub(super) fn of(f: &Fibre, cuts: &[usize], fixed: bool) -> Self {
+    pub(super) fn of(f: &Fiber, cuts: &[usize], fixed: bool) -> Self {
         let mut bounds = vec![0];
         bounds.extend_from_slice(cuts);
         bounds.push(f.len());
@@ -113,7 +113,7 @@ impl Chain {
     }
 
     /// The joint before piece `k + 1`: the start of its first segment.
-    fn joint(&self, f: &Fibre, k: usize) -> Vector3<f64> {
+    fn joint(&self, f: &Fiber, k: usize) -> Vector3<f64> {
         let i = self.pieces[k + 1].0.start;
         let s = &f.segments[i];
         s.r - s.z * (0.5 * f.props[i].shape.length)
@@ -153,7 +153,7 @@ impl Chain {
     /// also close what the joints have opened by the end of the step.
     pub(super) fn response(
         &self,
-        f: &Fibre,
+        f: &Fiber,
         pushes: &[(usize, Vector3<f64>, Vector3<f64>)],
         closing: Option<f64>,
     ) -> Vec<(Vector3<f64>, Vector3<f64>)> {
@@ -190,7 +190,7 @@ impl Chain {
     /// sign·J at the points `by` (segment, point, sign).
     pub(super) fn mobility(
         &self,
-        f: &Fibre,
+        f: &Fiber,
         by: &[(usize, Vector3<f64>, f64)],
         at: &[(usize, Vector3<f64>, f64)],
     ) -> Matrix3<f64> {
@@ -209,7 +209,7 @@ impl Chain {
 
     /// Moves each piece by the rigid motion its velocity change makes over the step; the
     /// joints the turns of earlier pushes opened (to second order) close too.
-    pub(super) fn apply(&mut self, f: &mut Fibre, pushes: &[(At, Vector3<f64>)], dt: f64) {
+    pub(super) fn apply(&mut self, f: &mut Fiber, pushes: &[(At, Vector3<f64>)], dt: f64) {
         let pushes: Vec<_> = pushes.iter().map(|&((i, p), j)| (i, p, j)).collect();
         let change = self.response(f, &pushes, Some(dt));
         for ((range, r), (dv, dw)) in self.pieces.iter_mut().zip(change) {

@@ -1,15 +1,15 @@
 //! Contact across the shards of a group, and between the groups of a suspension: each
 //! piece (a shard's slice of a group's fibres, in a process of its own) makes its free
 //! step and sends it to the suspension's first piece ([`FreeStep`]), which solves contact
-//! over all of them ([`crate::group::FibreGroup::resolve_contact_for`]) and sends each
+//! over all of them ([`crate::group::FiberGroup::resolve_contact_for`]) and sends each
 //! other piece what the solve did to its fibres ([`ContactSolved`], taken by
-//! [`crate::group::FibreGroup::apply_contact_solved`]). The solve runs over all pieces in
+//! [`crate::group::FiberGroup::apply_contact_solved`]). The solve runs over all pieces in
 //! the (fibre, segment) order of one unsharded group, so every piece's fibres end the step
 //! with the bits that group gives them, whatever the shard count (docs/contact.md,
 //! "Across shards"). How the two travel is the fibre node's (its messages
 //! `FiberFreeStep` and `FiberContactSolved` carry these fields).
 
-use crate::fibre::{Fibre, FlatSegments};
+use crate::fiber::{Fiber, FlatSegments};
 use nalgebra::Vector3;
 
 /// A piece's free step: per fibre its segment count, per segment 3 values of each array —
@@ -167,9 +167,9 @@ pub struct OtherPiece {
     /// Its fibres at the start of the step: centres, axes and normals of the start,
     /// everything else as after the free step (what the solve reads of a start; as for a
     /// shard's own).
-    pub before: Vec<Fibre>,
+    pub before: Vec<Fiber>,
     /// Its fibres after the free step.
-    pub after: Vec<Fibre>,
+    pub after: Vec<Fiber>,
     /// Each fibre's first segment in the piece's segment order (plus the total).
     pub offsets: Vec<usize>,
     /// The step its segments are of (None: not yet received).
@@ -181,8 +181,8 @@ pub struct OtherPiece {
 pub enum ExchangeError {
     #[error("free step of fibres {got}.., this piece holds {want}..")]
     Piece { got: u32, want: usize },
-    #[error("fibre {fibre} has {got} segments in the free step, {want} here")]
-    Segments { fibre: usize, got: u32, want: usize },
+    #[error("fibre {fiber} has {got} segments in the free step, {want} here")]
+    Segments { fiber: usize, got: u32, want: usize },
     #[error("{0}")]
     Insane(String),
 }
@@ -190,9 +190,9 @@ pub enum ExchangeError {
 impl OtherPiece {
     /// The piece of fibres `first_fiber ..` of its group, at `order` in the solve, with
     /// these fibres' properties (their segments are replaced by [`Self::read`]).
-    pub fn new(first_fiber: usize, order: usize, fibres: Vec<Fibre>) -> Self {
+    pub fn new(first_fiber: usize, order: usize, fibers: Vec<Fiber>) -> Self {
         let offsets = std::iter::once(0)
-            .chain(fibres.iter().scan(0, |o, f| {
+            .chain(fibers.iter().scan(0, |o, f| {
                 *o += f.len();
                 Some(*o)
             }))
@@ -201,8 +201,8 @@ impl OtherPiece {
             first_fiber,
             order,
             offsets,
-            before: fibres.clone(),
-            after: fibres,
+            before: fibers.clone(),
+            after: fibers,
             step: None,
         }
     }
@@ -223,7 +223,7 @@ impl OtherPiece {
         for (k, (&n, f)) in m.segments_per_fiber.iter().zip(&self.after).enumerate() {
             if n as usize != f.len() {
                 return Err(ExchangeError::Segments {
-                    fibre: self.first_fiber + k,
+                    fiber: self.first_fiber + k,
                     got: n,
                     want: f.len(),
                 });
@@ -260,10 +260,10 @@ impl OtherPiece {
 mod tests {
     use super::*;
     use crate::contact::tests::{
-        com, crowded_box, fibre, hairpin, min_distance, params, uniform, D, DT,
+        com, crowded_box, fiber, hairpin, min_distance, params, uniform, D, DT,
     };
     use crate::contact::{ContactParams, SegmentLoad};
-    use crate::group::FibreGroup;
+    use crate::group::FiberGroup;
     use crate::step::{FluidSample, ModelParams};
     use nalgebra::Matrix3;
 
@@ -272,20 +272,20 @@ mod tests {
     /// through the codec), solves for all and sends each other shard its part, which that
     /// shard takes (again through the codec).
     struct Shards {
-        groups: Vec<(usize, FibreGroup)>,
+        groups: Vec<(usize, FiberGroup)>,
         /// The first shard's view of the others.
         others: Vec<OtherPiece>,
     }
 
     impl Shards {
-        fn cut(whole: &FibreGroup, cuts: &[usize]) -> Self {
-            let groups: Vec<(usize, FibreGroup)> = cuts
+        fn cut(whole: &FiberGroup, cuts: &[usize]) -> Self {
+            let groups: Vec<(usize, FiberGroup)> = cuts
                 .windows(2)
                 .map(|w| (w[0], whole.slice(w[0], w[1] - w[0])))
                 .collect();
             let others = groups[1..]
                 .iter()
-                .map(|(first, g)| OtherPiece::new(*first, *first, g.fibres()))
+                .map(|(first, g)| OtherPiece::new(*first, *first, g.fibers()))
                 .collect();
             Self { groups, others }
         }
@@ -317,20 +317,17 @@ mod tests {
                 .map(|_| ContactSolved::default())
                 .collect();
             let (first, solver) = &mut self.groups[0];
-            solver.resolve_contact_for(*first, &self.others, DT, &mut solved);
-            let pairs = solver.contact_pairs();
+            let pairs = solver
+                .resolve_contact_for(*first, &self.others, DT, &mut solved)
+                .pairs;
             for ((first, g), m) in self.groups[1..].iter_mut().zip(&solved) {
-                g.apply_contact_solved(*first, m).unwrap();
-                assert_eq!(
-                    g.contact_pairs(),
-                    pairs,
-                    "every piece reports the solve's pairs"
-                );
+                let report = g.apply_contact_solved(*first, m).unwrap();
+                assert_eq!(report.pairs, pairs, "every piece reports the solve's pairs");
             }
         }
 
-        fn fibres(&self) -> Vec<Fibre> {
-            self.groups.iter().flat_map(|(_, g)| g.fibres()).collect()
+        fn fibers(&self) -> Vec<Fiber> {
+            self.groups.iter().flat_map(|(_, g)| g.fibers()).collect()
         }
     }
 
@@ -340,14 +337,14 @@ mod tests {
     /// locked an island of fibres of different shards), the closest two fibres came,
     /// and the contacts of fibres with themselves.
     fn whole_against_shards(
-        fibres: Vec<Fibre>,
+        fibers: Vec<Fiber>,
         p: ModelParams,
         c: ContactParams,
         cuts: &[usize],
         fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample,
         steps: u64,
     ) -> (usize, f64, usize) {
-        let mut whole = FibreGroup::new(p, fibres);
+        let mut whole = FiberGroup::new(p, fibers);
         whole.set_contact(Some(c));
         let mut shards = Shards::cut(&whole, cuts);
         let shard_of = |k: usize| cuts.iter().rposition(|&f| f <= k);
@@ -361,40 +358,34 @@ mod tests {
                         .collect::<Vec<_>>()
                 })
                 .collect();
-            whole.step(&samples, DT).unwrap();
+            let whole_did = whole.step(&samples, DT).unwrap().contact;
             shards.step(fluid, step);
-            assert!(shards.fibres() == whole.fibres(), "step {step}: other bits");
+            assert!(shards.fibers() == whole.fibers(), "step {step}: other bits");
             for (first, g) in &shards.groups {
                 let load = SegmentLoad::of(
-                    &whole.last_contact().contacts,
+                    &whole_did.contacts,
                     *first..*first + g.len(),
                     &g.offsets_for_tests(),
                     DT,
                 );
                 assert_eq!(g.contact_load(), &load, "step {step}: another contact load");
             }
-            across += whole
-                .last_contact()
+            across += whole_did
                 .contacts
                 .iter()
                 .filter(|x| shard_of(x.a.0) != shard_of(x.b.0))
                 .count();
             // a pair the sweeps could not part is moved with its island as one body and
             // is not among the contacts; an island of two shards' fibres met too
-            let locked = &whole.last_contact().locked;
+            let locked = &whole_did.locked;
             if locked
                 .iter()
                 .any(|&k| shard_of(k) != locked.first().and_then(|&f| shard_of(f)))
             {
                 across += 1;
             }
-            own += whole
-                .last_contact()
-                .contacts
-                .iter()
-                .filter(|x| x.a.0 == x.b.0)
-                .count();
-            closest = closest.min(min_distance(&whole.fibres(), &c.period));
+            own += whole_did.contacts.iter().filter(|x| x.a.0 == x.b.0).count();
+            closest = closest.min(min_distance(&whole.fibers(), &c.period));
         }
         (across, closest, own)
     }
@@ -405,11 +396,11 @@ mod tests {
     #[test]
     fn shards_exchanging_free_steps_step_as_the_whole_group() {
         let side = 30.0;
-        let fibres: Vec<Fibre> = crowded_box(side, 3)
+        let fibers: Vec<Fiber> = crowded_box(side, 3)
             .iter()
-            .map(|pl| fibre(pl.centre, pl.axis))
+            .map(|pl| fiber(pl.centre, pl.axis))
             .collect();
-        let n = fibres.len();
+        let n = fibers.len();
         let c = ContactParams {
             friction: 0.3,
             period: [Some(side), None, Some(side)],
@@ -421,7 +412,7 @@ mod tests {
             grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         };
         let p = params(Vector3::zeros());
-        let (across, _, _) = whole_against_shards(fibres, p, c, &[0, 17, 40, n], &shear, 10);
+        let (across, _, _) = whole_against_shards(fibers, p, c, &[0, 17, 40, n], &shear, 10);
         assert!(
             across > 0,
             "no contact across shards: the test checks nothing"
@@ -429,12 +420,12 @@ mod tests {
     }
 
     /// Three hairpins side by side (their arms driven into each other, as in
-    /// `contact::tests::a_fibre_folded_onto_itself_does_not_pass_through_itself`, and the
+    /// `contact::tests::a_fiber_folded_onto_itself_does_not_pass_through_itself`, and the
     /// hairpins into each other), each in a shard of its own: every shard's fibres have the
     /// unsharded group's bits while the fibres touch themselves and each other.
     #[test]
-    fn fibres_touching_themselves_in_shards_keep_the_bits() {
-        let fibres: Vec<Fibre> = (0..3)
+    fn fibers_touching_themselves_in_shards_keep_the_bits() {
+        let fibers: Vec<Fiber> = (0..3)
             .map(|k| {
                 let mut f = hairpin();
                 let shift = Vector3::new(0.0, 0.0, 0.3 * k as f64);
@@ -452,7 +443,7 @@ mod tests {
             uniform(Vector3::new(0.0, v, if k == 1 { 0.5 } else { 0.0 }))
         };
         let p = params(Vector3::zeros());
-        let (across, _, own) = whole_against_shards(fibres, p, c, &[0, 1, 2, 3], &fluid, 40);
+        let (across, _, own) = whole_against_shards(fibers, p, c, &[0, 1, 2, 3], &fluid, 40);
         assert!(own > 10, "the fibres touched themselves {own} times");
         assert!(across > 0, "no contact across shards: the test checks less");
     }
@@ -461,18 +452,18 @@ mod tests {
     /// thinner and denser segments), each in two pieces: every piece's fibres have the bits
     /// one group of all 60 gives them, and fibres of the two groups touch.
     #[test]
-    fn two_groups_of_unlike_fibres_touch_as_one_group() {
+    fn two_groups_of_unlike_fibers_touch_as_one_group() {
         let side = 30.0;
         let placed = crowded_box(side, 5);
         let n = placed.len();
-        let fibres: Vec<Fibre> = placed
+        let fibers: Vec<Fiber> = placed
             .iter()
             .enumerate()
             .map(|(k, pl)| {
                 if k < n / 2 {
-                    fibre(pl.centre, pl.axis)
+                    fiber(pl.centre, pl.axis)
                 } else {
-                    Fibre::straight(pl.centre, pl.axis.normalize(), &[2.5; 7], &[0.2; 7], 2300.0)
+                    Fiber::straight(pl.centre, pl.axis.normalize(), &[2.5; 7], &[0.2; 7], 2300.0)
                         .unwrap()
                 }
             })
@@ -489,7 +480,7 @@ mod tests {
         };
         let p = params(Vector3::zeros());
         let cuts = [0, 11, n / 2, n / 2 + 16, n];
-        let (across, _, _) = whole_against_shards(fibres, p, c, &cuts, &shear, 12);
+        let (across, _, _) = whole_against_shards(fibers, p, c, &cuts, &shear, 12);
         assert!(
             across > 0,
             "no contact across pieces: the test checks nothing"
@@ -502,11 +493,11 @@ mod tests {
     /// (With μ = 0.5 the sweeps cannot part this pair where they meet, and the lock
     /// moves the two as one body for that step.)
     #[test]
-    fn fibres_on_two_shards_never_pass_through() {
+    fn fibers_on_two_shards_never_pass_through() {
         let p = params(Vector3::zeros());
         let u = 2.0;
-        let mut a = fibre(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
-        let mut b = fibre(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
+        let mut a = fiber(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
+        let mut b = fiber(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
         a.segments
             .iter_mut()
             .for_each(|s| s.v = Vector3::new(0.0, -u, 0.0));
@@ -516,7 +507,7 @@ mod tests {
         let head_on = |k: usize, _: &Vector3<f64>| {
             uniform(Vector3::new(0.0, if k == 0 { -u } else { u }, 0.0))
         };
-        let mut whole = FibreGroup::new(p, vec![a.clone(), b.clone()]);
+        let mut whole = FiberGroup::new(p, vec![a.clone(), b.clone()]);
         let (across, closest, _) = whole_against_shards(
             vec![a, b],
             p,
@@ -540,7 +531,7 @@ mod tests {
             whole.step(&samples, DT).unwrap();
         }
         assert!(
-            com(&whole.fibre(0)).y < com(&whole.fibre(1)).y,
+            com(&whole.fiber(0)).y < com(&whole.fiber(1)).y,
             "without contact they pass"
         );
 
@@ -551,8 +542,8 @@ mod tests {
         };
         for mu in [0.0, 0.5] {
             let mut fs = vec![
-                fibre(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
-                fibre(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
+                fiber(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
+                fiber(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
             ];
             for f in fs.iter_mut() {
                 for s in f.segments.iter_mut() {
@@ -576,14 +567,14 @@ mod tests {
     /// non-finite value) is refused, and the piece keeps what it held.
     #[test]
     fn a_free_step_that_does_not_fit_is_refused() {
-        let g = FibreGroup::new(
+        let g = FiberGroup::new(
             params(Vector3::zeros()),
             vec![
-                fibre(Vector3::zeros(), Vector3::x()),
-                fibre(Vector3::y(), Vector3::z()),
+                fiber(Vector3::zeros(), Vector3::x()),
+                fiber(Vector3::y(), Vector3::z()),
             ],
         );
-        let mut piece = OtherPiece::new(2, 2, g.fibres());
+        let mut piece = OtherPiece::new(2, 2, g.fibers());
         let mut m = FreeStep {
             step: 0,
             first_fiber: 2,
@@ -618,12 +609,12 @@ mod tests {
     /// is taken.
     #[test]
     fn a_solved_part_that_does_not_fit_is_refused() {
-        let fibres = vec![
-            fibre(Vector3::zeros(), Vector3::x()),
-            fibre(Vector3::new(0.0, 0.5 * D, 0.0), Vector3::z()),
+        let fibers = vec![
+            fiber(Vector3::zeros(), Vector3::x()),
+            fiber(Vector3::new(0.0, 0.5 * D, 0.0), Vector3::z()),
         ];
         let whole = {
-            let mut g = FibreGroup::new(params(Vector3::zeros()), fibres);
+            let mut g = FiberGroup::new(params(Vector3::zeros()), fibers);
             g.set_contact(Some(ContactParams::default()));
             g
         };
@@ -647,10 +638,10 @@ mod tests {
             vec![0],
             "the overlapping pair moved the second fibre"
         );
-        let held = second.fibres();
-        let refused = |bad: &ContactSolved, second: &mut FibreGroup| {
+        let held = second.fibers();
+        let refused = |bad: &ContactSolved, second: &mut FiberGroup| {
             assert!(second.apply_contact_solved(1, bad).is_err());
-            assert_eq!(second.fibres(), held, "a refused part changed the piece");
+            assert_eq!(second.fibers(), held, "a refused part changed the piece");
         };
         let mut more = m.clone();
         more.fibers = 2;
@@ -667,6 +658,6 @@ mod tests {
         nan.centre[4] = f64::NAN;
         refused(&nan, &mut second);
         second.apply_contact_solved(1, m).unwrap();
-        assert_ne!(second.fibres(), held, "the part that fits moved the fibre");
+        assert_ne!(second.fibers(), held, "the part that fits moved the fibre");
     }
 }

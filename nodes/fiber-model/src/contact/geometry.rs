@@ -3,7 +3,7 @@
 
 use super::search::{Search, Slices};
 use super::Candidate;
-use crate::fibre::Fibre;
+use crate::fiber::Fiber;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
@@ -54,10 +54,10 @@ pub fn closest_points(
 }
 
 /// Offsets of each fibre's first segment in fibre-major order, plus the total.
-pub(super) fn offsets(fibres: &[Fibre]) -> Vec<usize> {
-    let mut o = Vec::with_capacity(fibres.len() + 1);
+pub(super) fn offsets(fibers: &[Fiber]) -> Vec<usize> {
+    let mut o = Vec::with_capacity(fibers.len() + 1);
     let mut n = 0;
-    for f in fibres {
+    for f in fibers {
         o.push(n);
         n += f.len();
     }
@@ -66,7 +66,7 @@ pub(super) fn offsets(fibres: &[Fibre]) -> Vec<usize> {
 }
 
 /// Segment end points r ± (l/2) ẑ.
-pub(super) fn ends(f: &Fibre, i: usize) -> (Vector3<f64>, Vector3<f64>) {
+pub(super) fn ends(f: &Fiber, i: usize) -> (Vector3<f64>, Vector3<f64>) {
     let s = &f.segments[i];
     let h = 0.5 * f.props[i].shape.length;
     (s.r - s.z * h, s.r + s.z * h)
@@ -94,33 +94,33 @@ pub(super) fn image_shift(
 /// distance (d_a + d_b)/2: (fibre a, segment, fibre b, segment, distance), a before b. A
 /// suspension with contact must start without any.
 pub fn overlaps(
-    fibres: &[Fibre],
+    fibers: &[Fiber],
     period: &[Option<f64>; 3],
 ) -> Vec<(usize, usize, usize, usize, f64)> {
-    touching(fibres, period, 0.0)
+    touching(fibers, period, 0.0)
 }
 
 /// Pairs of segments of different fibres whose centre-lines are closer than their contact
 /// distance times (1 + `tolerance`): (fibre a, segment, fibre b, segment, distance), a
 /// before b, in (fibre, segment) order. With a small tolerance, the pairs in contact.
 pub fn touching(
-    fibres: &[Fibre],
+    fibers: &[Fiber],
     period: &[Option<f64>; 3],
     tolerance: f64,
 ) -> Vec<(usize, usize, usize, usize, f64)> {
     // a skin as wide as the tolerance finds every pair within it
-    let widest = fibres
+    let widest = fibers
         .iter()
         .flat_map(|f| f.props.iter())
         .map(|p| p.shape.diameter)
         .fold(0.0, f64::max);
-    let segments = Slices::new(fibres, fibres);
+    let segments = Slices::new(fibers, fibers);
     Search::new(&segments, period, 0.5 * tolerance * widest)
         .pairs(&segments)
         .iter()
         .filter(|c| c.a.0 != c.b.0)
         .filter_map(|c| {
-            let distance = geometry(fibres, c).2 + c.reach;
+            let distance = geometry(fibers, c).2 + c.reach;
             (distance < c.reach * (1.0 + tolerance))
                 .then_some((c.a.0, c.a.1, c.b.0, c.b.1, distance))
         })
@@ -131,8 +131,8 @@ pub fn touching(
 /// contact distance times (1 + `tolerance`): (fibre, segment i, segment j > i + 1,
 /// distance), in (fibre, i, j) order. A fibre folded through itself has such pairs
 /// closer than d.
-pub fn self_touching(fibres: &[Fibre], tolerance: f64) -> Vec<(usize, usize, usize, f64)> {
-    fibres
+pub fn self_touching(fibers: &[Fiber], tolerance: f64) -> Vec<(usize, usize, usize, f64)> {
+    fibers
         .par_iter()
         .enumerate()
         .flat_map_iter(|(k, f)| {
@@ -161,16 +161,16 @@ pub fn self_touching(fibres: &[Fibre], tolerance: f64) -> Vec<(usize, usize, usi
 /// The state of a candidate at the end of the free step: contact point, normal (on a's
 /// side) and separation minus contact distance (negative: too close, or crossed), and the
 /// closest points' parameters along each segment.
-pub(super) fn geometry(fibres: &[Fibre], c: &Candidate) -> (Vector3<f64>, Vector3<f64>, f64) {
-    let (point, normal, gap, _, _) = closest(fibres, c);
+pub(super) fn geometry(fibers: &[Fiber], c: &Candidate) -> (Vector3<f64>, Vector3<f64>, f64) {
+    let (point, normal, gap, _, _) = closest(fibers, c);
     (point, normal, gap)
 }
 
 /// Sets the side the pair keeps (`normal0`, from b to a) to the side its segments are on
 /// in `fibres`; left as it was when their centre-lines meet.
-pub(super) fn take_side(fibres: &[Fibre], c: &mut Candidate) {
-    let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
-    let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+pub(super) fn take_side(fibers: &[Fiber], c: &mut Candidate) {
+    let (pa0, pa1) = ends(&fibers[c.a.0], c.a.1);
+    let (qb0, qb1) = ends(&fibers[c.b.0], c.b.1);
     let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
     let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
     let v = (pa0 + (pa1 - pa0) * s) - (qb0 + (qb1 - qb0) * t);
@@ -180,11 +180,11 @@ pub(super) fn take_side(fibres: &[Fibre], c: &mut Candidate) {
 }
 
 pub(super) fn closest(
-    fibres: &[Fibre],
+    fibers: &[Fiber],
     c: &Candidate,
 ) -> (Vector3<f64>, Vector3<f64>, f64, f64, f64) {
-    let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
-    let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+    let (pa0, pa1) = ends(&fibers[c.a.0], c.a.1);
+    let (qb0, qb1) = ends(&fibers[c.b.0], c.b.1);
     let (qb0, qb1) = (qb0 + c.shift, qb1 + c.shift);
     let (s, t) = closest_points(&pa0, &pa1, &qb0, &qb1);
     let pa = pa0 + (pa1 - pa0) * s;
@@ -202,12 +202,12 @@ pub(super) fn closest(
 
 /// [`geometry`] at the material points and normal the pair first acted at in this round
 /// of sweeps (the separation along that normal), or the closest points if it has not.
-pub(super) fn geometry_at(fibres: &[Fibre], c: &Candidate) -> (Vector3<f64>, Vector3<f64>, f64) {
+pub(super) fn geometry_at(fibers: &[Fiber], c: &Candidate) -> (Vector3<f64>, Vector3<f64>, f64) {
     let Some((s, t, normal)) = c.at else {
-        return geometry(fibres, c);
+        return geometry(fibers, c);
     };
-    let (pa0, pa1) = ends(&fibres[c.a.0], c.a.1);
-    let (qb0, qb1) = ends(&fibres[c.b.0], c.b.1);
+    let (pa0, pa1) = ends(&fibers[c.a.0], c.a.1);
+    let (qb0, qb1) = ends(&fibers[c.b.0], c.b.1);
     let pa = pa0 + (pa1 - pa0) * s;
     let pb = qb0 + (qb1 - qb0) * t + c.shift;
     (0.5 * (pa + pb), normal, (pa - pb).dot(&normal) - c.reach)

@@ -5,14 +5,14 @@
 use super::geometry::*;
 use super::sweep::*;
 use super::{Candidate, ContactParams};
-use crate::fibre::{Fibre, Segment, SegmentProps};
+use crate::fiber::{Fiber, Segment, SegmentProps};
 use nalgebra::{Matrix3, Vector3};
 
 /// Fibres joined by candidate pairs, solved together: its fibres (ascending) and its pairs
 /// (indices into the candidates, in their order).
 #[derive(Debug, Clone, Default)]
 pub(super) struct Island {
-    pub(super) fibres: Vec<usize>,
+    pub(super) fibers: Vec<usize>,
     pub(super) pairs: Vec<usize>,
 }
 
@@ -39,14 +39,14 @@ pub(super) fn islands(n: usize, cands: &[Candidate], live: &[bool]) -> Vec<Islan
         let r = root(&mut parent, c.a.0);
         let isl = index.entry(r).or_default();
         isl.pairs.push(i);
-        isl.fibres.push(c.a.0);
-        isl.fibres.push(c.b.0);
+        isl.fibers.push(c.a.0);
+        isl.fibers.push(c.b.0);
     }
     index
         .into_values()
         .map(|mut isl| {
-            isl.fibres.sort_unstable();
-            isl.fibres.dedup();
+            isl.fibers.sort_unstable();
+            isl.fibers.dedup();
             isl
         })
         .collect()
@@ -55,7 +55,7 @@ pub(super) fn islands(n: usize, cands: &[Candidate], live: &[bool]) -> Vec<Islan
 /// What solving one island gave: its fibres and pairs after the sweeps (pairs with their
 /// global fibre indices), the sweeps and impulses used, and whether it had to be locked.
 pub(super) struct Solved {
-    pub(super) fibres: Vec<Fibre>,
+    pub(super) fibers: Vec<Fiber>,
     pub(super) pairs: Vec<Candidate>,
     pub(super) sweeps: u32,
     pub(super) applied: usize,
@@ -68,18 +68,18 @@ pub(super) struct Solved {
 /// the step as one rigid body from where its fibres started, with the momentum they came
 /// to this round with ([`lock`]), so no two of its fibres end closer than they started.
 pub(super) fn solve_island(
-    fibres: &[Fibre],
-    before: &[Fibre],
+    fibers: &[Fiber],
+    before: &[Fiber],
     cands: &[Candidate],
     isl: &Island,
     fixed: &[bool],
     params: &ContactParams,
     dt: f64,
 ) -> Solved {
-    let local = |k: usize| isl.fibres.binary_search(&k).unwrap_or(0);
-    let mut mine: Vec<Fibre> = isl.fibres.iter().map(|&k| fibres[k].clone()).collect();
+    let local = |k: usize| isl.fibers.binary_search(&k).unwrap_or(0);
+    let mut mine: Vec<Fiber> = isl.fibers.iter().map(|&k| fibers[k].clone()).collect();
     let held: Vec<bool> = isl
-        .fibres
+        .fibers
         .iter()
         .map(|&k| fixed.get(k).copied().unwrap_or(false))
         .collect();
@@ -95,7 +95,7 @@ pub(super) fn solve_island(
         .collect();
     let came = mine.clone();
     let (mut sweeps, mut applied) = sweep(&mut mine, &mut pairs, &held, params.sweeps, params, dt);
-    let deepest = |mine: &[Fibre], pairs: &[Candidate]| {
+    let deepest = |mine: &[Fiber], pairs: &[Candidate]| {
         pairs
             .iter()
             .map(|c| geometry(mine, c).2 / c.reach)
@@ -128,7 +128,7 @@ pub(super) fn solve_island(
     let ran = sweeps >= params.sweeps && ran_away(&came, &mine, &pairs, dt);
     let locked = gap_left < -LOCK_GAP || ran;
     if locked {
-        let start: Vec<&Fibre> = isl.fibres.iter().map(|&k| &before[k]).collect();
+        let start: Vec<&Fiber> = isl.fibers.iter().map(|&k| &before[k]).collect();
         mine = lock(&start, &came, &held, &images(mine.len(), &pairs), dt);
         // a locked island that went through a wall moves back from it as one body
         if let Some(hh) = params.wall_half_height {
@@ -148,11 +148,11 @@ pub(super) fn solve_island(
         }
     }
     for c in pairs.iter_mut() {
-        c.a.0 = isl.fibres[c.a.0];
-        c.b.0 = isl.fibres[c.b.0];
+        c.a.0 = isl.fibers[c.a.0];
+        c.b.0 = isl.fibers[c.b.0];
     }
     Solved {
-        fibres: mine,
+        fibers: mine,
         pairs,
         sweeps,
         applied,
@@ -170,8 +170,8 @@ pub(super) const LOCK_GAP: f64 = 0.005;
 
 /// Kinetic energy of `fibres` in their centre-of-mass frame (segments' translation and
 /// spin) and their total mass.
-pub(super) fn internal_energy(fibres: &[Fibre]) -> (f64, f64) {
-    let seg = || fibres.iter().flat_map(|f| f.segments.iter().zip(&f.props));
+pub(super) fn internal_energy(fibers: &[Fiber]) -> (f64, f64) {
+    let seg = || fibers.iter().flat_map(|f| f.segments.iter().zip(&f.props));
     let mass: f64 = seg().map(|(_, p)| p.mass).sum();
     if mass <= 0.0 {
         return (0.0, 0.0);
@@ -198,7 +198,7 @@ pub(super) fn internal_energy(fibres: &[Fibre]) -> (f64, f64) {
 /// move as a rigid body, so a converged rigid response can leave the energy a little
 /// higher (test `contact::tests::an_island_whose_sweeps_converge_is_not_locked`).
 /// A jammed island is locked, from the momentum it came with.
-pub(super) fn ran_away(came: &[Fibre], now: &[Fibre], pairs: &[Candidate], dt: f64) -> bool {
+pub(super) fn ran_away(came: &[Fiber], now: &[Fiber], pairs: &[Candidate], dt: f64) -> bool {
     let (before, mass) = internal_energy(came);
     let (after, _) = internal_energy(now);
     let deepest = pairs
@@ -249,19 +249,19 @@ pub(super) fn images(n: usize, pairs: &[Candidate]) -> Vec<Vector3<f64>> {
 /// the start. With a fixed fibre in it, the island stays where it
 /// started, at rest.
 pub(super) fn lock(
-    start: &[&Fibre],
-    now: &[Fibre],
+    start: &[&Fiber],
+    now: &[Fiber],
     held: &[bool],
     image: &[Vector3<f64>],
     dt: f64,
-) -> Vec<Fibre> {
-    let mut out: Vec<Fibre> = start.iter().map(|f| (*f).clone()).collect();
+) -> Vec<Fiber> {
+    let mut out: Vec<Fiber> = start.iter().map(|f| (*f).clone()).collect();
     let mut now = now.to_vec();
     for ((o, n), s) in out.iter_mut().zip(now.iter_mut()).zip(image) {
         o.segments.iter_mut().for_each(|g| g.r += s);
         n.segments.iter_mut().for_each(|g| g.r += s);
     }
-    let segments = |fs: &[Fibre]| -> Vec<(Segment, SegmentProps)> {
+    let segments = |fs: &[Fiber]| -> Vec<(Segment, SegmentProps)> {
         fs.iter()
             .flat_map(|f| f.segments.iter().copied().zip(f.props.iter().copied()))
             .collect()
@@ -273,7 +273,7 @@ pub(super) fn lock(
             so.w = Vector3::zeros();
         }
     }
-    let back = |mut out: Vec<Fibre>| {
+    let back = |mut out: Vec<Fiber>| {
         for (o, s) in out.iter_mut().zip(image) {
             o.segments.iter_mut().for_each(|g| g.r -= s);
         }

@@ -42,7 +42,7 @@ mod island;
 mod search;
 mod sweep;
 
-use crate::fibre::Fibre;
+use crate::fiber::Fiber;
 use geometry::*;
 pub use geometry::{closest_points, overlaps, self_touching, touching};
 use island::*;
@@ -201,10 +201,10 @@ impl Outcome {
     /// the fibre-major order of `fibres`.
     pub fn segment_loads(
         &self,
-        fibres: &[Fibre],
+        fibers: &[Fiber],
         dt: f64,
     ) -> (Vec<Vector3<f64>>, Vec<Vector3<f64>>) {
-        let offsets = offsets(fibres);
+        let offsets = offsets(fibers);
         let n = offsets.last().copied().unwrap_or(0);
         let mut force = vec![Vector3::zeros(); n];
         let mut torque = vec![Vector3::zeros(); n];
@@ -212,8 +212,8 @@ impl Outcome {
             let f = c.impulse / dt;
             let (ka, ia) = c.a;
             let (kb, ib) = c.b;
-            let ra = fibres[ka].segments[ia].r;
-            let rb = fibres[kb].segments[ib].r + c.shift;
+            let ra = fibers[ka].segments[ia].r;
+            let rb = fibers[kb].segments[ib].r + c.shift;
             force[offsets[ka] + ia] += f;
             torque[offsets[ka] + ia] += (c.point - ra).cross(&f);
             force[offsets[kb] + ib] -= f;
@@ -245,7 +245,7 @@ pub(crate) struct Candidate {
 }
 
 /// Copies the fibres of candidate pairs into the solve's lists (now, at the start).
-type Load<'a> = dyn FnMut(&[Candidate], &mut [Fibre], &mut [Fibre]) + 'a;
+type Load<'a> = dyn FnMut(&[Candidate], &mut [Fiber], &mut [Fiber]) + 'a;
 
 /// How far (as a share of its diameter) every point of a corrected fibre may move before
 /// the rounds search around it again.
@@ -256,14 +256,14 @@ const SEARCH_SLACK: f64 = 1e-3;
 /// at the end of the free step): a segment's points move by at most |Δr| + (l/2) |Δẑ|.
 fn moved_beyond<S: Segments>(
     s: &S,
-    fibre: &Fibre,
+    fiber: &Fiber,
     k: usize,
     at: &[(Vector3<f64>, Vector3<f64>)],
 ) -> bool {
-    fibre
+    fiber
         .segments
         .iter()
-        .zip(&fibre.props)
+        .zip(&fiber.props)
         .enumerate()
         .any(|(i, (g, p))| {
             let (r, z) = at.get(i).copied().unwrap_or_else(|| s.end(k, i));
@@ -282,28 +282,28 @@ fn freeze_what_still_overlaps<S: Segments>(
     s: &S,
     search: &Search,
     cands: &mut Vec<Candidate>,
-    fibres: &mut [Fibre],
-    before: &[Fibre],
+    fibers: &mut [Fiber],
+    before: &[Fiber],
     moved: &mut [bool],
     load: &mut Load<'_>,
 ) -> Vec<bool> {
-    let n = fibres.len();
+    let n = fibers.len();
     let mut frozen = vec![false; n];
-    let overlapping = |cands: &[Candidate], fibres: &[Fibre]| {
+    let overlapping = |cands: &[Candidate], fibers: &[Fiber]| {
         cands
             .iter()
-            .any(|c| geometry(fibres, c).2 / c.reach < -FREEZE_DEPTH)
+            .any(|c| geometry(fibers, c).2 / c.reach < -FREEZE_DEPTH)
     };
-    if !overlapping(cands, fibres) {
+    if !overlapping(cands, fibers) {
         return frozen;
     }
     // `load` copies fibres into both lists; the start is read from `before`, which the
     // caller owns, so fresh pairs' fibres are loaded into a scratch copy of it
-    let mut start: Vec<Fibre> = before.to_vec();
+    let mut start: Vec<Fiber> = before.to_vec();
     loop {
         let mut newly: Vec<usize> = cands
             .iter()
-            .filter(|c| geometry(fibres, c).2 / c.reach < -FREEZE_DEPTH)
+            .filter(|c| geometry(fibers, c).2 / c.reach < -FREEZE_DEPTH)
             .flat_map(|c| [c.a.0, c.b.0])
             .filter(|&k| !frozen[k])
             .collect();
@@ -315,7 +315,7 @@ fn freeze_what_still_overlaps<S: Segments>(
         for &k in &newly {
             frozen[k] = true;
             moved[k] = true;
-            for (seg, was) in fibres[k].segments.iter_mut().zip(&start[k].segments) {
+            for (seg, was) in fibers[k].segments.iter_mut().zip(&start[k].segments) {
                 (seg.r, seg.z, seg.n) = (was.r, was.z, was.n);
             }
         }
@@ -323,10 +323,10 @@ fn freeze_what_still_overlaps<S: Segments>(
         // (one found after a round took the side it had then, which corrections that
         // pushed it through may have turned)
         for c in cands.iter_mut().filter(|c| frozen[c.a.0] && frozen[c.b.0]) {
-            take_side(fibres, c);
+            take_side(fibers, c);
         }
         let fresh: Vec<Candidate> = search
-            .around(s, fibres, &start, moved, &newly)
+            .around(s, fibers, &start, moved, &newly)
             .into_iter()
             .filter(|c| {
                 cands
@@ -334,7 +334,7 @@ fn freeze_what_still_overlaps<S: Segments>(
                     .is_err()
             })
             .collect();
-        load(&fresh, fibres, &mut start);
+        load(&fresh, fibers, &mut start);
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
     }
@@ -344,17 +344,17 @@ fn freeze_what_still_overlaps<S: Segments>(
 /// its start), with fibres `fixed[k]` immovable (a support). See the module's
 /// documentation for the method.
 pub fn resolve(
-    fibres: &mut [Fibre],
-    before: &[Fibre],
+    fibers: &mut [Fiber],
+    before: &[Fiber],
     fixed: &[bool],
     params: &ContactParams,
     dt: f64,
 ) -> Outcome {
     let mut search = Search::default();
     let (outcome, solved) =
-        resolve_segments(&Slices::new(before, fibres), &mut search, fixed, params, dt);
+        resolve_segments(&Slices::new(before, fibers), &mut search, fixed, params, dt);
     for &k in &outcome.moved {
-        fibres[k] = solved[k].clone();
+        fibers[k] = solved[k].clone();
     }
     outcome
 }
@@ -369,7 +369,7 @@ pub(crate) fn resolve_segments<S: Segments>(
     fixed: &[bool],
     params: &ContactParams,
     dt: f64,
-) -> (Outcome, Vec<Fibre>) {
+) -> (Outcome, Vec<Fiber>) {
     let n = s.offsets().len().saturating_sub(1);
     let mut spent = search.spent;
     let mut clock = std::time::Instant::now();
@@ -383,33 +383,33 @@ pub(crate) fn resolve_segments<S: Segments>(
     let mut cands = search.pairs(s);
     lap(&mut spent.scan_s);
     // the fibres the solve reads, copied out as pairs name them
-    let empty = Fibre {
+    let empty = Fiber {
         segments: Vec::new(),
         props: Vec::new(),
         density: 0.0,
     };
-    let mut fibres = vec![empty.clone(); n];
+    let mut fibers = vec![empty.clone(); n];
     let mut before = vec![empty; n];
 
     let mut loaded = vec![false; n];
-    let mut load = |cands: &[Candidate], fibres: &mut [Fibre], before: &mut [Fibre]| {
+    let mut load = |cands: &[Candidate], fibers: &mut [Fiber], before: &mut [Fiber]| {
         for c in cands {
             for k in [c.a.0, c.b.0] {
                 if !loaded[k] {
                     loaded[k] = true;
-                    fibres[k] = s.end_fibre(k);
-                    before[k] = s.start_fibre(k);
+                    fibers[k] = s.end_fiber(k);
+                    before[k] = s.start_fiber(k);
                 }
             }
         }
     };
-    load(&cands, &mut fibres, &mut before);
+    load(&cands, &mut fibers, &mut before);
     let mut outcome = Outcome {
         candidates: cands.len(),
         worst_gap: f64::INFINITY,
         ..Default::default()
     };
-    let mut moved_fibres = vec![false; n];
+    let mut moved_fibers = vec![false; n];
     let mut locked = vec![false; n];
     // where each fibre's segments were when it was last searched around (empty: at the
     // end of the free step)
@@ -422,7 +422,7 @@ pub(crate) fn resolve_segments<S: Segments>(
         let gaps: Vec<f64> = cands
             .par_iter()
             .with_min_len(1024)
-            .map(|c| geometry(&fibres, c).2 / c.reach)
+            .map(|c| geometry(&fibers, c).2 / c.reach)
             .collect();
         if gaps.iter().all(|&g| g >= -1e-6) {
             break;
@@ -439,20 +439,20 @@ pub(crate) fn resolve_segments<S: Segments>(
         let isl = islands(n, &cands, &live);
         let solved: Vec<Solved> = isl
             .par_iter()
-            .map(|i| solve_island(&fibres, &before, &cands, i, fixed, params, dt))
+            .map(|i| solve_island(&fibers, &before, &cands, i, fixed, params, dt))
             .collect();
         let mut changed = false;
         let mut round_moved = Vec::new();
         for (i, s) in isl.iter().zip(solved) {
             outcome.sweeps = outcome.sweeps.max(s.sweeps);
             changed |= s.applied > 0 || s.locked;
-            for (&k, f) in i.fibres.iter().zip(s.fibres) {
+            for (&k, f) in i.fibers.iter().zip(s.fibers) {
                 locked[k] |= s.locked;
                 if s.applied > 0 || s.locked {
-                    moved_fibres[k] = true;
+                    moved_fibers[k] = true;
                     round_moved.push(k);
                 }
-                fibres[k] = f;
+                fibers[k] = f;
             }
             for (&n, c) in i.pairs.iter().zip(s.pairs) {
                 cands[n] = c;
@@ -470,12 +470,12 @@ pub(crate) fn resolve_segments<S: Segments>(
         // twice that with one also so moved: it waits until it has moved more (most of a
         // round's fibres move less than 10⁻³ d; what is left the next step separates)
         round_moved.sort_unstable();
-        round_moved.retain(|&k| moved_beyond(s, &fibres[k], k, &searched_at[k]));
+        round_moved.retain(|&k| moved_beyond(s, &fibers[k], k, &searched_at[k]));
         for &k in &round_moved {
-            searched_at[k] = fibres[k].segments.iter().map(|g| (g.r, g.z)).collect();
+            searched_at[k] = fibers[k].segments.iter().map(|g| (g.r, g.z)).collect();
         }
         let fresh: Vec<Candidate> = search
-            .around(s, &fibres, &before, &moved_fibres, &round_moved)
+            .around(s, &fibers, &before, &moved_fibers, &round_moved)
             .into_iter()
             .filter(|c| {
                 cands
@@ -483,7 +483,7 @@ pub(crate) fn resolve_segments<S: Segments>(
                     .is_err()
             })
             .collect();
-        load(&fresh, &mut fibres, &mut before);
+        load(&fresh, &mut fibers, &mut before);
         cands.extend(fresh);
         cands.sort_by_key(|c| (c.a, c.b));
         lap(&mut spent.around_s);
@@ -494,17 +494,17 @@ pub(crate) fn resolve_segments<S: Segments>(
         s,
         search,
         &mut cands,
-        &mut fibres,
+        &mut fibers,
         &before,
-        &mut moved_fibres,
+        &mut moved_fibers,
         &mut load,
     );
-    outcome.moved = (0..n).filter(|&k| moved_fibres[k]).collect();
+    outcome.moved = (0..n).filter(|&k| moved_fibers[k]).collect();
     outcome.locked = (0..n).filter(|&k| locked[k]).collect();
     outcome.frozen = (0..n).filter(|&k| frozen[k]).collect();
     outcome.candidates = cands.len();
     for c in &cands {
-        let (point, _, gap) = geometry(&fibres, c);
+        let (point, _, gap) = geometry(&fibers, c);
         outcome.worst_gap = outcome.worst_gap.min(gap);
         if c.impulse != Vector3::zeros() {
             outcome.contacts.push(Contact {
@@ -519,7 +519,7 @@ pub(crate) fn resolve_segments<S: Segments>(
     lap(&mut spent.rest_s);
     spent.steps += 1;
     search.spent = spent;
-    (outcome, fibres)
+    (outcome, fibers)
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 use super::chain::{cuts, Chain};
 use super::geometry::*;
 use super::{Candidate, ContactParams};
-use crate::fibre::{Fibre, Segment};
+use crate::fiber::{Fiber, Segment};
 use crate::lanes::sin_cos1;
 use nalgebra::{Matrix3, Vector3};
 use std::ops::Range;
@@ -22,12 +22,12 @@ pub(super) struct Rigid {
 
 impl Rigid {
     #[cfg(test)]
-    pub(super) fn of(f: &Fibre, fixed: bool) -> Self {
+    pub(super) fn of(f: &Fiber, fixed: bool) -> Self {
         Self::of_piece(f, 0..f.len(), fixed)
     }
 
     /// Segments `piece` of `f` as one rigid body.
-    pub(super) fn of_piece(f: &Fibre, piece: Range<usize>, fixed: bool) -> Self {
+    pub(super) fn of_piece(f: &Fiber, piece: Range<usize>, fixed: bool) -> Self {
         let (segments, props) = (&f.segments[piece.clone()], &f.props[piece]);
         let mass: f64 = props.iter().map(|p| p.mass).sum();
         let com = segments
@@ -68,7 +68,7 @@ pub(super) fn cross_matrix(v: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// Velocity of the material point `point` of segment `i`: v + ω × (point − r).
-pub(super) fn point_velocity(f: &Fibre, i: usize, point: &Vector3<f64>) -> Vector3<f64> {
+pub(super) fn point_velocity(f: &Fiber, i: usize, point: &Vector3<f64>) -> Vector3<f64> {
     let s = &f.segments[i];
     s.v + s.w.cross(&(point - s.r))
 }
@@ -144,7 +144,7 @@ pub(super) fn impulse(
 /// was last looked at. Stops when a sweep applies nothing or `max_sweeps` ran out;
 /// returns the sweeps used and the impulses applied.
 pub(super) fn sweep(
-    fibres: &mut [Fibre],
+    fibers: &mut [Fiber],
     cands: &mut [Candidate],
     fixed: &[bool],
     max_sweeps: u32,
@@ -154,15 +154,15 @@ pub(super) fn sweep(
     for c in cands.iter_mut() {
         c.at = None;
     }
-    let cuts = cuts(fibres, cands);
-    let mut bodies: Vec<Body> = fibres
+    let cuts = cuts(fibers, cands);
+    let mut bodies: Vec<Body> = fibers
         .iter()
         .enumerate()
         .map(|(k, f)| Body::of(f, &cuts[k], fixed[k]))
         .collect();
     // the sweep in which each fibre last moved (pairs of fibres that did not move since
     // they were last looked at are skipped)
-    let mut moved = vec![0u32; fibres.len()];
+    let mut moved = vec![0u32; fibers.len()];
     let mut used = 0;
     let mut applied = 0;
     for sweep in 1..=max_sweeps.max(1) {
@@ -172,25 +172,25 @@ pub(super) fn sweep(
             if sweep > 1 && moved[sa] + 1 < sweep && moved[sb] + 1 < sweep {
                 continue;
             }
-            let (point, normal, gap) = geometry_at(fibres, c);
+            let (point, normal, gap) = geometry_at(fibers, c);
             // a pair that has not touched yet in this round needs an overlap to act
             if c.at.is_none() {
                 if gap >= -1e-6 * c.reach {
                     continue;
                 }
-                let (_, _, _, s, t) = closest(fibres, c);
+                let (_, _, _, s, t) = closest(fibers, c);
                 c.at = Some((s, t, normal));
             }
             let point_b = point - c.shift;
             let a = (c.a.1, point);
             let b = (c.b.1, point_b);
             let w = if sa == sb {
-                bodies[sa].pair_mobility(&fibres[sa], a, b)
+                bodies[sa].pair_mobility(&fibers[sa], a, b)
             } else {
-                bodies[sa].mobility(&fibres[sa], a) + bodies[sb].mobility(&fibres[sb], b)
+                bodies[sa].mobility(&fibers[sa], a) + bodies[sb].mobility(&fibers[sb], b)
             };
-            let u = point_velocity(&fibres[sa], c.a.1, &point)
-                - point_velocity(&fibres[sb], c.b.1, &point_b);
+            let u = point_velocity(&fibers[sa], c.a.1, &point)
+                - point_velocity(&fibers[sb], c.b.1, &point_b);
             let total = impulse(&c.impulse, &w, &u, &normal, gap, dt, params.friction);
             let j = total - c.impulse;
             // converged: the change would move the contact by less than 10⁻⁷ d
@@ -201,15 +201,15 @@ pub(super) fn sweep(
             let wall = params.wall_half_height;
             if sa == sb {
                 push(
-                    &mut fibres[sa],
+                    &mut fibers[sa],
                     &mut bodies[sa],
                     &[(a, j), (b, -j)],
                     dt,
                     wall,
                 );
             } else {
-                push(&mut fibres[sa], &mut bodies[sa], &[(a, j)], dt, wall);
-                push(&mut fibres[sb], &mut bodies[sb], &[(b, -j)], dt, wall);
+                push(&mut fibers[sa], &mut bodies[sa], &[(a, j)], dt, wall);
+                push(&mut fibers[sb], &mut bodies[sb], &[(b, -j)], dt, wall);
             }
             moved[sa] = sweep;
             moved[sb] = sweep;
@@ -221,7 +221,7 @@ pub(super) fn sweep(
         used = sweep;
         applied += this_sweep;
         // the moved fibres' inertia turned with them
-        for (k, f) in fibres.iter().enumerate() {
+        for (k, f) in fibers.iter().enumerate() {
             if moved[k] == sweep {
                 bodies[k] = Body::of(f, &cuts[k], fixed[k]);
             }
@@ -230,7 +230,7 @@ pub(super) fn sweep(
     // a cut fibre's pieces turned about their joints: the joints opened to second order
     // in the turns (their velocities match); the joint impulses close them (each time to
     // second order in what is left), and what they leave is closed along the chain
-    for (k, f) in fibres.iter_mut().enumerate() {
+    for (k, f) in fibers.iter_mut().enumerate() {
         if let Body::Chain(chain) = &mut bodies[k] {
             for _ in 0..4 {
                 if f.max_joint_gap() <= 1e-9 * f.props[0].shape.diameter {
@@ -255,7 +255,7 @@ pub(super) enum Body {
 }
 
 impl Body {
-    pub(super) fn of(f: &Fibre, cuts: &[usize], fixed: bool) -> Self {
+    pub(super) fn of(f: &Fiber, cuts: &[usize], fixed: bool) -> Self {
         if cuts.is_empty() {
             Body::Rigid(Rigid::of_piece(f, 0..f.len(), fixed))
         } else {
@@ -264,7 +264,7 @@ impl Body {
     }
 
     /// Velocity change at a point per unit impulse there.
-    pub(super) fn mobility(&self, f: &Fibre, (i, point): At) -> Matrix3<f64> {
+    pub(super) fn mobility(&self, f: &Fiber, (i, point): At) -> Matrix3<f64> {
         match self {
             Body::Rigid(r) => r.mobility(&point),
             Body::Chain(c) => c.mobility(f, &[(i, point, 1.0)], &[(i, point, 1.0)]),
@@ -273,7 +273,7 @@ impl Body {
 
     /// Change of the relative velocity of point `a` against point `b` (of this fibre) per
     /// unit impulse on `a` (its opposite on `b`).
-    pub(super) fn pair_mobility(&self, f: &Fibre, (ia, a): At, (ib, b): At) -> Matrix3<f64> {
+    pub(super) fn pair_mobility(&self, f: &Fiber, (ia, a): At, (ib, b): At) -> Matrix3<f64> {
         match self {
             Body::Rigid(r) => {
                 let (xa, xb) = (cross_matrix(&(a - r.com)), cross_matrix(&(b - r.com)));
@@ -293,7 +293,7 @@ impl Body {
 /// walls at ±`wall`, the walls push back any end it drove through them
 /// ([`hold_off_walls`]).
 pub(super) fn push(
-    f: &mut Fibre,
+    f: &mut Fiber,
     body: &mut Body,
     pushes: &[(At, Vector3<f64>)],
     dt: f64,
@@ -349,7 +349,7 @@ pub(super) fn rigid_motion(
 /// contact moves back along x2. A shift alone (the first version) let a push at one end
 /// of a fibre lying on the wall turn it into the wall sweep after sweep, adding energy that
 /// no shift took back.
-pub(super) fn hold_off_walls(f: &mut Fibre, body: &mut Body, hh: f64, dt: f64) {
+pub(super) fn hold_off_walls(f: &mut Fiber, body: &mut Body, hh: f64, dt: f64) {
     for _ in 0..8 {
         let Some((at, normal, depth)) = deepest_beyond_wall(f, hh) else {
             return;
@@ -375,7 +375,7 @@ pub(super) fn hold_off_walls(f: &mut Fibre, body: &mut Body, hh: f64, dt: f64) {
 /// The joint of `f` deepest beyond a wall at x2 = ±`hh`: the joint (with a segment it
 /// ends), the wall's normal into the channel and the depth (None when every joint is
 /// inside).
-pub(super) fn deepest_beyond_wall(f: &Fibre, hh: f64) -> Option<(At, Vector3<f64>, f64)> {
+pub(super) fn deepest_beyond_wall(f: &Fiber, hh: f64) -> Option<(At, Vector3<f64>, f64)> {
     let mut deepest: Option<(At, Vector3<f64>, f64)> = None;
     let mut look = |i: usize, p: Vector3<f64>| {
         let (depth, normal) = if p.y < -hh {
@@ -400,7 +400,7 @@ pub(super) fn deepest_beyond_wall(f: &Fibre, hh: f64) -> Option<(At, Vector3<f64
 
 /// The rigid motion of a whole fibre under the impulse `j` at `point` ([`push`]).
 pub(super) fn move_by(
-    f: &mut Fibre,
+    f: &mut Fiber,
     r: &mut Rigid,
     point: &Vector3<f64>,
     j: &Vector3<f64>,

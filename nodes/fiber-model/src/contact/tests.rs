@@ -12,8 +12,8 @@ const L: f64 = 3.0;
 const N: usize = 7;
 pub(crate) const DT: f64 = 0.2;
 
-pub(crate) fn fibre(centre: Vector3<f64>, axis: Vector3<f64>) -> Fibre {
-    Fibre::straight(centre, axis.normalize(), &[L; N], &[D; N], 1150.0).unwrap()
+pub(crate) fn fiber(centre: Vector3<f64>, axis: Vector3<f64>) -> Fiber {
+    Fiber::straight(centre, axis.normalize(), &[L; N], &[D; N], 1150.0).unwrap()
 }
 
 pub(crate) fn params(gravity: Vector3<f64>) -> ModelParams {
@@ -34,35 +34,35 @@ pub(crate) fn params(gravity: Vector3<f64>) -> ModelParams {
 /// One coupled step: every free fibre by the model's step in the fluid `fluid(k, r)`,
 /// then contact (None: without contact).
 fn step_all(
-    fibres: &mut [Fibre],
+    fibers: &mut [Fiber],
     fixed: &[bool],
     p: &ModelParams,
     fluid: &dyn Fn(usize, &Vector3<f64>) -> FluidSample,
     contact: Option<&ContactParams>,
 ) -> Option<Outcome> {
-    let before = fibres.to_vec();
-    for (k, f) in fibres.iter_mut().enumerate() {
+    let before = fibers.to_vec();
+    for (k, f) in fibers.iter_mut().enumerate() {
         if fixed.get(k).copied().unwrap_or(false) {
             continue;
         }
         let samples: Vec<FluidSample> = f.segments.iter().map(|s| fluid(k, &s.r)).collect();
         step(p, f, &samples, DT).unwrap();
     }
-    contact.map(|c| resolve(fibres, &before, fixed, c, DT))
+    contact.map(|c| resolve(fibers, &before, fixed, c, DT))
 }
 
 /// Smallest centre-line distance between segments of different fibres, by brute force
 /// over nearest periodic images.
-pub(crate) fn min_distance(fibres: &[Fibre], period: &[Option<f64>; 3]) -> f64 {
+pub(crate) fn min_distance(fibers: &[Fiber], period: &[Option<f64>; 3]) -> f64 {
     let mut m = f64::INFINITY;
-    for a in 0..fibres.len() {
-        for b in a + 1..fibres.len() {
-            for i in 0..fibres[a].len() {
-                for j in 0..fibres[b].len() {
-                    let (p0, p1) = ends(&fibres[a], i);
-                    let (q0, q1) = ends(&fibres[b], j);
+    for a in 0..fibers.len() {
+        for b in a + 1..fibers.len() {
+            for i in 0..fibers[a].len() {
+                for j in 0..fibers[b].len() {
+                    let (p0, p1) = ends(&fibers[a], i);
+                    let (q0, q1) = ends(&fibers[b], j);
                     let sh =
-                        image_shift(&fibres[a].segments[i].r, &fibres[b].segments[j].r, period);
+                        image_shift(&fibers[a].segments[i].r, &fibers[b].segments[j].r, period);
                     m = m.min(segment_distance(p0, p1, q0 + sh, q1 + sh));
                 }
             }
@@ -86,12 +86,12 @@ pub(crate) fn crowded_box(side: f64, seed: u64) -> Vec<crate::cases::Placement> 
     .unwrap()
 }
 
-pub(crate) fn com(f: &Fibre) -> Vector3<f64> {
+pub(crate) fn com(f: &Fiber) -> Vector3<f64> {
     Rigid::of(f, false).com
 }
 
 /// Total momentum of the fibres' segments.
-fn momentum(fs: &[Fibre]) -> Vector3<f64> {
+fn momentum(fs: &[Fiber]) -> Vector3<f64> {
     fs.iter()
         .flat_map(|f| f.segments.iter().zip(&f.props))
         .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
@@ -101,22 +101,22 @@ fn momentum(fs: &[Fibre]) -> Vector3<f64> {
 /// momentum is unchanged, and the contact forces and their torques about the origin
 /// (each pair's second segment at its image beside the first) sum to zero, to
 /// round-off relative to the largest force (and `lever`, the box, for torques).
-fn assert_balanced(out: &Outcome, fibres: &[Fibre], free: Vector3<f64>, lever: f64) {
-    let scale: f64 = fibres
+fn assert_balanced(out: &Outcome, fibers: &[Fiber], free: Vector3<f64>, lever: f64) {
+    let scale: f64 = fibers
         .iter()
         .flat_map(|f| f.segments.iter().zip(&f.props))
         .map(|(s, p)| s.v.norm() * p.mass)
         .sum();
-    assert!((momentum(fibres) - free).norm() <= 1e-12 * scale);
-    let (force, torque) = out.segment_loads(fibres, DT);
+    assert!((momentum(fibers) - free).norm() <= 1e-12 * scale);
+    let (force, torque) = out.segment_loads(fibers, DT);
     let total_f = force.iter().sum::<Vector3<f64>>();
     let fmax = force.iter().map(|f| f.norm()).fold(0.0, f64::max);
     assert!(total_f.norm() <= 1e-12 * fmax.max(1e-300) * force.len() as f64);
     let mut total_t: Vector3<f64> = torque.iter().sum();
     for ct in &out.contacts {
         let fa = ct.impulse / DT;
-        let ra = fibres[ct.a.0].segments[ct.a.1].r;
-        let rb = fibres[ct.b.0].segments[ct.b.1].r + ct.shift;
+        let ra = fibers[ct.a.0].segments[ct.a.1].r;
+        let rb = fibers[ct.b.0].segments[ct.b.1].r + ct.shift;
         total_t += ra.cross(&fa) + rb.cross(&(-fa));
     }
     assert!(
@@ -203,11 +203,11 @@ fn closest_points_are_the_closest() {
 /// apart. With the wall as a shift after each push (the first version) every push
 /// turned the lying fibre into the wall and the shift lifted it whole.
 #[test]
-fn a_fibre_pressed_onto_the_end_of_one_lying_on_the_wall_does_not_lift_its_other_end() {
+fn a_fiber_pressed_onto_the_end_of_one_lying_on_the_wall_does_not_lift_its_other_end() {
     const H: f64 = 10.0;
-    let mut fibres = vec![
-        fibre(Vector3::new(9.0, -H + 0.3, 0.0), Vector3::z()),
-        fibre(Vector3::new(0.0, -H, 0.0), Vector3::x()),
+    let mut fibers = vec![
+        fiber(Vector3::new(9.0, -H + 0.3, 0.0), Vector3::z()),
+        fiber(Vector3::new(0.0, -H, 0.0), Vector3::x()),
     ];
     let p = ModelParams {
         wall_half_height: Some(H),
@@ -222,13 +222,13 @@ fn a_fibre_pressed_onto_the_end_of_one_lying_on_the_wall_does_not_lift_its_other
     };
     let (mut closest, mut lifted, mut locked) = (f64::INFINITY, 0.0_f64, 0);
     for _ in 0..30 {
-        let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+        let out = step_all(&mut fibers, &[], &p, &fluid, Some(&c)).unwrap();
         locked += usize::from(!out.locked.is_empty());
         for &k in &out.moved {
-            crate::step::wall_contact(&mut fibres[k], H);
+            crate::step::wall_contact(&mut fibers[k], H);
         }
-        closest = closest.min(min_distance(&fibres, &[None; 3]));
-        let far = fibres[1].joints()[0];
+        closest = closest.min(min_distance(&fibers, &[None; 3]));
+        let far = fibers[1].joints()[0];
         lifted = lifted.max(far.y + H);
     }
     eprintln!(
@@ -242,12 +242,12 @@ fn a_fibre_pressed_onto_the_end_of_one_lying_on_the_wall_does_not_lift_its_other
 }
 
 #[test]
-fn a_fibre_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
+fn a_fiber_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
     const H: f64 = 10.0;
     let run = |wall_in_solve: bool| -> (f64, f64) {
-        let mut fibres = vec![
-            fibre(Vector3::new(0.0, -H + 0.3, 0.0), Vector3::z()),
-            fibre(Vector3::new(0.0, -H, 0.0), Vector3::x()),
+        let mut fibers = vec![
+            fiber(Vector3::new(0.0, -H + 0.3, 0.0), Vector3::z()),
+            fiber(Vector3::new(0.0, -H, 0.0), Vector3::x()),
         ];
         let p = ModelParams {
             wall_half_height: Some(H),
@@ -262,13 +262,13 @@ fn a_fibre_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
         };
         let (mut closest, mut deepest) = (f64::INFINITY, 0.0_f64);
         for _ in 0..30 {
-            let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+            let out = step_all(&mut fibers, &[], &p, &fluid, Some(&c)).unwrap();
             // as the group does after the solve
             for &k in &out.moved {
-                crate::step::wall_contact(&mut fibres[k], H);
+                crate::step::wall_contact(&mut fibers[k], H);
             }
-            closest = closest.min(min_distance(&fibres, &[None; 3]));
-            for f in &fibres {
+            closest = closest.min(min_distance(&fibers, &[None; 3]));
+            for f in &fibers {
                 for j in f.joints() {
                     deepest = deepest.max(j.y.abs() - H);
                 }
@@ -290,11 +290,11 @@ fn a_fibre_pressed_onto_one_lying_on_the_wall_stays_out_of_both() {
 }
 
 #[test]
-fn head_on_fibres_do_not_pass_through() {
+fn head_on_fibers_do_not_pass_through() {
     let u = 2.0;
     let start = || {
-        let mut a = fibre(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
-        let mut b = fibre(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
+        let mut a = fiber(Vector3::new(0.0, 3.0, 0.0), Vector3::z());
+        let mut b = fiber(Vector3::new(0.0, -3.0, 0.0), Vector3::x());
         a.segments
             .iter_mut()
             .for_each(|s| s.v = Vector3::new(0.0, -u, 0.0));
@@ -307,14 +307,14 @@ fn head_on_fibres_do_not_pass_through() {
         |k: usize, _: &Vector3<f64>| uniform(Vector3::new(0.0, if k == 0 { -u } else { u }, 0.0));
     let p = params(Vector3::zeros());
     let c = ContactParams::default();
-    let mut fibres = start();
+    let mut fibers = start();
     let mut touched = 0;
     for _ in 0..40 {
-        let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+        let out = step_all(&mut fibers, &[], &p, &fluid, Some(&c)).unwrap();
         touched += out.contacts.len();
-        let m = min_distance(&fibres, &[None; 3]);
+        let m = min_distance(&fibers, &[None; 3]);
         assert!(m >= 0.99 * D, "centre-lines {m} apart (d = {D})");
-        assert!(com(&fibres[0]).y > com(&fibres[1]).y);
+        assert!(com(&fibers[0]).y > com(&fibers[1]).y);
     }
     assert!(touched > 10, "the fibres touched in only {touched} steps");
     let mut free = start();
@@ -329,7 +329,7 @@ fn head_on_fibres_do_not_pass_through() {
 
 /// Smallest centre-line distance between non-adjacent segments of one fibre (brute
 /// force), checked against [`self_touching`] with a tolerance that takes them all.
-fn min_self_distance(f: &Fibre) -> f64 {
+fn min_self_distance(f: &Fiber) -> f64 {
     let mut m = f64::INFINITY;
     let mut pairs = 0;
     for i in 0..f.len() {
@@ -349,8 +349,8 @@ fn min_self_distance(f: &Fibre) -> f64 {
 /// A hairpin: nine case-1-like segments, four along +x at y = +1.5, one down across
 /// the bend at x = 0, four back along −x at y = −1.5 (arms 3 wall units apart), no
 /// bending stiffness (free joints).
-pub(crate) fn hairpin() -> Fibre {
-    let mut f = Fibre::straight(Vector3::zeros(), Vector3::x(), &[L; 9], &[D; 9], 1150.0).unwrap();
+pub(crate) fn hairpin() -> Fiber {
+    let mut f = Fiber::straight(Vector3::zeros(), Vector3::x(), &[L; 9], &[D; 9], 1150.0).unwrap();
     for (i, s) in f.segments.iter_mut().enumerate() {
         s.z = match i {
             0..=3 => Vector3::x(),
@@ -369,7 +369,7 @@ pub(crate) fn hairpin() -> Fibre {
 /// steps, the fibre's joints stay closed (to 10⁻⁹ wall units), the contact forces and
 /// torques sum to zero and momentum is kept every step, with and without friction.
 #[test]
-fn a_fibre_folded_onto_itself_does_not_pass_through_itself() {
+fn a_fiber_folded_onto_itself_does_not_pass_through_itself() {
     let u = 2.0;
     let fluid = |_: usize, r: &Vector3<f64>| {
         // the arms (x < −1.5) pushed together, the bend left alone
@@ -377,7 +377,7 @@ fn a_fibre_folded_onto_itself_does_not_pass_through_itself() {
         uniform(Vector3::new(0.0, v, 0.0))
     };
     let p = params(Vector3::zeros());
-    let arms_apart = |f: &Fibre| {
+    let arms_apart = |f: &Fiber| {
         let y = |range: std::ops::Range<usize>| {
             range.clone().map(|i| f.segments[i].r.y).sum::<f64>() / range.len() as f64
         };
@@ -388,24 +388,24 @@ fn a_fibre_folded_onto_itself_does_not_pass_through_itself() {
             friction,
             ..Default::default()
         };
-        let mut fibres = vec![hairpin()];
+        let mut fibers = vec![hairpin()];
         let mut own = 0;
         for _ in 0..40 {
-            let before = fibres.clone();
-            for (k, f) in fibres.iter_mut().enumerate() {
+            let before = fibers.clone();
+            for (k, f) in fibers.iter_mut().enumerate() {
                 let samples: Vec<FluidSample> = f.segments.iter().map(|s| fluid(k, &s.r)).collect();
                 step(&p, f, &samples, DT).unwrap();
             }
-            let free = momentum(&fibres);
-            let out = resolve(&mut fibres, &before, &[], &c, DT);
+            let free = momentum(&fibers);
+            let out = resolve(&mut fibers, &before, &[], &c, DT);
             own += out.contacts.iter().filter(|c| c.a.0 == c.b.0).count();
-            assert_balanced(&out, &fibres, free, 30.0);
-            let m = min_self_distance(&fibres[0]);
+            assert_balanced(&out, &fibers, free, 30.0);
+            let m = min_self_distance(&fibers[0]);
             assert!(m >= 0.99 * D, "μ {friction}: segments {m} apart (d = {D})");
-            let gap = fibres[0].max_joint_gap();
+            let gap = fibers[0].max_joint_gap();
             assert!(gap < 1e-9, "μ {friction}: a joint {gap} open");
             assert!(
-                arms_apart(&fibres[0]) > 0.0,
+                arms_apart(&fibers[0]) > 0.0,
                 "μ {friction}: the arms crossed"
             );
         }
@@ -432,7 +432,7 @@ fn a_fibre_folded_onto_itself_does_not_pass_through_itself() {
 /// momentum, and the hinge's two sides move together.
 #[test]
 fn a_hinged_pair_of_segments_answers_a_push_as_the_rods_do() {
-    let f = Fibre::straight(Vector3::zeros(), Vector3::x(), &[L; 2], &[D; 2], 1150.0).unwrap();
+    let f = Fiber::straight(Vector3::zeros(), Vector3::x(), &[L; 2], &[D; 2], 1150.0).unwrap();
     let chain = Chain::of(&f, &[1], false);
     let (m, a) = (f.props[0].mass, 0.5 * L);
     let inertia = f.props[0].inertia(&Vector3::x());
@@ -480,7 +480,7 @@ fn a_hinged_pair_of_segments_answers_a_push_as_the_rods_do() {
 /// run without contact comes within 0.1 d), with contact they never come closer than
 /// 0.99 d, with and without friction.
 #[test]
-fn fibres_crossing_in_shear_slide_over_each_other() {
+fn fibers_crossing_in_shear_slide_over_each_other() {
     let gamma = 10.0;
     let fluid = |_: usize, r: &Vector3<f64>| FluidSample {
         vel: Vector3::new(gamma * r.y, 0.0, 0.0),
@@ -488,8 +488,8 @@ fn fibres_crossing_in_shear_slide_over_each_other() {
     };
     let start = || {
         let mut fs = vec![
-            fibre(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
-            fibre(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
+            fiber(Vector3::new(-12.0, 0.05, 0.0), Vector3::z()),
+            fiber(Vector3::new(12.0, -0.05, 0.0), Vector3::new(0.0, 0.1, 1.0)),
         ];
         for f in fs.iter_mut() {
             for s in f.segments.iter_mut() {
@@ -514,17 +514,17 @@ fn fibres_crossing_in_shear_slide_over_each_other() {
             friction: mu,
             ..Default::default()
         };
-        let mut fibres = start();
+        let mut fibers = start();
         let mut touched = 0;
         for _ in 0..160 {
-            let out = step_all(&mut fibres, &[], &p, &fluid, Some(&c)).unwrap();
+            let out = step_all(&mut fibers, &[], &p, &fluid, Some(&c)).unwrap();
             touched += out.contacts.len();
-            let m = min_distance(&fibres, &[None; 3]);
+            let m = min_distance(&fibers, &[None; 3]);
             assert!(m >= 0.99 * D, "μ = {mu}: centre-lines {m} apart");
         }
         assert!(touched >= 1, "μ = {mu}: they never touched");
         assert!(
-            com(&fibres[0]).x > com(&fibres[1]).x,
+            com(&fibers[0]).x > com(&fibers[1]).x,
             "μ = {mu}: they passed"
         );
     }
@@ -545,10 +545,10 @@ fn contact_forces_and_torques_sum_to_zero_and_momentum_is_kept() {
         x ^= x << 17;
         (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     };
-    let mut fibres: Vec<Fibre> = placed
+    let mut fibers: Vec<Fiber> = placed
         .iter()
         .map(|pl| {
-            let mut f = fibre(pl.centre, pl.axis);
+            let mut f = fiber(pl.centre, pl.axis);
             let v = Vector3::new(rnd(), rnd(), rnd()) * 4.0;
             f.segments.iter_mut().for_each(|s| s.v = v);
             f
@@ -562,16 +562,16 @@ fn contact_forces_and_torques_sum_to_zero_and_momentum_is_kept() {
     };
     let mut contacts = 0;
     for _ in 0..25 {
-        let before = fibres.clone();
-        for f in fibres.iter_mut() {
+        let before = fibers.clone();
+        for f in fibers.iter_mut() {
             let samples = vec![FluidSample::at_rest(); f.len()];
             step(&p, f, &samples, DT).unwrap();
         }
-        let free = momentum(&fibres);
-        let out = resolve(&mut fibres, &before, &[], &c, DT);
+        let free = momentum(&fibers);
+        let out = resolve(&mut fibers, &before, &[], &c, DT);
         contacts += out.contacts.len();
-        assert_balanced(&out, &fibres, free, side);
-        let m = min_distance(&fibres, &period);
+        assert_balanced(&out, &fibers, free, side);
+        let m = min_distance(&fibers, &period);
         assert!(
             m >= 0.99 * D,
             "centre-lines {m} apart (worst gap {})",
@@ -585,9 +585,9 @@ fn contact_forces_and_torques_sum_to_zero_and_momentum_is_kept() {
 /// forces sum to zero (to round-off against the largest), its counts to two per
 /// contact, and a group cut into two pieces gives each piece the whole's values, bit
 /// for bit, renumbered from the piece's first segment.
-fn assert_loads_are_the_contacts(out: &Outcome, fibres: &[Fibre]) {
-    let n = fibres.len();
-    let offsets = offsets(fibres);
+fn assert_loads_are_the_contacts(out: &Outcome, fibers: &[Fiber]) {
+    let n = fibers.len();
+    let offsets = offsets(fibers);
     let whole = SegmentLoad::of(&out.contacts, 0..n, &offsets, DT);
     let mut sum = Vector3::zeros();
     let mut largest: f64 = 0.0;
@@ -625,7 +625,7 @@ fn assert_loads_are_the_contacts(out: &Outcome, fibres: &[Fibre]) {
 /// centre-lines end closer than 0.99 d, and the per-segment loads are the contacts'
 /// (`assert_loads_are_the_contacts`).
 #[test]
-fn contact_forces_of_ten_thousand_fibres_sum_to_zero_every_step() {
+fn contact_forces_of_ten_thousand_fibers_sum_to_zero_every_step() {
     let (lx, lz) = (942.48, 471.24);
     let period = [Some(lx), None, Some(lz)];
     let placed = random_suspension(&Suspension {
@@ -651,10 +651,10 @@ fn contact_forces_of_ten_thousand_fibres_sum_to_zero_every_step() {
         vel: Vector3::new(gamma * r.y, 0.0, 0.0),
         grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     };
-    let mut fibres: Vec<Fibre> = placed
+    let mut fibers: Vec<Fiber> = placed
         .iter()
         .map(|pl| {
-            let mut f = fibre(pl.centre, pl.axis);
+            let mut f = fiber(pl.centre, pl.axis);
             let v = Vector3::new(rnd(), rnd(), rnd()) * 4.0;
             f.segments
                 .iter_mut()
@@ -670,17 +670,17 @@ fn contact_forces_of_ten_thousand_fibres_sum_to_zero_every_step() {
     };
     let mut contacts = 0;
     for _ in 0..10 {
-        let before = fibres.clone();
-        fibres.par_iter_mut().for_each(|f| {
+        let before = fibers.clone();
+        fibers.par_iter_mut().for_each(|f| {
             let samples: Vec<FluidSample> = f.segments.iter().map(|s| shear(&s.r)).collect();
             step(&p, f, &samples, DT).unwrap();
         });
-        let free = momentum(&fibres);
-        let out = resolve(&mut fibres, &before, &[], &c, DT);
+        let free = momentum(&fibers);
+        let out = resolve(&mut fibers, &before, &[], &c, DT);
         contacts += out.contacts.len();
-        assert_balanced(&out, &fibres, free, lx);
-        assert_loads_are_the_contacts(&out, &fibres);
-        let m = touching(&fibres, &period, -0.01);
+        assert_balanced(&out, &fibers, free, lx);
+        assert_loads_are_the_contacts(&out, &fibers);
+        let m = touching(&fibers, &period, -0.01);
         assert!(
             m.is_empty(),
             "{} pairs closer than 0.99 d: {:?}",
@@ -706,10 +706,10 @@ fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
         x ^= x << 17;
         (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     };
-    let before: Vec<Fibre> = crowded_box(side, 11)
+    let before: Vec<Fiber> = crowded_box(side, 11)
         .iter()
         .map(|pl| {
-            let mut f = fibre(pl.centre, pl.axis);
+            let mut f = fiber(pl.centre, pl.axis);
             let v = Vector3::new(rnd(), rnd(), rnd()) * 6.0;
             f.segments.iter_mut().for_each(|s| s.v = v);
             f
@@ -725,7 +725,7 @@ fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
     let mut search = Search::default();
     search.rebuild(&view, &period, 0.0);
     let mut cands = search.pairs(&view);
-    let overlapping = |fs: &[Fibre], cands: &[Candidate]| {
+    let overlapping = |fs: &[Fiber], cands: &[Candidate]| {
         cands
             .iter()
             .filter(|c| geometry(fs, c).2 / c.reach < -FREEZE_DEPTH)
@@ -736,24 +736,24 @@ fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
         first > 5,
         "only {first} overlapping pairs: the test checks little"
     );
-    let mut fibres = free.clone();
+    let mut fibers = free.clone();
     let mut moved = vec![false; free.len()];
     // every fibre is loaded already
-    let mut load = |_: &[Candidate], _: &mut [Fibre], _: &mut [Fibre]| {};
+    let mut load = |_: &[Candidate], _: &mut [Fiber], _: &mut [Fiber]| {};
     let frozen = freeze_what_still_overlaps(
         &view,
         &search,
         &mut cands,
-        &mut fibres,
+        &mut fibers,
         &before,
         &mut moved,
         &mut load,
     );
-    assert_eq!(overlapping(&fibres, &cands), 0);
-    assert!(touching(&fibres, &period, -FREEZE_DEPTH).is_empty());
+    assert_eq!(overlapping(&fibers, &cands), 0);
+    assert!(touching(&fibers, &period, -FREEZE_DEPTH).is_empty());
     let n_frozen = frozen.iter().filter(|&&f| f).count();
-    assert!(n_frozen > 0 && n_frozen < fibres.len(), "{n_frozen} frozen");
-    for (k, f) in fibres.iter().enumerate() {
+    assert!(n_frozen > 0 && n_frozen < fibers.len(), "{n_frozen} frozen");
+    for (k, f) in fibers.iter().enumerate() {
         let was = if frozen[k] { &before[k] } else { &free[k] };
         for (a, b) in f.segments.iter().zip(&was.segments) {
             assert_eq!((a.r, a.z, a.n), (b.r, b.z, b.n), "fibre {k}");
@@ -774,19 +774,19 @@ fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
         turned += 1;
     }
     assert_eq!(turned, 20);
-    let mut fibres = free.clone();
+    let mut fibers = free.clone();
     let mut moved = vec![false; free.len()];
     freeze_what_still_overlaps(
         &view,
         &search,
         &mut cands,
-        &mut fibres,
+        &mut fibers,
         &before,
         &mut moved,
         &mut load,
     );
-    assert_eq!(overlapping(&fibres, &cands), 0);
-    assert!(touching(&fibres, &period, -FREEZE_DEPTH).is_empty());
+    assert_eq!(overlapping(&fibers, &cands), 0);
+    assert!(touching(&fibers, &period, -FREEZE_DEPTH).is_empty());
 }
 
 /// Friction: a fibre lying across two fixed ones (rails 12 apart, so it cannot tip),
@@ -795,12 +795,12 @@ fn what_the_rounds_leave_overlapping_is_kept_where_it_started() {
 /// 10⁻⁴ (4×10⁻⁴ d) along the fibre over 40 t+; at 0.98 tan θ it slides more than 10⁻³
 /// and more than 1000 times as far.
 #[test]
-fn a_fibre_on_an_incline_sticks_above_tan_theta_and_slides_below() {
+fn a_fiber_on_an_incline_sticks_above_tan_theta_and_slides_below() {
     let theta = 20f64.to_radians();
     let g = 0.05;
     let p = params(Vector3::new(0.0, -theta.cos(), -theta.sin()) * g);
     // where along the upper fibre the lower one touches it (from its first end)
-    let contact_along = |fs: &[Fibre]| {
+    let contact_along = |fs: &[Fiber]| {
         let (q0, q1) = ends(&fs[1], N / 2);
         let mut best = (f64::INFINITY, 0.0);
         for i in 0..N {
@@ -815,9 +815,9 @@ fn a_fibre_on_an_incline_sticks_above_tan_theta_and_slides_below() {
     };
     let slide = |mu: f64| {
         let mut fs = vec![
-            fibre(Vector3::new(0.0, D, 0.0), Vector3::z()),
-            fibre(Vector3::new(0.0, 0.0, -6.0), Vector3::x()),
-            fibre(Vector3::new(0.0, 0.0, 6.0), Vector3::x()),
+            fiber(Vector3::new(0.0, D, 0.0), Vector3::z()),
+            fiber(Vector3::new(0.0, 0.0, -6.0), Vector3::x()),
+            fiber(Vector3::new(0.0, 0.0, 6.0), Vector3::x()),
         ];
         let start = contact_along(&fs);
         let c = ContactParams {
@@ -850,7 +850,7 @@ fn a_fibre_on_an_incline_sticks_above_tan_theta_and_slides_below() {
 fn a_group_with_contact_steps_as_step_then_resolve() {
     let side = 30.0;
     let placed = crowded_box(side, 3);
-    let fibres: Vec<Fibre> = placed.iter().map(|pl| fibre(pl.centre, pl.axis)).collect();
+    let fibers: Vec<Fiber> = placed.iter().map(|pl| fiber(pl.centre, pl.axis)).collect();
     let p = params(Vector3::zeros());
     let c = ContactParams {
         friction: 0.3,
@@ -862,19 +862,19 @@ fn a_group_with_contact_steps_as_step_then_resolve() {
         vel: Vector3::new(gamma * (r.y - 0.5 * side), 0.0, 0.0),
         grad: Matrix3::new(0.0, gamma, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     };
-    let mut group = crate::group::FibreGroup::new(p, fibres.clone());
+    let mut group = crate::group::FiberGroup::new(p, fibers.clone());
     group.set_contact(Some(c));
-    let mut by_hand = fibres;
+    let mut by_hand = fibers;
     let mut touched = 0;
     for _ in 0..10 {
         let samples: Vec<FluidSample> = (0..group.len())
             .flat_map(|k| group.segments(k).map(|s| shear(&s.r)).collect::<Vec<_>>())
             .collect();
-        group.step(&samples, DT).unwrap();
-        touched += group.last_contact().contacts.len();
+        let report = group.step(&samples, DT).unwrap();
+        touched += report.contact.contacts.len();
         let out = step_all(&mut by_hand, &[], &p, &|_, r| shear(r), Some(&c)).unwrap();
-        assert_eq!(&out, group.last_contact());
-        assert_eq!(group.fibres(), by_hand);
+        assert_eq!(out, report.contact);
+        assert_eq!(group.fibers(), by_hand);
     }
     assert!(touched > 0, "no contacts: the test checks nothing");
     // where the time went: every step solved is counted, with at least one round each
@@ -893,14 +893,14 @@ fn a_group_with_contact_steps_as_step_then_resolve() {
 /// moves), so only the search after the corrections finds it; no centre-lines end
 /// closer than 0.99 d.
 #[test]
-fn a_fibre_pushed_into_a_third_is_held_off_it_too() {
+fn a_fiber_pushed_into_a_third_is_held_off_it_too() {
     let gap = 0.01 * D;
-    let mut fibres = vec![
-        fibre(Vector3::new(-0.5, 0.0, 0.0), Vector3::z()),
-        fibre(Vector3::new(0.0, 0.0, 0.0), Vector3::z()),
-        fibre(Vector3::new(D + gap, 0.0, 0.0), Vector3::z()),
+    let mut fibers = vec![
+        fiber(Vector3::new(-0.5, 0.0, 0.0), Vector3::z()),
+        fiber(Vector3::new(0.0, 0.0, 0.0), Vector3::z()),
+        fiber(Vector3::new(D + gap, 0.0, 0.0), Vector3::z()),
     ];
-    fibres[0]
+    fibers[0]
         .segments
         .iter_mut()
         .for_each(|s| s.v = Vector3::new(2.0, 0.0, 0.0));
@@ -909,14 +909,14 @@ fn a_fibre_pushed_into_a_third_is_held_off_it_too() {
     };
     let p = params(Vector3::zeros());
     let out = step_all(
-        &mut fibres,
+        &mut fibers,
         &[],
         &p,
         &fluid,
         Some(&ContactParams::default()),
     )
     .unwrap();
-    let m = min_distance(&fibres, &[None; 3]);
+    let m = min_distance(&fibers, &[None; 3]);
     assert!(m >= 0.99 * D, "centre-lines {m} apart");
     assert!(
         out.contacts.iter().any(|c| c.a.0 == 1 && c.b.0 == 2),
@@ -929,8 +929,8 @@ fn a_fibre_pushed_into_a_third_is_held_off_it_too() {
 struct Recorded {
     dt: f64,
     params: ContactParams,
-    before: Vec<Fibre>,
-    free: Vec<Fibre>,
+    before: Vec<Fiber>,
+    free: Vec<Fiber>,
 }
 
 fn recorded(text: &str) -> Recorded {
@@ -953,7 +953,7 @@ fn recorded(text: &str) -> Recorded {
         let h: Vec<&str> = l.split_whitespace().collect();
         let n: usize = h[2].parse().unwrap();
         let (len, dia, rho) = (hx(h[3]), hx(h[4]), hx(h[5]));
-        let mut f = Fibre::straight(
+        let mut f = Fiber::straight(
             Vector3::zeros(),
             Vector3::x(),
             &vec![len; n],
@@ -994,7 +994,7 @@ fn recorded(text: &str) -> Recorded {
 /// from where it started, keeps its momentum, its fibres keep their start shapes, and
 /// no centre-lines end closer than 0.99 d.
 #[test]
-fn a_fibre_pinched_in_a_coil_locks_its_island() {
+fn a_fiber_pinched_in_a_coil_locks_its_island() {
     let Recorded {
         dt,
         params: c,
@@ -1012,7 +1012,7 @@ fn a_fibre_pinched_in_a_coil_locks_its_island() {
         closed < 0.97,
         "the free step did not close the coil: {closed}"
     );
-    let momentum = |fs: &[Fibre]| {
+    let momentum = |fs: &[Fiber]| {
         fs.iter()
             .flat_map(|f| f.segments.iter().zip(&f.props))
             .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
@@ -1106,12 +1106,12 @@ fn an_end_wedged_in_a_bent_joint_slides_out_below_tan_alpha_and_jams_above() {
         min_distance(&r.free, &period) < 0.6 * D,
         "the free step did not wedge it"
     );
-    let momentum = |fs: &[Fibre]| {
+    let momentum = |fs: &[Fiber]| {
         fs.iter()
             .flat_map(|f| f.segments.iter().zip(&f.props))
             .fold(Vector3::zeros(), |acc, (s, p)| acc + s.v * p.mass)
     };
-    let energy = |fs: &[Fibre]| internal_energy(fs).0 / internal_energy(fs).1;
+    let energy = |fs: &[Fiber]| internal_energy(fs).0 / internal_energy(fs).1;
     for mu in [0.0, 0.2, 0.3] {
         let mut fs = r.free.clone();
         let c = ContactParams {
@@ -1192,7 +1192,7 @@ fn an_island_whose_sweeps_converge_is_not_locked() {
 /// run-away sweeps needs sweeps that did not converge, these bits end the same with
 /// or without the rule, and the test keeps the outcome of a lock.)
 #[test]
-fn fibres_locked_together_stay_one_island_for_the_step() {
+fn fibers_locked_together_stay_one_island_for_the_step() {
     let r = recorded(include_str!("../testdata/split-lock.txt"));
     assert_eq!(r.before.len(), 13);
     let period = r.params.period;
@@ -1222,8 +1222,8 @@ fn fibres_locked_together_stay_one_island_for_the_step() {
 /// does not count, 1.1 × 10⁻³ d does, and so does a turn that moves an end by
 /// 1.1 × 10⁻³ d while the centre stays.
 #[test]
-fn a_fibre_is_searched_around_again_once_a_point_moved_beyond_the_slack() {
-    let free = vec![fibre(Vector3::zeros(), Vector3::x())];
+fn a_fiber_is_searched_around_again_once_a_point_moved_beyond_the_slack() {
+    let free = vec![fiber(Vector3::zeros(), Vector3::x())];
     let slices = Slices::new(&free, &free);
     let moved = |shift: f64| {
         let mut f = free[0].clone();

@@ -16,10 +16,10 @@
 
 use crate::batch::{self, LaneConsts, LaneSeg};
 use crate::contact::{self, ContactParams, Outcome as ContactOutcome};
-use crate::error::FibreError;
-use crate::fibre::{Fibre, Segment, SegmentProps};
+use crate::error::FiberError;
+use crate::fiber::{Fiber, Segment, SegmentProps};
 use crate::lanes::LANES;
-use crate::metrics::{metrics_from, FibreMetrics};
+use crate::metrics::{metrics_from, FiberMetrics};
 use crate::step::{step, Fluid, FluidSample, ModelParams};
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -58,7 +58,7 @@ enum Consts {
 
 /// Fibres sharing model parameters.
 #[derive(Debug, Clone)]
-pub struct FibreGroup {
+pub struct FiberGroup {
     params: ModelParams,
     /// Properties of every segment, fibre-major.
     props: Vec<SegmentProps>,
@@ -76,14 +76,9 @@ pub struct FibreGroup {
     /// Fibre–fibre contact within the group ([`crate::contact`]); None: fibres pass
     /// through each other (the paper's independent fibres).
     contact: Option<ContactParams>,
-    /// What contact did in the last step.
-    last_contact: ContactOutcome,
-    /// Pairs that touched in the last step's solve (of all pieces, when another piece
-    /// solved: its [`ContactOutcome::contacts`] are then not here).
-    last_pairs: usize,
-    /// The last step's contact load on this group's segments (or the one a checkpoint
-    /// restored).
-    last_load: contact::SegmentLoad,
+    /// The contact load on this group's segments of the step its state is at (or the one a
+    /// checkpoint restored): part of the state its message carries.
+    load: contact::SegmentLoad,
     /// With contact on: every segment's centre, axis and normal at the start of the step,
     /// fibre-major (kept between steps for its allocation).
     start: Vec<[Vector3<f64>; 3]>,
@@ -91,20 +86,33 @@ pub struct FibreGroup {
     search: contact::Search,
 }
 
-impl FibreGroup {
-    pub fn new(params: ModelParams, fibres: Vec<Fibre>) -> Self {
-        let mut offsets = Vec::with_capacity(fibres.len() + 1);
+/// What a step's contact did ([`FiberGroup::step`], and on the pieces of a sharded
+/// suspension [`FiberGroup::resolve_contact_for`] and [`FiberGroup::apply_contact_solved`]);
+/// empty when contact is off.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StepReport {
+    /// What the solve did to this group's (or piece's) fibres: its pairs (on the piece that
+    /// solved), moved, locked and kept fibres, sweeps and worst gap.
+    pub contact: ContactOutcome,
+    /// Pairs that touched in the whole solve (also on a piece that took its part from
+    /// another piece's solve, whose [`ContactOutcome::contacts`] are then not here).
+    pub pairs: usize,
+}
+
+impl FiberGroup {
+    pub fn new(params: ModelParams, fibers: Vec<Fiber>) -> Self {
+        let mut offsets = Vec::with_capacity(fibers.len() + 1);
         let mut o = 0;
-        for f in &fibres {
+        for f in &fibers {
             offsets.push(o);
             o += f.len();
         }
         offsets.push(o);
         let model_lanes = batch::model_allows_lanes(&params);
-        let mut blocks = Vec::with_capacity(fibres.len().div_ceil(LANES));
+        let mut blocks = Vec::with_capacity(fibers.len().div_ceil(LANES));
         let mut state = Vec::new();
-        for chunk in fibres.chunks(LANES) {
-            let len = chunk.iter().map(Fibre::len).max().unwrap_or(0);
+        for chunk in fibers.chunks(LANES) {
+            let len = chunk.iter().map(Fiber::len).max().unwrap_or(0);
             let lanes = model_lanes && len > 0 && chunk.iter().all(|f| f.len() == len);
             blocks.push(Block {
                 index: blocks.len(),
@@ -122,9 +130,9 @@ impl FibreGroup {
                 state.push(LaneSeg::of([seg(0), seg(1), seg(2), seg(3)]));
             }
         }
-        let uniform = fibres.first().and_then(|f0| {
+        let uniform = fibers.first().and_then(|f0| {
             let (p0, d0) = (f0.props.first()?, f0.density);
-            let alike = fibres.iter().all(|f| {
+            let alike = fibers.iter().all(|f| {
                 f.density.to_bits() == d0.to_bits() && f.props.iter().all(|p| same_props(p, p0))
             });
             alike.then(|| LaneConsts::new(&params, [p0; LANES], [d0; LANES]))
@@ -133,8 +141,8 @@ impl FibreGroup {
             Some(c) => Consts::Uniform(c),
             None => {
                 let mut v = Vec::with_capacity(state.len());
-                for chunk in fibres.chunks(LANES) {
-                    let len = chunk.iter().map(Fibre::len).max().unwrap_or(0);
+                for chunk in fibers.chunks(LANES) {
+                    let len = chunk.iter().map(Fiber::len).max().unwrap_or(0);
                     for i in 0..len {
                         let pick = |l: usize| {
                             let f = chunk.get(l).filter(|f| i < f.len()).unwrap_or(&chunk[0]);
@@ -147,11 +155,11 @@ impl FibreGroup {
                 Consts::PerSegment(v)
             }
         };
-        let props = fibres
+        let props = fibers
             .iter()
             .flat_map(|f| f.props.iter().copied())
             .collect();
-        let density = fibres.iter().map(|f| f.density).collect();
+        let density = fibers.iter().map(|f| f.density).collect();
         Self {
             params,
             props,
@@ -162,9 +170,7 @@ impl FibreGroup {
             consts,
             work: Work::default(),
             contact: None,
-            last_contact: ContactOutcome::default(),
-            last_pairs: 0,
-            last_load: contact::SegmentLoad::default(),
+            load: contact::SegmentLoad::default(),
             start: Vec::new(),
             search: contact::Search::default(),
         }
@@ -186,21 +192,10 @@ impl FibreGroup {
         self.search.spent
     }
 
-    /// What contact did in the last step (empty when contact is off).
-    pub fn last_contact(&self) -> &ContactOutcome {
-        &self.last_contact
-    }
-
-    /// Pairs that touched in the last step's contact solve (the whole solve's, also on a
-    /// piece that took its part from another piece's solve).
-    pub fn contact_pairs(&self) -> usize {
-        self.last_pairs
-    }
-
-    /// The last step's contact load on this group's segments (empty when contact is off
-    /// or nothing touched): what its state message carries.
+    /// The contact load on this group's segments of the step its state is at (empty when
+    /// contact is off or nothing touched): what its state message carries.
     pub fn contact_load(&self) -> &contact::SegmentLoad {
-        &self.last_load
+        &self.load
     }
 
     /// Each fibre's first segment in the group's segment order, plus the total.
@@ -212,7 +207,7 @@ impl FibreGroup {
     /// Sets the contact load of the step a checkpoint holds (it reports that step's
     /// state again, bit for bit).
     pub fn restore_contact_load(&mut self, load: contact::SegmentLoad) {
-        self.last_load = load;
+        self.load = load;
     }
 
     /// Keeps every segment's centre, axis and normal before a step with contact, read in
@@ -256,9 +251,9 @@ impl FibreGroup {
     /// fibres that touched get their corrected segments back, then the walls again (a
     /// contact must not push a fibre through a wall). Only the fibres of candidate pairs
     /// are copied out of the lane storage.
-    fn apply_contact(&mut self, dt: f64) {
+    fn apply_contact(&mut self, dt: f64) -> StepReport {
         let Some(mut c) = self.contact else {
-            return;
+            return StepReport::default();
         };
         c.wall_half_height = self.params.wall_half_height;
         let mut search = std::mem::take(&mut self.search);
@@ -273,10 +268,11 @@ impl FibreGroup {
                 self.set_segment(k, i, *s);
             }
         }
-        self.last_load =
-            contact::SegmentLoad::of(&outcome.contacts, 0..self.len(), &self.offsets, dt);
-        self.last_pairs = outcome.contacts.len();
-        self.last_contact = outcome;
+        self.load = contact::SegmentLoad::of(&outcome.contacts, 0..self.len(), &self.offsets, dt);
+        StepReport {
+            pairs: outcome.contacts.len(),
+            contact: outcome,
+        }
     }
 
     /// The model parameters shared by the group.
@@ -299,7 +295,7 @@ impl FibreGroup {
     }
 
     /// Segments of fibre `k`.
-    pub fn fibre_len(&self, k: usize) -> usize {
+    pub fn fiber_len(&self, k: usize) -> usize {
         self.offsets[k + 1] - self.offsets[k]
     }
 
@@ -328,7 +324,7 @@ impl FibreGroup {
     /// The lane records holding fibre `k`'s segments, first to last, and its lane.
     fn lanes_of(&self, k: usize) -> (&[LaneSeg], usize) {
         let b = &self.blocks[k / LANES];
-        (&self.state[b.start..b.start + self.fibre_len(k)], k % LANES)
+        (&self.state[b.start..b.start + self.fiber_len(k)], k % LANES)
     }
 
     /// Replaces segment `i` of fibre `k` (velocities and all: the caller owns consistency).
@@ -342,26 +338,26 @@ impl FibreGroup {
         }
     }
 
-    /// Fibre `k` as a [`Fibre`] (a copy).
-    pub fn fibre(&self, k: usize) -> Fibre {
-        Fibre {
+    /// Fibre `k` as a [`Fiber`] (a copy).
+    pub fn fiber(&self, k: usize) -> Fiber {
+        Fiber {
             segments: self.segments(k).collect(),
             props: self.props(k).to_vec(),
             density: self.density[k],
         }
     }
 
-    /// Every fibre as a [`Fibre`] (a copy).
-    pub fn fibres(&self) -> Vec<Fibre> {
-        (0..self.len()).map(|k| self.fibre(k)).collect()
+    /// Every fibre as a [`Fiber`] (a copy).
+    pub fn fibers(&self) -> Vec<Fiber> {
+        (0..self.len()).map(|k| self.fiber(k)).collect()
     }
 
     /// The group of fibres `first .. first + n` (one shard's share), same parameters.
-    pub fn slice(&self, first: usize, n: usize) -> FibreGroup {
+    pub fn slice(&self, first: usize, n: usize) -> FiberGroup {
         let end = (first + n).min(self.len());
-        let mut g = FibreGroup::new(
+        let mut g = FiberGroup::new(
             self.params,
-            (first.min(end)..end).map(|k| self.fibre(k)).collect(),
+            (first.min(end)..end).map(|k| self.fiber(k)).collect(),
         );
         g.contact = self.contact;
         g
@@ -369,14 +365,14 @@ impl FibreGroup {
 
     /// Shape and orientation metrics of every fibre, in order (in parallel from
     /// [`PARALLEL_MIN_SEGMENTS`] on).
-    pub fn metrics(&self) -> Vec<FibreMetrics> {
+    pub fn metrics(&self) -> Vec<FiberMetrics> {
         let mut out = Vec::new();
         self.metrics_into(&mut out);
         out
     }
 
     /// [`Self::metrics`] into `out` (its allocation reused from step to step).
-    pub fn metrics_into(&self, out: &mut Vec<FibreMetrics>) {
+    pub fn metrics_into(&self, out: &mut Vec<FiberMetrics>) {
         // read in the lane storage: centres and axes only, no segment copied out
         let one = |k: usize| metrics_from(self.centres_and_axes(k), self.props(k));
         if self.segment_count() < PARALLEL_MIN_SEGMENTS {
@@ -446,12 +442,12 @@ impl FibreGroup {
     pub fn set_velocity_to_fluid<'f>(
         &mut self,
         fluid: impl Into<Fluid<'f>>,
-    ) -> Result<(), FibreError> {
+    ) -> Result<(), FiberError> {
         let fluid = fluid.into();
         self.check(fluid)?;
         for k in 0..self.len() {
             let o = self.offsets[k];
-            for i in 0..self.fibre_len(k) {
+            for i in 0..self.fiber_len(k) {
                 let mut s = self.segment(k, i);
                 let f = fluid.at(o + i);
                 s.v = f.vel;
@@ -462,9 +458,9 @@ impl FibreGroup {
         Ok(())
     }
 
-    fn check(&self, fluid: Fluid<'_>) -> Result<(), FibreError> {
+    fn check(&self, fluid: Fluid<'_>) -> Result<(), FiberError> {
         if fluid.len() != self.segment_count() {
-            return Err(FibreError::SampleCount {
+            return Err(FiberError::SampleCount {
                 expected: self.segment_count(),
                 got: fluid.len(),
             });
@@ -476,11 +472,15 @@ impl FibreGroup {
     /// where the block allows it ([`batch`]); deterministic: fibres are independent and
     /// every fibre gets the same bits as from [`step`] one fibre at a time.
     /// Groups below [`PARALLEL_MIN_SEGMENTS`] are stepped on the calling thread.
-    /// With contact on, the fibres that touch are then corrected ([`crate::contact`]).
-    pub fn step<'f>(&mut self, fluid: impl Into<Fluid<'f>>, dt: f64) -> Result<(), FibreError> {
+    /// With contact on, the fibres that touch are then corrected ([`crate::contact`]);
+    /// the report says what contact did.
+    pub fn step<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+        dt: f64,
+    ) -> Result<StepReport, FiberError> {
         self.step_free(fluid, dt)?;
-        self.apply_contact(dt);
-        Ok(())
+        Ok(self.apply_contact(dt))
     }
 
     /// [`Self::step`] without the contact solve (the start kept for it when contact is
@@ -491,7 +491,7 @@ impl FibreGroup {
         &mut self,
         fluid: impl Into<Fluid<'f>>,
         dt: f64,
-    ) -> Result<(), FibreError> {
+    ) -> Result<(), FiberError> {
         let fluid = fluid.into();
         if self.contact.is_some() {
             self.keep_start();
@@ -508,7 +508,7 @@ impl FibreGroup {
         &mut self,
         fluid: impl Into<Fluid<'f>>,
         dt: f64,
-    ) -> Result<(), FibreError> {
+    ) -> Result<(), FiberError> {
         let fluid = fluid.into();
         self.check(fluid)?;
         let (ctx, parts) = self.split(fluid, dt, true);
@@ -523,7 +523,7 @@ impl FibreGroup {
         &mut self,
         fluid: impl Into<Fluid<'f>>,
         dt: f64,
-    ) -> Result<(), FibreError> {
+    ) -> Result<(), FiberError> {
         self.step_here(fluid.into(), dt, true)
     }
 
@@ -533,12 +533,12 @@ impl FibreGroup {
         &mut self,
         fluid: impl Into<Fluid<'f>>,
         dt: f64,
-    ) -> Result<(), FibreError> {
+    ) -> Result<(), FiberError> {
         self.step_here(fluid.into(), dt, false)
     }
 
     /// Every block on the current thread, in lanes where allowed if `use_lanes`.
-    fn step_here(&mut self, fluid: Fluid<'_>, dt: f64, use_lanes: bool) -> Result<(), FibreError> {
+    fn step_here(&mut self, fluid: Fluid<'_>, dt: f64, use_lanes: bool) -> Result<(), FiberError> {
         self.check(fluid)?;
         let mut work = std::mem::take(&mut self.work);
         let (ctx, mut rest) = self.context(fluid, dt, use_lanes);
@@ -600,10 +600,10 @@ impl FibreGroup {
     }
 }
 
-/// A group after its free step, with the start kept by [`FibreGroup::keep_start`]: the
+/// A group after its free step, with the start kept by [`FiberGroup::keep_start`]: the
 /// contact search reads both where they are.
 struct Kept<'a> {
-    group: &'a FibreGroup,
+    group: &'a FiberGroup,
 }
 
 impl contact::Segments for Kept<'_> {
@@ -623,8 +623,8 @@ impl contact::Segments for Kept<'_> {
         let l = k % LANES;
         (Vector3::from(s.r.lane(l)), Vector3::from(s.z.lane(l)))
     }
-    fn start_fibre(&self, k: usize) -> Fibre {
-        let mut f = self.group.fibre(k);
+    fn start_fiber(&self, k: usize) -> Fiber {
+        let mut f = self.group.fiber(k);
         let o = self.group.offsets[k];
         for (i, s) in f.segments.iter_mut().enumerate() {
             // velocities and force stay those after the step: a locked island, the one
@@ -633,8 +633,8 @@ impl contact::Segments for Kept<'_> {
         }
         f
     }
-    fn end_fibre(&self, k: usize) -> Fibre {
-        self.group.fibre(k)
+    fn end_fiber(&self, k: usize) -> Fiber {
+        self.group.fiber(k)
     }
 }
 
@@ -669,7 +669,7 @@ thread_local! {
 #[derive(Debug, Default, Clone)]
 struct Work {
     lanes: batch::Scratch,
-    one: Option<Fibre>,
+    one: Option<Fiber>,
     /// One fibre's samples, decoded for the fibre-by-fibre step.
     fluid: Vec<FluidSample>,
 }
@@ -695,7 +695,7 @@ impl Ctx<'_> {
     }
 
     /// Steps block `b` (storage `seg`): in lanes if it can, else fibre by fibre.
-    fn step_block(&self, b: Block, seg: &mut [LaneSeg], work: &mut Work) -> Result<(), FibreError> {
+    fn step_block(&self, b: Block, seg: &mut [LaneSeg], work: &mut Work) -> Result<(), FiberError> {
         let first = b.index * LANES;
         if self.use_lanes && b.lanes {
             // unused lanes repeat fibre `first`
@@ -716,11 +716,11 @@ impl Ctx<'_> {
                 self.dt,
                 &mut work.lanes,
             )
-            .map_err(|lane| FibreError::Singular {
-                fibre: first + lane,
+            .map_err(|lane| FiberError::Singular {
+                fiber: first + lane,
             });
         }
-        let one = work.one.get_or_insert_with(|| Fibre {
+        let one = work.one.get_or_insert_with(|| Fiber {
             segments: Vec::new(),
             props: Vec::new(),
             density: 1.0,
@@ -736,7 +736,7 @@ impl Ctx<'_> {
             one.density = self.density[k];
             let fluid = self.fluid_of(k).decoded(&mut work.fluid);
             step(self.params, one, fluid, self.dt).map_err(|e| match e {
-                FibreError::Singular { .. } => FibreError::Singular { fibre: k },
+                FiberError::Singular { .. } => FiberError::Singular { fiber: k },
                 other => other,
             })?;
             for (s, &new) in seg.iter_mut().zip(&one.segments) {

@@ -2,20 +2,20 @@
 //! together ([`crate::contact::exchange`]): what a piece's free step gives the solve, the
 //! solve over every piece on the first, and what another piece takes back.
 
-use super::{FibreGroup, Kept};
+use super::{FiberGroup, Kept, StepReport};
 use crate::contact::exchange::{ContactSolved, FreeStep, OtherPiece};
 use crate::contact::{self, Outcome as ContactOutcome};
-use crate::fibre::{Fibre, SegmentProps};
+use crate::fiber::{Fiber, SegmentProps};
 use nalgebra::Vector3;
 
-impl FibreGroup {
+impl FiberGroup {
     /// After [`Self::step_free`]: what the contact solve reads of it
     /// ([`FreeStep`]; `msg`'s step and first fibre are the caller's, its
     /// arrays are refilled, allocations kept).
     pub fn fill_free_step(&self, msg: &mut FreeStep) {
         msg.segments_per_fiber.clear();
         msg.segments_per_fiber
-            .extend((0..self.len()).map(|k| self.fibre_len(k) as u32));
+            .extend((0..self.len()).map(|k| self.fiber_len(k) as u32));
         for a in [
             &mut msg.start_centre,
             &mut msg.start_axis,
@@ -60,26 +60,26 @@ impl FibreGroup {
         others: &[OtherPiece],
         dt: f64,
         solved: &mut [ContactSolved],
-    ) {
+    ) -> StepReport {
         let Some(mut c) = self.contact else {
-            return;
+            return StepReport::default();
         };
         c.wall_half_height = self.params.wall_half_height;
         let mut search = std::mem::take(&mut self.search);
         let view = Joined::new(self, order, others);
         let (own, starts) = (view.own_start, view.starts.clone());
-        let (mut outcome, mut fibres) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
+        let (mut outcome, mut fibers) = contact::resolve_segments(&view, &mut search, &[], &c, dt);
         self.search = search;
         let hh = self.params.wall_half_height;
         for ((o, &start), m) in others.iter().zip(&starts).zip(solved.iter_mut()) {
-            fill_solved(m, &outcome, &mut fibres, start, o, hh, dt);
+            fill_solved(m, &outcome, &mut fibers, start, o, hh, dt);
         }
         let mine = own..own + self.len();
         for &k in outcome.moved.iter().filter(|k| mine.contains(k)) {
             if let Some(hh) = hh {
-                crate::step::wall_contact(&mut fibres[k], hh);
+                crate::step::wall_contact(&mut fibers[k], hh);
             }
-            for (i, s) in fibres[k].segments.iter().enumerate() {
+            for (i, s) in fibers[k].segments.iter().enumerate() {
                 self.set_segment(k - own, i, *s);
             }
         }
@@ -87,9 +87,11 @@ impl FibreGroup {
         outcome.moved.retain(|k| mine.contains(k));
         outcome.locked.retain(|k| mine.contains(k));
         outcome.frozen.retain(|k| mine.contains(k));
-        self.last_load = contact::SegmentLoad::of(&outcome.contacts, mine, &self.offsets, dt);
-        self.last_pairs = outcome.contacts.len();
-        self.last_contact = outcome;
+        self.load = contact::SegmentLoad::of(&outcome.contacts, mine, &self.offsets, dt);
+        StepReport {
+            pairs: outcome.contacts.len(),
+            contact: outcome,
+        }
     }
 
     /// After [`Self::step_free`], on a piece other than its suspension's first: takes what
@@ -102,7 +104,7 @@ impl FibreGroup {
         &mut self,
         order: usize,
         m: &ContactSolved,
-    ) -> Result<(), contact::exchange::ExchangeError> {
+    ) -> Result<StepReport, contact::exchange::ExchangeError> {
         use contact::exchange::ExchangeError;
         m.check()?;
         if m.fibers as usize != self.len() {
@@ -113,11 +115,11 @@ impl FibreGroup {
             )));
         }
         for (&k, &n) in m.moved.iter().zip(&m.moved_segments) {
-            if n as usize != self.fibre_len(k as usize) {
+            if n as usize != self.fiber_len(k as usize) {
                 return Err(ExchangeError::Segments {
-                    fibre: k as usize,
+                    fiber: k as usize,
                     got: n,
-                    want: self.fibre_len(k as usize),
+                    want: self.fiber_len(k as usize),
                 });
             }
         }
@@ -129,7 +131,7 @@ impl FibreGroup {
                 )));
             }
         }
-        let flat = crate::fibre::FlatSegments {
+        let flat = crate::fiber::FlatSegments {
             centre: &m.centre,
             axis: &m.axis,
             velocity: &m.velocity,
@@ -139,35 +141,36 @@ impl FibreGroup {
         let mut j = 0;
         for &k in &m.moved {
             let k = k as usize;
-            for i in 0..self.fibre_len(k) {
+            for i in 0..self.fiber_len(k) {
                 let f = self.segments(k).nth(i).map_or(Vector3::zeros(), |s| s.f);
                 self.set_segment(k, i, flat.get(j, f));
                 j += 1;
             }
         }
-        self.last_load = contact::SegmentLoad {
+        self.load = contact::SegmentLoad {
             segment: m.contact_segment.clone(),
             force: m.contact_force.clone(),
             count: m.contacts.clone(),
         };
         let at = |ks: &[u32]| -> Vec<usize> { ks.iter().map(|&k| order + k as usize).collect() };
-        self.last_pairs = m.pairs as usize;
-        self.last_contact = ContactOutcome {
-            contacts: Vec::new(),
-            candidates: m.candidates as usize,
-            sweeps: m.sweeps,
-            worst_gap: m.worst_gap,
-            moved: at(&m.moved),
-            locked: at(&m.locked),
-            frozen: at(&m.frozen),
-        };
-        Ok(())
+        Ok(StepReport {
+            pairs: m.pairs as usize,
+            contact: ContactOutcome {
+                contacts: Vec::new(),
+                candidates: m.candidates as usize,
+                sweeps: m.sweeps,
+                worst_gap: m.worst_gap,
+                moved: at(&m.moved),
+                locked: at(&m.locked),
+                frozen: at(&m.frozen),
+            },
+        })
     }
 }
 
 /// A shard's own fibres (kept as [`Kept`]) between the other shards' ([`OtherPiece`]s), in
 /// the whole group's order of first fibres: the group the contact solve of
-/// [`FibreGroup::resolve_contact_for`] reads.
+/// [`FiberGroup::resolve_contact_for`] reads.
 struct Joined<'a> {
     own: Kept<'a>,
     others: &'a [OtherPiece],
@@ -183,7 +186,7 @@ struct Joined<'a> {
 const OWN: usize = usize::MAX;
 
 impl<'a> Joined<'a> {
-    fn new(group: &'a FibreGroup, order: usize, others: &'a [OtherPiece]) -> Self {
+    fn new(group: &'a FiberGroup, order: usize, others: &'a [OtherPiece]) -> Self {
         let mut pieces: Vec<(usize, usize, usize)> = others
             .iter()
             .enumerate()
@@ -204,7 +207,7 @@ impl<'a> Joined<'a> {
             for l in 0..n {
                 at.push((p, l));
                 let len = if p == OWN {
-                    group.fibre_len(l)
+                    group.fiber_len(l)
                 } else {
                     others[p].after[l].len()
                 };
@@ -250,28 +253,28 @@ impl contact::Segments for Joined<'_> {
             }
         }
     }
-    fn start_fibre(&self, k: usize) -> Fibre {
+    fn start_fiber(&self, k: usize) -> Fiber {
         match self.at[k] {
-            (OWN, l) => self.own.start_fibre(l),
+            (OWN, l) => self.own.start_fiber(l),
             (p, l) => self.others[p].before[l].clone(),
         }
     }
-    fn end_fibre(&self, k: usize) -> Fibre {
+    fn end_fiber(&self, k: usize) -> Fiber {
         match self.at[k] {
-            (OWN, l) => self.own.end_fibre(l),
+            (OWN, l) => self.own.end_fiber(l),
             (p, l) => self.others[p].after[l].clone(),
         }
     }
 }
 
 /// What the solve did to the piece `o` whose first fibre is `start` among the solve's
-/// fibres, into `m` ([`FibreGroup::resolve_contact_for`]): its moved fibres (brought
+/// fibres, into `m` ([`FiberGroup::resolve_contact_for`]): its moved fibres (brought
 /// within the walls, as the piece itself would), its contact load, its locked and frozen
 /// fibres, and the solve's summary.
 fn fill_solved(
     m: &mut ContactSolved,
     outcome: &ContactOutcome,
-    fibres: &mut [Fibre],
+    fibers: &mut [Fiber],
     start: usize,
     o: &OtherPiece,
     wall_half_height: Option<f64>,
@@ -297,7 +300,7 @@ fn fill_solved(
         a.clear();
     }
     for &k in &m.moved {
-        let f = &mut fibres[start + k as usize];
+        let f = &mut fibers[start + k as usize];
         if let Some(hh) = wall_half_height {
             crate::step::wall_contact(f, hh);
         }

@@ -8,7 +8,7 @@ use fiberflow_dns::{DnsConfig, Forcing, InitialField, Solver};
 use fiberflow_fiber_model::cases::paper_diameter_plus;
 use fiberflow_fiber_model::hydro::DragModel;
 use fiberflow_fiber_model::step::{step, FluidSample, ModelParams};
-use fiberflow_fiber_model::Fibre;
+use fiberflow_fiber_model::Fiber;
 use fiberflow_flow::feedback::{gather, Feedback};
 use fiberflow_flow::self_induced::{History, Widths};
 use fiberflow_messages::FiberGroupState;
@@ -56,7 +56,7 @@ pub fn settle(
     };
     let d = paper_diameter_plus();
     let make = || {
-        Fibre::straight(
+        Fiber::straight(
             Vector3::new(
                 0.5 * s.grid.lx * re + 0.37,
                 0.0,
@@ -73,7 +73,7 @@ pub fn settle(
     let rest = vec![FluidSample::at_rest(); segments];
     let mut fb = Feedback::default();
     let mut history = History::default();
-    let mean = |f: &Fibre| f.segments.iter().map(|s| s.v.x).sum::<f64>() / segments as f64;
+    let mean = |f: &Fiber| f.segments.iter().map(|s| s.v.x).sum::<f64>() / segments as f64;
     let steps = (t_end / DT_PLUS).round() as usize;
     let mut out = Vec::new();
     for k in 0..=steps {

@@ -19,7 +19,7 @@ pub(super) struct Entry {
     /// Half length and radius.
     pub(super) half: f64,
     pub(super) radius: f64,
-    pub(super) fibre: u32,
+    pub(super) fiber: u32,
     pub(super) segment: u32,
 }
 
@@ -37,7 +37,7 @@ impl Entry {
             turn: half * (z1 - z0).norm() + pad,
             half,
             radius: 0.5 * p.shape.diameter,
-            fibre: k as u32,
+            fiber: k as u32,
             segment: i as u32,
         }
     }
@@ -48,7 +48,7 @@ impl Entry {
     }
 
     pub(super) fn key(&self) -> (usize, usize) {
-        (self.fibre as usize, self.segment as usize)
+        (self.fiber as usize, self.segment as usize)
     }
 }
 
@@ -66,7 +66,7 @@ pub(super) struct Point {
     pub(super) shift: [f32; 3],
     pub(super) rho: f32,
     pub(super) axis: [f32; 3],
-    pub(super) fibre: u32,
+    pub(super) fiber: u32,
 }
 
 impl Point {
@@ -83,7 +83,7 @@ impl Point {
             shift: std::array::from_fn(|k| e.shift[k] as f32),
             rho: ((e.radius + e.turn) * (1.0 + 1e-4) + 1e-4 * (e.half + e.shift.norm())) as f32,
             axis: std::array::from_fn(|k| e.axis[k] as f32),
-            fibre: e.fibre,
+            fiber: e.fiber,
         }
     }
 

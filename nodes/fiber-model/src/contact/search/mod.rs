@@ -16,7 +16,7 @@ mod segments;
 
 use super::geometry::image_shift;
 use super::Candidate;
-use crate::fibre::Fibre;
+use crate::fiber::Fiber;
 use cells::{fold, CellList, Entry, Point};
 use nalgebra::Vector3;
 use pairs::{fresh_pair, pair, slack, Pose};
@@ -87,7 +87,7 @@ impl Search {
     /// [`Self::new`] in the memory of an earlier step.
     pub(crate) fn rebuild<S: Segments>(&mut self, s: &S, period: &[Option<f64>; 3], pad: f64) {
         let offsets = s.offsets();
-        let fibres = offsets.len().saturating_sub(1);
+        let fibers = offsets.len().saturating_sub(1);
         let total = offsets.last().copied().unwrap_or(0);
         // every point is written below (the runs cover every fibre): the memory of the
         // last step is only cleared when the count changed
@@ -98,10 +98,10 @@ impl Search {
         self.pad = pad;
         // runs of fibres, each writing its own contiguous share
         const RUN: usize = 512;
-        let mut runs = Vec::with_capacity(fibres.div_ceil(RUN));
+        let mut runs = Vec::with_capacity(fibers.div_ceil(RUN));
         let mut rest = self.points.as_mut_slice();
-        for first in (0..fibres).step_by(RUN) {
-            let last = (first + RUN).min(fibres);
+        for first in (0..fibers).step_by(RUN) {
+            let last = (first + RUN).min(fibers);
             let (head, tail) =
                 std::mem::take(&mut rest).split_at_mut(offsets[last] - offsets[first]);
             runs.push((first, last, head));
@@ -146,7 +146,7 @@ impl Search {
                 let base = offsets[first];
                 let (mut ext, mut bulk, mut wild) = none3();
                 for k in first..last {
-                    let mut fibre = none;
+                    let mut fiber = none;
                     let mut thrown = false;
                     for i in 0..offsets[k + 1] - offsets[k] {
                         let e = Entry::of(s, k, i, pad);
@@ -157,8 +157,8 @@ impl Search {
                         if finite {
                             let m = e.mid();
                             thrown |= e.turn - pad > WILD_TURN * e.half;
-                            fibre = join(
-                                fibre,
+                            fiber = join(
+                                fiber,
                                 Extent {
                                     lo: e.shift,
                                     hi: e.shift,
@@ -171,11 +171,11 @@ impl Search {
                             );
                         }
                     }
-                    ext = join(ext, fibre);
+                    ext = join(ext, fiber);
                     if thrown {
                         wild.push(k as u32);
                     } else {
-                        bulk = join(bulk, fibre);
+                        bulk = join(bulk, fiber);
                     }
                 }
                 (ext, bulk, wild)
@@ -278,7 +278,7 @@ impl Search {
         let (sorted, order, period32, pad) = (&self.sorted, &self.order, &self.period32, self.pad);
         let offsets = s.offsets();
         let entry = |slot: usize| {
-            let k = sorted[slot].fibre as usize;
+            let k = sorted[slot].fiber as usize;
             Entry::of(s, k, order[slot] as usize - offsets[k], pad)
         };
         // the exact tests (at 10⁵ fibres ≈ 4 × 10³ of the 2.5 × 10⁶ pairs the scan meets)
@@ -293,7 +293,7 @@ impl Search {
             let (pa, pb) = (&sorted[a], &sorted[b]);
             // neighbours along one fibre (a quarter of the pairs the scan meets) share a
             // joint, not a contact: their indices are next to each other in fibre-major order
-            if pa.fibre == pb.fibre && order[a].abs_diff(order[b]) < 2 {
+            if pa.fiber == pb.fiber && order[a].abs_diff(order[b]) < 2 {
                 return;
             }
             if pa.near(pb, first2, margin2, period32) {
@@ -413,8 +413,8 @@ impl Search {
     pub(crate) fn around<S: Segments>(
         &self,
         s: &S,
-        fibres: &[Fibre],
-        before: &[Fibre],
+        fibers: &[Fiber],
+        before: &[Fiber],
         corrected: &[bool],
         moved: &[usize],
     ) -> Vec<Candidate> {
@@ -422,15 +422,15 @@ impl Search {
         // a corrected segment at the start of the step and now: centre, axis, half
         // length, radius
         let poses = |k: usize, i: usize| -> (Pose, Pose) {
-            let p = &fibres[k].props[i];
+            let p = &fibers[k].props[i];
             let (h, r) = (0.5 * p.shape.length, 0.5 * p.shape.diameter);
-            let (was, now) = (&before[k].segments[i], &fibres[k].segments[i]);
+            let (was, now) = (&before[k].segments[i], &fibers[k].segments[i]);
             ((was.r, was.z, h, r), (now.r, now.z, h, r))
         };
         // the corrected fibres' segments, in their own small list by where they are now
-        let here: Vec<(usize, usize)> = (0..fibres.len())
+        let here: Vec<(usize, usize)> = (0..fibers.len())
             .filter(|&k| corrected[k])
-            .flat_map(|k| (0..fibres[k].len()).map(move |i| (k, i)))
+            .flat_map(|k| (0..fibers[k].len()).map(move |i| (k, i)))
             .collect();
         let centres: Vec<Vector3<f64>> = here.iter().map(|&(k, i)| poses(k, i).1 .0).collect();
         let mut near = CellList::default();
@@ -456,7 +456,7 @@ impl Search {
             .par_iter()
             .flat_map_iter(|&q| {
                 let mut found = Vec::new();
-                for i in 0..fibres[q].len() {
+                for i in 0..fibers[q].len() {
                     let pq = poses(q, i);
                     let (now_q, hq, rq) = (pq.1 .0, pq.1 .2, pq.1 .3);
                     // fibres no round has moved, in the step's list by their mid-step
@@ -485,7 +485,7 @@ impl Search {
                     self.cells.runs_within(&from, radius, |run| {
                         for slot in run {
                             let pb = &self.sorted[slot];
-                            let kb = pb.fibre as usize;
+                            let kb = pb.fiber as usize;
                             if kb == q || corrected[kb] {
                                 continue;
                             }

@@ -146,7 +146,7 @@ pub(super) fn pair(
     first: f64,
     period: &[Option<f64>; 3],
 ) -> Option<Candidate> {
-    if ea.fibre == eb.fibre && ea.segment.abs_diff(eb.segment) < 2 {
+    if ea.fiber == eb.fiber && ea.segment.abs_diff(eb.segment) < 2 {
         return None;
     }
     let (ea, eb) = if ea.key() < eb.key() {

@@ -1,6 +1,6 @@
 //! The segments of a suspension as the contact search reads them.
 
-use crate::fibre::{Fibre, SegmentProps};
+use crate::fiber::{Fiber, SegmentProps};
 use nalgebra::Vector3;
 
 /// The segments of a suspension as the contact step reads them, at the start of the step
@@ -16,20 +16,20 @@ pub(crate) trait Segments: Sync {
     fn end(&self, k: usize, i: usize) -> (Vector3<f64>, Vector3<f64>);
     /// Fibre `k` at the start of the step (centres, axes and normals are what the solve
     /// reads of it).
-    fn start_fibre(&self, k: usize) -> Fibre;
+    fn start_fiber(&self, k: usize) -> Fiber;
     /// Fibre `k` after the free step.
-    fn end_fibre(&self, k: usize) -> Fibre;
+    fn end_fiber(&self, k: usize) -> Fiber;
 }
 
 /// [`Segments`] over two slices of fibres: at the start of the step and after it.
 pub(crate) struct Slices<'a> {
-    pub before: &'a [Fibre],
-    pub after: &'a [Fibre],
+    pub before: &'a [Fiber],
+    pub after: &'a [Fiber],
     offsets: Vec<usize>,
 }
 
 impl<'a> Slices<'a> {
-    pub(crate) fn new(before: &'a [Fibre], after: &'a [Fibre]) -> Self {
+    pub(crate) fn new(before: &'a [Fiber], after: &'a [Fiber]) -> Self {
         Self {
             before,
             after,
@@ -53,10 +53,10 @@ impl Segments for Slices<'_> {
         let s = &self.after[k].segments[i];
         (s.r, s.z)
     }
-    fn start_fibre(&self, k: usize) -> Fibre {
+    fn start_fiber(&self, k: usize) -> Fiber {
         self.before[k].clone()
     }
-    fn end_fibre(&self, k: usize) -> Fibre {
+    fn end_fiber(&self, k: usize) -> Fiber {
         self.after[k].clone()
     }
 }

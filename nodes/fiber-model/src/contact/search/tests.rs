@@ -75,11 +75,11 @@ const PERIOD: [Option<f64>; 3] = [Some(24.0), None, Some(18.0)];
 /// and the same fibres after a step: each moved by the shift `motion` gives it (from
 /// its index and centre) and each segment jittered and turned by up to the turn it
 /// gives.
-fn moved_fibres(
+fn moved_fibers(
     seed: u64,
     n: usize,
     motion: impl Fn(usize, &Vector3<f64>, &mut Rng) -> (Vector3<f64>, f64),
-) -> (Vec<Fibre>, Vec<Fibre>) {
+) -> (Vec<Fiber>, Vec<Fiber>) {
     let mut rng = Rng(seed);
     let mut before = Vec::new();
     let mut after = Vec::new();
@@ -90,7 +90,7 @@ fn moved_fibres(
             18.0 * rng.next(),
         );
         let axis = rng.vector(1.0).normalize();
-        let f = Fibre::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
+        let f = Fiber::straight(centre, axis, &[3.0; 7], &[0.8; 7], 1000.0).unwrap();
         let mut g = f.clone();
         let (shift, turn) = motion(k, &centre, &mut rng);
         for s in g.segments.iter_mut() {
@@ -105,8 +105,8 @@ fn moved_fibres(
 
 /// 60 fibres: most moved by up to 0.3, every tenth by up to 4 (a large spread of
 /// displacements), each segment turned by up to 0.1 (bending).
-fn start_and_end(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
-    moved_fibres(seed, 60, |k, _, rng| {
+fn start_and_end(seed: u64) -> (Vec<Fiber>, Vec<Fiber>) {
+    moved_fibers(seed, 60, |k, _, rng| {
         (rng.vector(if k % 10 == 0 { 4.0 } else { 0.3 }), 0.1)
     })
 }
@@ -115,8 +115,8 @@ fn start_and_end(seed: u64) -> (Vec<Fibre>, Vec<Fibre>) {
 /// box's 12, as near a wall) and by up to 0.15 along each direction besides; with
 /// `thrown`, every 25th fibre is instead thrown by up to 6 along each direction and its
 /// segments turned far (wild fibres, searched around on their own).
-fn in_a_mean_flow(seed: u64, thrown: bool) -> (Vec<Fibre>, Vec<Fibre>) {
-    moved_fibres(seed, 150, |k, centre, rng| {
+fn in_a_mean_flow(seed: u64, thrown: bool) -> (Vec<Fiber>, Vec<Fiber>) {
+    moved_fibers(seed, 150, |k, centre, rng| {
         if thrown && k.is_multiple_of(25) {
             (rng.vector(6.0), 1.0)
         } else {
@@ -139,7 +139,7 @@ fn same(a: &[Candidate], b: &[Candidate]) -> bool {
 
 /// The step's search over `before` → `after`, what its scan finds and what a test of
 /// every pair keeps.
-fn scanned(before: &[Fibre], after: &[Fibre]) -> (Search, Vec<Candidate>, Vec<Candidate>) {
+fn scanned(before: &[Fiber], after: &[Fiber]) -> (Search, Vec<Candidate>, Vec<Candidate>) {
     let s = Slices::new(before, after);
     let search = Search::new(&s, &PERIOD, 0.0);
     let found = search.pairs(&s);
@@ -189,21 +189,21 @@ fn all_pairs<S: Segments>(s: &S, search: &Search) -> Vec<Candidate> {
 /// one of them `moved`, that may have
 /// come within reach between `was` (the start of the step) and `now` (skin: their
 /// relative motion and turns) and overlaps now on the side it was on in `was`.
-fn all_overlaps(was: &[Fibre], now: &[Fibre], moved: &[usize]) -> Vec<Candidate> {
+fn all_overlaps(was: &[Fiber], now: &[Fiber], moved: &[usize]) -> Vec<Candidate> {
     all_overlaps_in(was, now, moved, &PERIOD)
 }
 
 /// [`all_overlaps`] in a box of `period`.
 fn all_overlaps_in(
-    was: &[Fibre],
-    now: &[Fibre],
+    was: &[Fiber],
+    now: &[Fiber],
     moved: &[usize],
     period: &[Option<f64>; 3],
 ) -> Vec<Candidate> {
     let segs: Vec<(usize, usize)> = (0..now.len())
         .flat_map(|k| (0..now[k].len()).map(move |i| (k, i)))
         .collect();
-    let pose = |f: &[Fibre], k: usize, i: usize| {
+    let pose = |f: &[Fiber], k: usize, i: usize| {
         let (s, p) = (&f[k].segments[i], &f[k].props[i]);
         (s.r, s.z, 0.5 * p.shape.length, 0.5 * p.shape.diameter)
     };
@@ -332,7 +332,7 @@ fn single_precision_tests_keep_pairs_just_within_reach() {
             rng.vector(3.0)
         };
         for (c, z) in [(ca, za), (cb, zb)] {
-            let f = Fibre::straight(c, z, &[2.0 * half], &[d], 1000.0).unwrap();
+            let f = Fiber::straight(c, z, &[2.0 * half], &[d], 1000.0).unwrap();
             let mut g = f.clone();
             g.segments[0].r += shift;
             before.push(f);
@@ -397,7 +397,7 @@ fn cells_narrower_across_a_mean_flow_find_every_pair() {
 /// the wild fibres' search together find every pair the exact test keeps, among them
 /// pairs of a wild fibre beyond the cells' reach and pairs of two wild fibres' segments.
 #[test]
-fn wild_fibres_are_searched_on_their_own_and_every_pair_is_found() {
+fn wild_fibers_are_searched_on_their_own_and_every_pair_is_found() {
     for seed in [13, 14, 15, 16] {
         let (before, after) = in_a_mean_flow(seed, true);
         let s = Slices::new(&before, &after);
@@ -424,7 +424,7 @@ fn wild_fibres_are_searched_on_their_own_and_every_pair_is_found() {
 /// overlaps a test of every pair finds, each on the side it was on at the start of
 /// the step (some corrections here push fibres through others), also in a mean flow.
 #[test]
-fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
+fn the_search_around_moved_fibers_finds_every_overlap_they_make() {
     let cases = [4, 5, 6].map(|seed| (seed, start_and_end(seed)));
     // and in a mean flow, where the step's cells are narrower across the flow
     let sheared = [10, 11, 12].map(|seed| (seed, in_a_mean_flow(seed, seed == 12)));
@@ -453,7 +453,7 @@ fn the_search_around_moved_fibres_finds_every_overlap_they_make() {
         }
         let found = search.around(&s, &now, &before, &corrected, &moved);
         // every fibre not corrected is where the free step left it
-        let now: Vec<Fibre> = (0..now.len())
+        let now: Vec<Fiber> = (0..now.len())
             .map(|k| {
                 if corrected[k] {
                     now[k].clone()
@@ -512,7 +512,7 @@ fn the_search_around_keeps_overlaps_just_within_reach_in_single_precision() {
         } else {
             rng.vector(3.0)
         };
-        let a0 = Fibre::straight(ca, za, &[2.0 * half], &[d], 1000.0).unwrap();
+        let a0 = Fiber::straight(ca, za, &[2.0 * half], &[d], 1000.0).unwrap();
         let mut a1 = a0.clone();
         a1.segments[0].r += shift;
         // the corrected one, now 10⁻⁶ d inside it
@@ -534,7 +534,7 @@ fn the_search_around_keeps_overlaps_just_within_reach_in_single_precision() {
             let q = p + across * (d * (1.0 - 2e-6));
             (q - zb * (0.9 * half * (2.0 * rng.next() - 1.0)), zb, across)
         };
-        let b_now = Fibre::straight(cb, zb, &[2.0 * half], &[d], 1000.0).unwrap();
+        let b_now = Fiber::straight(cb, zb, &[2.0 * half], &[d], 1000.0).unwrap();
         // it came there from the same side, three contact distances out
         let mut b0 = b_now.clone();
         b0.segments[0].r += across * (3.0 * d);
@@ -583,7 +583,7 @@ fn a_pair_that_touches_within_the_step_is_a_candidate() {
             turn: half * (z1 - z0).norm(),
             half,
             radius,
-            fibre: k,
+            fiber: k,
             segment: 0,
         };
         let at = |(_, r0, z0, shift, z1): (
@@ -620,7 +620,7 @@ fn a_pair_that_touches_within_the_step_is_a_candidate() {
 /// A fibre whose state went non-finite makes no pairs (every comparison with NaN
 /// fails), instead of pairing with every other segment; the others' pairs stay.
 #[test]
-fn a_fibre_gone_non_finite_makes_no_pairs() {
+fn a_fiber_gone_non_finite_makes_no_pairs() {
     let (before, mut after) = start_and_end(1);
     let s = Slices::new(&before, &after);
     let clean = Search::new(&s, &PERIOD, 0.0).pairs(&s);

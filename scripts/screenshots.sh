@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerates the screenshots in docs/ from a quick run, headless:
-#   docs/scripts/screenshots.sh [RUN_DIR]     (default: runs `fiberflow launch launch/quick.toml` first)
+#   scripts/screenshots.sh [RUN_DIR]     (default: runs `fiberflow launch launch/quick.toml` first)
 # Needs: rerun-sdk==0.36.3 (pip), Xvfb and a software Vulkan driver
 # (apt-get install xvfb mesa-vulkan-drivers libvulkan1; xdotool, if present, parks the
 # pointer). Each picture: the viewer opens the
@@ -9,7 +9,7 @@
 # otherwise: a viewer that exits on its own (a crash while loading or drawing) passes its
 # exit status on; one that closes on Ctrl-C with another status than 0 or 130 fails it.
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 run="${1:-}"
 if [[ -z "$run" ]]; then
   run="$(mktemp -d)/quick"

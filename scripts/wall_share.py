@@ -2,7 +2,7 @@
 """Share of fibre segments by distance from the nearer wall, every 100 t+ of a run.
 
     fiberflow export RUN_FOLDER --what states
-    python3 docs/scripts/wall_share.py RUN_FOLDER/export [EVERY_T_PLUS] > shares.csv
+    python3 scripts/wall_share.py RUN_FOLDER/export [EVERY_T_PLUS] > shares.csv
 
 Reads the exported fibre states (docs/export.md; pip install pandas pyarrow) and, for each
 recorded step at a multiple of EVERY_T_PLUS (default 100) t+, prints the shares of all

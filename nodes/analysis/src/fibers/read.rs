@@ -18,7 +18,7 @@ pub(crate) struct Row {
 
 /// Centre of mass, z1 and σ² of the fibre whose segments are `seg0 .. seg0 + n` in a state
 /// (paper §4.3: ẑ = Σẑ_i/|Σẑ_i|, z1 = ẑ·ê1, σ² = Σ|ẑ_i − ẑ|²/(N−1), 0 for N = 1).
-pub fn fibre_of_state(s: &FiberGroupState, seg0: usize, n: usize) -> ([f64; 3], f64, f64) {
+pub fn fiber_of_state(s: &FiberGroupState, seg0: usize, n: usize) -> ([f64; 3], f64, f64) {
     let mut c = [0.0; 3];
     let mut zs = [0.0; 3];
     for i in seg0..seg0 + n {
@@ -40,7 +40,7 @@ pub fn fibre_of_state(s: &FiberGroupState, seg0: usize, n: usize) -> ([f64; 3], 
     (c, zh[0], if n > 1 { var / (n - 1) as f64 } else { 0.0 })
 }
 
-/// Per-fibre metrics of a state ([`fibre_of_state`] for every fibre).
+/// Per-fibre metrics of a state ([`fiber_of_state`] for every fibre).
 pub(crate) fn row_of_state(s: &FiberGroupState) -> Row {
     let nf = s.segments_per_fiber.len();
     let mut row = Row {
@@ -51,7 +51,7 @@ pub(crate) fn row_of_state(s: &FiberGroupState) -> Row {
     };
     let mut seg = 0usize;
     for &n in &s.segments_per_fiber {
-        let (c, z1, s2) = fibre_of_state(s, seg, n as usize);
+        let (c, z1, s2) = fiber_of_state(s, seg, n as usize);
         row.com.push(c);
         row.z1.push(z1);
         row.sigma2.push(s2);

@@ -5,7 +5,7 @@ states of a recording that holds every step (docs/history/contact-cost.md, "How 
         --set run.steps=30 --set recorder.states_every_steps=1 --set run.analyze=false
     fiberflow export recordings/flocs-wall-30 --what states
     pip install numpy pandas pyarrow scipy
-    python3 docs/scripts/list_lifetime.py recordings/flocs-wall-30/export
+    python3 scripts/list_lifetime.py recordings/flocs-wall-30/export
 
 Per group it prints two measures:
 
@@ -33,13 +33,13 @@ def read(export):
     (docs/export.md)."""
     centre = ["centre_x_plus", "centre_y_plus", "centre_z_plus"]
     axis = ["axis_x", "axis_y", "axis_z"]
-    t = pd.read_parquet(export + "/states.parquet", columns=["group", "step", "fibre"] + centre + axis)
+    t = pd.read_parquet(export + "/states.parquet", columns=["group", "step", "fiber"] + centre + axis)
     states = {}
     for (group, step), d in t.groupby(["group", "step"], sort=True):
         states.setdefault(group, {})[step] = (
             d[centre].to_numpy(),
             d[axis].to_numpy(),
-            d["fibre"].to_numpy(),
+            d["fiber"].to_numpy(),
         )
     return states
 

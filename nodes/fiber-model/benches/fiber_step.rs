@@ -3,12 +3,12 @@
 //! at a time (`one_thread_unbatched`, no SIMD batching), the reference for the batched step.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use fiberflow_fiber_model::fibre::Fibre;
-use fiberflow_fiber_model::group::FibreGroup;
+use fiberflow_fiber_model::fiber::Fiber;
+use fiberflow_fiber_model::group::FiberGroup;
 use fiberflow_fiber_model::{DragModel, FluidSample, ModelParams};
 use nalgebra::{Matrix3, Vector3};
 
-fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
+fn group(n: usize) -> (FiberGroup, Vec<FluidSample>) {
     let params = ModelParams {
         drag: DragModel {
             viscosity: 1.0,
@@ -21,10 +21,10 @@ fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
         tikhonov: 0.0,
         wall_half_height: Some(150.0),
     };
-    let fibres: Vec<Fibre> = (0..n)
+    let fibers: Vec<Fiber> = (0..n)
         .map(|i| {
             let a = i as f64 * 0.37;
-            Fibre::straight(
+            Fiber::straight(
                 Vector3::new(i as f64, (a.sin()) * 100.0, 3.0 * i as f64),
                 Vector3::new(a.cos(), 1.0, a.sin()),
                 &[3.0; 7],
@@ -34,7 +34,7 @@ fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
             .expect("valid fibre")
         })
         .collect();
-    let g = FibreGroup::new(params, fibres);
+    let g = FiberGroup::new(params, fibers);
     let fluid: Vec<FluidSample> = g
         .segment_centres()
         .iter()
@@ -47,7 +47,7 @@ fn group(n: usize) -> (FibreGroup, Vec<FluidSample>) {
 }
 
 fn bench(c: &mut Criterion) {
-    let mut grp = c.benchmark_group("fibre_step_n7");
+    let mut grp = c.benchmark_group("fiber_step_n7");
     grp.sample_size(10);
     for n in [1usize, 1_000, 100_000] {
         let (mut g, fluid) = group(n);

@@ -1,7 +1,7 @@
 //! Fibre geometry and state (paper §2.1): a chain of N rigid cylindrical segments joined
 //! by ball-and-socket joints, with per-segment mass and inertia of a solid cylinder.
 
-use crate::error::FibreError;
+use crate::error::FiberError;
 use crate::hydro::SegmentShape;
 use nalgebra::{Matrix3, Vector3};
 
@@ -82,14 +82,14 @@ impl SegmentProps {
 
 /// One fibre: its segments and their properties.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Fibre {
+pub struct Fiber {
     pub segments: Vec<Segment>,
     pub props: Vec<SegmentProps>,
     /// Density of the fibre material.
     pub density: f64,
 }
 
-impl Fibre {
+impl Fiber {
     /// A straight fibre centred at `centre` along `axis`, with the given segment lengths
     /// and diameters; velocities zero.
     pub fn straight(
@@ -98,39 +98,39 @@ impl Fibre {
         lengths: &[f64],
         diameters: &[f64],
         density: f64,
-    ) -> Result<Self, FibreError> {
+    ) -> Result<Self, FiberError> {
         let n = lengths.len();
         if n == 0 {
-            return Err(FibreError::Config(
+            return Err(FiberError::Config(
                 "fibre.segments must be >= 1 (got 0)".into(),
             ));
         }
         if diameters.len() != n {
-            return Err(FibreError::Config(format!(
+            return Err(FiberError::Config(format!(
                 "fibre.diameters has {} entries, fibre.lengths has {n}",
                 diameters.len()
             )));
         }
         if !(density > 0.0 && density.is_finite()) {
-            return Err(FibreError::Config(format!(
+            return Err(FiberError::Config(format!(
                 "fibre.density must be positive and finite (got {density})"
             )));
         }
         for (i, (&l, &d)) in lengths.iter().zip(diameters).enumerate() {
             if !(d > 0.0 && d.is_finite()) {
-                return Err(FibreError::Config(format!(
+                return Err(FiberError::Config(format!(
                     "fibre.diameter of segment {i} must be positive and finite (got {d})"
                 )));
             }
             if !(l > d && l.is_finite()) {
-                return Err(FibreError::Config(format!(
+                return Err(FiberError::Config(format!(
                     "fibre.length of segment {i} must exceed its diameter {d} (got {l})"
                 )));
             }
         }
         let norm = axis.norm();
         if !(norm > 0.0 && norm.is_finite()) {
-            return Err(FibreError::Config(
+            return Err(FiberError::Config(
                 "fibre axis must be a non-zero finite vector".into(),
             ));
         }

@@ -19,7 +19,7 @@ pub use crate::series::GroupSeries;
 mod read;
 mod stats;
 
-pub use read::{fibre_of_state, read_groups, read_recording, SuspensionFlocs};
+pub use read::{fiber_of_state, read_groups, read_recording, SuspensionFlocs};
 pub use stats::{abs_z1, loglog_slope, msd23, ramp_time, MsdTable};
 use stats::{in_layer, intervals, mean_std, spread};
 
@@ -27,7 +27,7 @@ use stats::{in_layer, intervals, mean_std, spread};
 #[derive(Debug, Clone, Default)]
 pub struct GroupSummary {
     pub group: String,
-    pub fibres: usize,
+    pub fibers: usize,
     pub msd_slope: f64,
     pub fit_window: (f64, f64),
     pub ramp_time: f64,
@@ -50,9 +50,9 @@ impl Default for Interval {
 }
 
 /// Per-fibre CSV rows at most (a time stride keeps large runs' tables readable).
-const MAX_FIBRE_ROWS: usize = 1_000_000;
+const MAX_FIBER_ROWS: usize = 1_000_000;
 /// Per-fibre lines in one plot at most (evenly spread over the fibres).
-const MAX_PLOTTED_FIBRES: usize = 60;
+const MAX_PLOTTED_FIBERS: usize = 60;
 
 /// What [`analyse`] found.
 #[derive(Debug, Clone, Default)]
@@ -98,7 +98,7 @@ pub fn analyse(
         ensemble.add(name, ci, slope, &msd, &all, &s2);
         summaries.push(GroupSummary {
             group: name.clone(),
-            fibres: g.z1[0].len(),
+            fibers: g.z1[0].len(),
             msd_slope: slope,
             fit_window: window,
             ramp_time: ramp_time(&all),
@@ -136,7 +136,7 @@ pub fn analyse(
 }
 
 /// One group's CSVs: MSD_23 over lag, <|z1|> per layer over time, and per-fibre rows
-/// (decimated to at most `MAX_FIBRE_ROWS`).
+/// (decimated to at most `MAX_FIBER_ROWS`).
 fn write_group_csvs(
     out: &Path,
     name: &str,
@@ -160,9 +160,9 @@ fn write_group_csvs(
         }
     }
     write(out, &format!("{name}_abs_z1.csv"), &csv)?;
-    let mut csv = String::from("t_plus,fibre,layer,z1,sigma2,x1,x2,x3\n");
+    let mut csv = String::from("t_plus,fiber,layer,z1,sigma2,x1,x2,x3\n");
     let nf = g.z1.first().map_or(0, |z| z.len());
-    let stride = (nf * g.t_plus.len()).div_ceil(MAX_FIBRE_ROWS).max(1);
+    let stride = (nf * g.t_plus.len()).div_ceil(MAX_FIBER_ROWS).max(1);
     for (k, t) in g.t_plus.iter().enumerate().step_by(stride) {
         for f in 0..g.z1[k].len() {
             let c = g.com[k][f];
@@ -178,7 +178,7 @@ fn write_group_csvs(
             );
         }
     }
-    write(out, &format!("{name}_fibres.csv"), &csv)?;
+    write(out, &format!("{name}_fibers.csv"), &csv)?;
     Ok(())
 }
 
@@ -215,7 +215,7 @@ fn plot_group(out: &Path, name: &str, g: &GroupSeries) -> Result<(), AnalysisErr
         false,
         false,
     )?;
-    let signed: Vec<Series> = spread(&in_layer(g, 0), MAX_PLOTTED_FIBRES)
+    let signed: Vec<Series> = spread(&in_layer(g, 0), MAX_PLOTTED_FIBERS)
         .into_iter()
         .map(|f| Series {
             label: String::new(),
@@ -244,8 +244,8 @@ fn plot_group(out: &Path, name: &str, g: &GroupSeries) -> Result<(), AnalysisErr
             false,
         )?;
     }
-    let all_fibres: Vec<usize> = (0..g.com[0].len()).collect();
-    let traj: Vec<Series> = spread(&all_fibres, MAX_PLOTTED_FIBRES)
+    let all_fibers: Vec<usize> = (0..g.com[0].len()).collect();
+    let traj: Vec<Series> = spread(&all_fibers, MAX_PLOTTED_FIBERS)
         .into_iter()
         .map(|f| Series {
             label: String::new(),
@@ -259,7 +259,7 @@ fn plot_group(out: &Path, name: &str, g: &GroupSeries) -> Result<(), AnalysisErr
         &format!(
             "{name}: centre-of-mass trajectories in the x3-x2 plane ({} of {} fibres)",
             traj.len(),
-            all_fibres.len()
+            all_fibers.len()
         ),
         "x3+",
         "x2+",
@@ -372,7 +372,7 @@ pub fn summary_table(s: &[GroupSummary]) -> String {
             g.group,
             g.segment_length,
             g.density_ratio,
-            g.fibres,
+            g.fibers,
             g.msd_slope,
             ci(&g.msd_slope_ci, 3),
             g.fit_window.0,

@@ -11,7 +11,7 @@ pub struct MsdTable {
     /// Lag of bin b is b·dt.
     pub dt: f64,
     /// [fibre][bin] sum over time-origin pairs of |Δx2|² + |Δx3|².
-    pub per_fibre: Vec<Vec<f64>>,
+    pub per_fiber: Vec<Vec<f64>>,
     /// [bin] number of time-origin pairs.
     pub pairs: Vec<usize>,
 }
@@ -49,7 +49,7 @@ impl MsdTable {
             b
         };
         let nf = g.com[0].len();
-        let per_fibre = (0..nf)
+        let per_fiber = (0..nf)
             .into_par_iter()
             .map(|f| {
                 let x: Vec<[f64; 2]> = g.com[..n].iter().map(|c| [c[f][1], c[f][2]]).collect();
@@ -67,7 +67,7 @@ impl MsdTable {
             .collect();
         Self {
             dt,
-            per_fibre,
+            per_fiber,
             pairs: bins.iter().map(|p| p.len()).collect(),
         }
     }
@@ -83,13 +83,13 @@ impl MsdTable {
             })
             .collect();
         let mut sum = vec![0.0; bins.len()];
-        let mut fibres = 0u64;
-        for (f, s) in self.per_fibre.iter().enumerate() {
+        let mut fibers = 0u64;
+        for (f, s) in self.per_fiber.iter().enumerate() {
             let k = w.map_or(1, |w| w[f]);
             if k == 0 {
                 continue;
             }
-            fibres += k as u64;
+            fibers += k as u64;
             for (acc, &b) in sum.iter_mut().zip(&bins) {
                 *acc += k as f64 * s[b];
             }
@@ -99,7 +99,7 @@ impl MsdTable {
             .map(|(&b, s)| {
                 (
                     b as f64 * self.dt,
-                    s / (self.pairs[b] as u64 * fibres) as f64,
+                    s / (self.pairs[b] as u64 * fibers) as f64,
                 )
             })
             .collect()
@@ -216,13 +216,13 @@ pub(crate) fn intervals(
         loglog_slope(&table.msd(Some(w), window.0, window.1), window.0, window.1)
     });
     let ramp = [0u8, 1, 2].map(|l| {
-        let fibres = in_layer(g, l);
+        let fibers = in_layer(g, l);
         let abs: Vec<Vec<f64>> =
             g.z1.iter()
-                .map(|z| fibres.iter().map(|&f| z[f].abs()).collect())
+                .map(|z| fibers.iter().map(|&f| z[f].abs()).collect())
                 .collect();
         bootstrap::interval(
-            fibres.len(),
+            fibers.len(),
             bootstrap::REPLICATES,
             seed(name, 2 + l as u64),
             |w| {

@@ -6,7 +6,7 @@
 # stopped half-way resumes from its newest checkpoint; a finished one is skipped, so the
 # script can be started again after any stop.
 #
-#   docs/scripts/drag-realisations.sh [SET:FIRST-LAST ...]
+#   scripts/drag-realisations.sh [SET:FIRST-LAST ...]
 #     SET: unladen, 0.4 or 1.0 (default: unladen:1-6 0.4:1-4 1.0:1-4)
 #   FIBERFLOW=path/to/fiberflow  OUT=recordings/drag  TRANSPORT=iceoryx2
 #
@@ -14,7 +14,7 @@
 #   fiberflow analyze recordings/drag/two-way-0.4-r{1,2,3,4} \
 #     --unladen recordings/drag/unladen-r{1,2,3,4,5,6} --transient-plus 500 --batches 2
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 FF=${FIBERFLOW:-target/release/fiberflow}
 OUT=${OUT:-recordings/drag}
 TRANSPORT=${TRANSPORT:-iceoryx2}

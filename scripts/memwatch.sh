@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # Long-run memory check (docs/architecture.md, "Long runs: memory").
-#   bash docs/scripts/memwatch.sh OUT STEPS
+#   bash scripts/memwatch.sh OUT STEPS
 # runs launch/validation/analytic-shear.toml for STEPS coupling steps over iceoryx2 into OUT
 # (a state recorded every 10^4 steps, or at the end of a shorter run) and logs every node's resident memory every 2 s to
 # OUT.mem, one line per node: elapsed_s node rss_kb peak_kb.
 set -euo pipefail
 OUT=$1
 STEPS=$2
-cd "$(dirname "$0")/../.."
+cd "$(dirname "$0")/.."
 cargo build --release --quiet
 B="${CARGO_TARGET_DIR:-target}/release/fiberflow"
 EVERY=$(( STEPS < 10000 ? STEPS : 10000 ))

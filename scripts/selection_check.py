@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Clicks a point of a scene in the Rerun viewer, headless, and reports what changed.
 
-    DISPLAY=:99 python3 docs/scripts/selection_check.py RUN.rrd X Y [SECONDS_TO_LOAD [TAB_X,TAB_Y]]
+    DISPLAY=:99 python3 scripts/selection_check.py RUN.rrd X Y [SECONDS_TO_LOAD [TAB_X,TAB_Y]]
 
 TAB_X,TAB_Y, if given, is clicked first (e.g. a plot tab's title) and the two screenshots are
 taken after it.

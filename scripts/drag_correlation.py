@@ -1,7 +1,7 @@
 """How long the drag of a channel run stays correlated, from runs exported with
 `fiberflow export RUN --what flow` (docs/realisations.md, "How long the drag remembers").
 
-    python3 docs/scripts/drag_correlation.py --from-plus 500 EXPORT1 EXPORT2 ...
+    python3 scripts/drag_correlation.py --from-plus 500 EXPORT1 EXPORT2 ...
 
 Per run, the pressure gradient after --from-plus about the run's own mean; prints the
 pooled autocorrelation, its integral time scale (up to the first zero crossing), and the
