@@ -18,7 +18,7 @@ with open(path, "rb") as f:
         if schema.name == "fiberflow_msgs/msg/FiberGroupState":
             n = sum(decoded.segments_per_fiber)
             assert len(decoded.centre) == 3 * n, "centre length"
-            assert decoded.schema_version == 4
+            assert decoded.schema_version == 5
             # one force per segment in two-way runs, none one-way
             assert len(decoded.hydro_force) in (0, 3 * n), "hydro_force length"
             # contact: the touched segments, ascending, each with a force and a count

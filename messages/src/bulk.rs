@@ -827,7 +827,7 @@ mod tests {
         ));
         assert_eq!(
             refused.to_string(),
-            "schema version 2, this build understands 3 to 4"
+            "schema version 2, this build understands 3 to 5"
         );
     }
 
