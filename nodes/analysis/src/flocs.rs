@@ -450,7 +450,8 @@ pub fn plot(
         ],
         false,
         false,
-    )
+    )?;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -23,7 +23,10 @@ const PALETTE: [RGBColor; 8] = [
     RGBColor(80, 80, 80),
 ];
 
-/// Draws the series into a PNG; `log_x`/`log_y` select logarithmic axes.
+/// Draws the series into a PNG; `log_x`/`log_y` select logarithmic axes. Whether it drew:
+/// series without a finite point (on a log axis: a positive one) draw nothing and leave no
+/// file, with a warning, so that one empty figure (a recording with a single state has no
+/// mean-square displacement) does not end an analysis whose other results stand.
 ///
 /// Long (≈115 lines): one plotters chart, axes to legend, in drawing order.
 pub fn line_plot(
@@ -34,7 +37,7 @@ pub fn line_plot(
     series: &[Series],
     log_x: bool,
     log_y: bool,
-) -> Result<(), AnalysisError> {
+) -> Result<bool, AnalysisError> {
     let perr = |e: String| AnalysisError::Plot {
         path: path.display().to_string(),
         reason: e,
@@ -58,7 +61,8 @@ pub fn line_plot(
         y1 = y1.max(*y);
     }
     if !x0.is_finite() || !y0.is_finite() {
-        return Err(perr("no finite points".into()));
+        tracing::warn!(figure = %path.display(), "no finite points to plot: figure left out");
+        return Ok(false);
     }
     if x1 <= x0 {
         x1 = x0 + 1.0;
@@ -138,5 +142,49 @@ pub fn line_plot(
         (true, true) => draw!((x0..x1).log_scale(), (y0..y1).log_scale()),
     }
     root.present().map_err(|e| perr(e.to_string()))?;
-    Ok(())
+    Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A figure with a finite point is drawn; one without (NaN, or nothing positive on a
+    /// log axis) is left out with no file and no error.
+    #[test]
+    fn a_figure_without_finite_points_is_left_out() {
+        let dir = std::env::temp_dir().join(format!("ff-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let series = |points: Vec<(f64, f64)>| Series {
+            label: "s".into(),
+            points,
+            colour: 0,
+            markers: false,
+        };
+        let drawn = dir.join("drawn.png");
+        assert!(line_plot(
+            &drawn,
+            "t",
+            "x",
+            "y",
+            &[series(vec![(1.0, 2.0), (2.0, 3.0)])],
+            false,
+            false
+        )
+        .unwrap());
+        assert!(drawn.is_file());
+        for (name, points, log) in [
+            ("nan.png", vec![(f64::NAN, 1.0)], false),
+            ("empty.png", vec![], false),
+            ("log.png", vec![(0.0, 1.0), (1.0, -1.0)], true),
+        ] {
+            let p = dir.join(name);
+            assert!(
+                !line_plot(&p, "t", "x", "y", &[series(points)], log, log).unwrap(),
+                "{name}"
+            );
+            assert!(!p.exists(), "{name}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
