@@ -39,12 +39,12 @@ enum Script {
 }
 
 /// The samples of `state`'s segments in the scripted shear flow, for step `step`
-/// (`segments` points: the state's own, or a wrong number).
+/// (`segments` points: the state's own, or fewer).
 fn samples(state: &FiberGroupState, step: u64, segments: usize) -> Vec<u8> {
     let mut velocity = Vec::with_capacity(3 * segments);
     let mut gradient = Vec::with_capacity(9 * segments);
     for i in 0..segments {
-        let y = state.centre[3 * (i % (state.centre.len() / 3)) + 1];
+        let y = state.centre[3 * i + 1];
         velocity.extend_from_slice(&[SHEAR * y, 0.0, 0.0]);
         let mut g = [0.0; 9];
         g[1] = SHEAR; // ∂u/∂y

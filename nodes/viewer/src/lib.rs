@@ -497,7 +497,7 @@ fn log_static(
          **Plots** (right): one tab per series (σ², |z1|, end-to-end distance, wall distance \
          x2+), in each one plot per case with every shown fibre of that case, coloured by \
          initial layer: blue near wall, orange next, green middle. **Click a fibre** in the \
-         gallery (or a line in a plot): it is one entity `fibres/<case>/<layer>/f<i>`; its \
+         gallery (or a line in a plot): it is one entity `fibers/<case>/<layer>/f<i>`; its \
          line in its case's plot is drawn opaque and wider in every tab, and the Selection \
          panel shows its σ², |z1|, end-to-end distance and x2+ at the time cursor.\n\n\
          **Coiling events**: the first t+ a fibre's σ² reaches {thresholds}; listed under \
