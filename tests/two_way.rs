@@ -166,3 +166,48 @@ fn two_way_is_bitwise_over_transports_shards_and_a_kill() {
     assert!(statuses > 0);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `flow.field_steps = 2` (docs/two-way.md, "Field steps per coupling step"), one-way: a
+/// coupling step of 0.5 t+ in two field steps walks the very field of coupling steps of
+/// 0.25 t+ (the flow checkpoint at t+ 5 byte for byte: the fibres do not push on it), while
+/// the fibres step once per 0.5 t+; two-way, the same coupling steps run to the end.
+#[test]
+fn two_field_steps_walk_the_field_of_half_the_coupling_step() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("field-steps");
+    let sets = |coupling: &str, steps: u32, dt_plus: f64, field_steps: u32| -> Vec<String> {
+        vec![
+            format!("run.steps={steps}"),
+            format!("run.dt_plus={dt_plus}"),
+            format!("flow.field_steps={field_steps}"),
+            "run.checkpoint_every_plus=2.5".into(),
+            "run.analyze=false".into(),
+            "run.step_timeout_s=60".into(),
+            format!("run.coupling=\"{coupling}\""),
+        ]
+    };
+    let one = dir.join("one");
+    run(&one, "inproc", &sets("one-way", 24, 0.25, 1));
+    let two = dir.join("two");
+    run(&two, "inproc", &sets("one-way", 12, 0.5, 2));
+    let field = |out: &Path, step: u64| -> Vec<u8> {
+        let root = fiberflow_messages::checkpoints::root(out);
+        let dir = fiberflow_messages::checkpoints::step_dir(&root, step);
+        std::fs::read(fiberflow_messages::checkpoints::piece(&dir, "flow"))
+            .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+    };
+    assert!(field(&one, 20) == field(&two, 10), "the field at t+ 5");
+    let (a, b) = (whole(&one), whole(&two));
+    assert_eq!(b.len(), 6 * 13, "six groups, coupling steps 0..=12");
+    for g in 1..=6 {
+        let g = format!("case{g}");
+        assert!(a[&(g.clone(), 0)].centre == b[&(g.clone(), 0)].centre, "{g}");
+        // one fibre step of 0.5 t+ is not two of 0.25
+        assert!(a[&(g.clone(), 20)].centre != b[&(g.clone(), 10)].centre, "{g}");
+    }
+    let two_way = dir.join("two-way");
+    run(&two_way, "inproc", &sets("two-way", 12, 0.5, 2));
+    let c = whole(&two_way);
+    assert_eq!(c.len(), 6 * 13);
+    assert!(c[&("case1".to_string(), 10)].centre != b[&("case1".to_string(), 10)].centre);
+}

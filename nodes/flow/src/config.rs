@@ -48,6 +48,13 @@ pub struct FlowNodeConfig {
     /// A launch file sets it from `run.dt_plus` (giving it under `[flow]` is an error).
     #[serde(default = "default_dt")]
     pub dt_plus: f64,
+    /// DNS steps per coupling step, each of `dt_plus / field_steps`, in 1..=16 (DNS
+    /// only): the fibres and the flow node's per-fibre stages (sampling, spreading, the
+    /// self-induced correction) run once per coupling step, so a coupling step longer than
+    /// the DNS's Courant limit costs the field's steps, not the fibres' (docs/two-way.md,
+    /// "Field steps per coupling step").
+    #[serde(default = "default_field_steps")]
+    pub field_steps: u32,
     /// Seconds to wait for every expected fibre group to announce itself, in (0, 3600].
     #[serde(default = "default_join_timeout")]
     pub join_timeout_s: f64,
@@ -101,6 +108,9 @@ pub enum SelfInduced {
 fn default_dt() -> f64 {
     0.01
 }
+fn default_field_steps() -> u32 {
+    1
+}
 fn default_join_timeout() -> f64 {
     30.0
 }
@@ -147,6 +157,18 @@ impl FlowNodeConfig {
                 self.dt_plus
             )));
         }
+        if !(1..=16).contains(&self.field_steps) {
+            return Err(FlowError::Config(format!(
+                "flow.field_steps must be in 1..=16 (got {})",
+                self.field_steps
+            )));
+        }
+        if self.field_steps > 1 && !matches!(self.source, FlowSource::Dns { .. }) {
+            return Err(FlowError::Config(format!(
+                "flow.field_steps = {} needs flow.source.kind = \"dns\" (an analytic flow has no field steps): leave it at 1",
+                self.field_steps
+            )));
+        }
         if !(self.join_timeout_s > 0.0 && self.join_timeout_s <= 3600.0) {
             return Err(FlowError::Config(format!(
                 "flow.join_timeout_s must be in (0, 3600] (got {})",
@@ -182,6 +204,7 @@ pub(crate) mod tests {
             spinup: None,
             steps: 10,
             dt_plus: 0.2,
+            field_steps: 1,
             join_timeout_s: 30.0,
             status_every_steps: 10,
             profiles_every_steps: 100,
@@ -211,6 +234,27 @@ pub(crate) mod tests {
             e.contains("flow.source.regrid") && e.contains("flow.source.restart"),
             "{e}"
         );
+    }
+
+    /// `flow.field_steps` outside 1..=16, or above 1 on an analytic flow, is refused
+    /// naming the key and its range.
+    #[test]
+    fn field_steps_must_be_in_range_and_need_the_dns() {
+        let cfg = |m: u32| FlowNodeConfig {
+            field_steps: m,
+            ..dns_config()
+        };
+        assert!(cfg(1).validate().is_ok() && cfg(16).validate().is_ok());
+        for bad in [0, 17] {
+            let e = cfg(bad).validate().unwrap_err().to_string();
+            assert!(e.contains("flow.field_steps") && e.contains("1..=16"), "{e}");
+        }
+        let mut a = cfg(2);
+        a.source = FlowSource::Analytic {
+            flow: crate::analytic::AnalyticFlow::SimpleShear { shear_rate: 1.0 },
+        };
+        let e = a.validate().unwrap_err().to_string();
+        assert!(e.contains("flow.field_steps") && e.contains("dns"), "{e}");
     }
 
     #[test]

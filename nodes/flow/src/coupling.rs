@@ -421,7 +421,7 @@ impl<'a> Coupling<'a> {
                     return Ok(None);
                 }
                 let t0 = Instant::now();
-                let r = solver.step()?;
+                let r = crate::field_steps::advance(solver, cfg.field_steps)?;
                 Ok(Some((r, spread_s, t0.elapsed().as_secs_f64())))
             },
         );

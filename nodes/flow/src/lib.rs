@@ -8,6 +8,7 @@ mod coupling;
 pub mod error;
 pub mod fast_exp;
 pub mod feedback;
+pub mod field_steps;
 mod lockstep;
 mod outgoing;
 pub mod pair_shares;

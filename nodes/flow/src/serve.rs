@@ -19,20 +19,30 @@ use std::time::{Duration, Instant};
 
 /// Refuses a coupling time step the DNS cannot take from its starting field: the Courant
 /// sum max(|u|/Δx + |v|/Δy + |w|/Δz)·Δt must stay below the RK3 limit √3.
-fn check_stability(solver: &Solver, dt_plus: f64) -> Result<(), FlowError> {
+/// The field takes `field_steps` steps of `dt_plus / field_steps` per coupling step.
+fn check_stability(solver: &Solver, dt_plus: f64, field_steps: u32) -> Result<(), FlowError> {
     let rate = fiberflow_dns::timestep::max_courant_rate(&solver.grid, &solver.vel);
-    let dt = dt_plus * solver.t_unit();
+    let m = f64::from(field_steps);
+    let dt = dt_plus / m * solver.t_unit();
     let cfl = rate * dt;
     let limit = fiberflow_dns::timestep::RK3_CFL_LIMIT;
     if !(cfl <= limit) {
         let max_dt_plus = if rate > 0.0 {
-            limit / rate / solver.t_unit()
+            limit / rate / solver.t_unit() * m
         } else {
             f64::INFINITY
         };
+        // the field steps that would take it (flow.field_steps allows up to 16)
+        let more = (cfl / limit * m).ceil();
+        let or_more = if more <= 16.0 {
+            format!(", or flow.field_steps at least {more}")
+        } else {
+            String::new()
+        };
         return Err(FlowError::Config(format!(
-            "run.dt_plus = {dt_plus} gives a Courant sum of {cfl:.2} on the starting flow field \
-             (RK3 stability limit {limit}): run.dt_plus must be in (0, {max_dt_plus:.3}]"
+            "run.dt_plus = {dt_plus} in {field_steps} field step(s) gives a Courant sum of {cfl:.2} \
+             on the starting flow field (RK3 stability limit {limit}): run.dt_plus must be in \
+             (0, {max_dt_plus:.3}] with flow.field_steps = {field_steps}{or_more}"
         )));
     }
     Ok(())
@@ -103,7 +113,7 @@ fn open_field(
             regrid,
         } => {
             let mut d = dns.clone();
-            d.dt_fixed_plus = Some(cfg.dt_plus);
+            d.dt_fixed_plus = Some(cfg.dt_plus / f64::from(cfg.field_steps));
             let mut s = Solver::new(d)?;
             if let Some(dir) = &run.resume_dir {
                 resumed_stats = crate::checkpoint::read_dns(dir, &mut s)?;
@@ -122,7 +132,7 @@ fn open_field(
                     ));
                 }
             }
-            check_stability(&s, cfg.dt_plus)?;
+            check_stability(&s, cfg.dt_plus, cfg.field_steps)?;
             Field::dns(s, cfg.interpolation)
         }
     };
@@ -252,26 +262,49 @@ mod tests {
     }
 
     /// A coupled run's dt_plus is checked against the RK3 Courant limit on the field it
-    /// starts from, with an error that names the key and the allowed range.
+    /// starts from, with an error that names the key and the allowed range; field steps
+    /// divide the field's time step, and the error says how many would do.
     #[test]
     fn unstable_dt_plus_is_refused_up_front() {
         let cfg = fiberflow_dns::DnsConfig::with_cells(16, 16, 16);
         let solver = Solver::new(cfg).unwrap();
-        assert!(check_stability(&solver, 0.05).is_ok());
-        let e = check_stability(&solver, 50.0).unwrap_err().to_string();
+        assert!(check_stability(&solver, 0.05, 1).is_ok());
+        let e = check_stability(&solver, 50.0, 1).unwrap_err().to_string();
         assert!(
-            e.contains("run.dt_plus") && e.contains("Courant") && e.contains("(0, "),
+            e.contains("run.dt_plus")
+                && e.contains("Courant")
+                && e.contains("(0, ")
+                && e.contains("flow.field_steps"),
             "{e}"
         );
         // the bound it states is the bound it applies
-        let max: f64 = e
-            .rsplit("(0, ")
+        let stated = |e: &str| -> f64 {
+            e.rsplit("(0, ")
+                .next()
+                .and_then(|x| x.split(']').next())
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        let max = stated(&e);
+        assert!(check_stability(&solver, 0.999 * max, 1).is_ok());
+        assert!(check_stability(&solver, 1.01 * max, 1).is_err());
+        // three field steps take three times the coupling step
+        let e3 = check_stability(&solver, 50.0, 3).unwrap_err().to_string();
+        assert!((stated(&e3) / max - 3.0).abs() < 1e-2, "{e3}");
+        assert!(check_stability(&solver, 2.99 * max, 3).is_ok());
+        // the field steps it names are enough, and no fewer would do
+        let dt = 3.5 * max;
+        let e = check_stability(&solver, dt, 1).unwrap_err().to_string();
+        let more: u32 = e
+            .rsplit("at least ")
             .next()
             .unwrap()
-            .trim_end_matches(']')
+            .trim()
             .parse()
             .unwrap();
-        assert!(check_stability(&solver, 0.999 * max).is_ok());
-        assert!(check_stability(&solver, 1.01 * max).is_err());
+        assert_eq!(more, 4, "{e}");
+        assert!(check_stability(&solver, dt, more).is_ok(), "{e}");
+        assert!(check_stability(&solver, dt, more - 1).is_err(), "{e}");
     }
 }

@@ -44,3 +44,27 @@ fn memories_match_the_dns_disturbance_of_a_held_force() {
         }
     }
 }
+
+/// The coupling step of two field steps (`flow.field_steps = 2`: the fibre, its sampling,
+/// spreading and correction at Δt+ = 0.4, the field at 0.2) against one (all at 0.2): the
+/// settling fibre's two-way velocity over t+ 100–150 within 0.5% of the one-field-step
+/// run's at every sample, on both grids; the one-way fibre's terminal velocity within 1e-4.
+#[test]
+fn two_field_steps_per_coupling_step_keep_the_settling_velocity() {
+    for fine in [false, true] {
+        let one = common::settling::settle_in_field_steps(fine, true, 150.0, 7, 50, 1);
+        let two = common::settling::settle_in_field_steps(fine, true, 150.0, 7, 25, 2);
+        let mut worst: f64 = 0.0;
+        // every 10 t+ in both
+        for a in one.iter().filter(|r| r[0] >= 100.0) {
+            let b = two
+                .iter()
+                .find(|b| (b[0] - a[0]).abs() < 1e-9)
+                .expect("the same sample times");
+            assert!((b[1] / a[1] - 1.0).abs() < 1e-4, "one-way at t+ {}", a[0]);
+            worst = worst.max((b[2] / a[2] - 1.0).abs());
+        }
+        eprintln!("fine {fine}: two field steps against one, two-way velocity within {worst:.5}");
+        assert!(worst < 5e-3, "fine {fine}: {worst}");
+    }
+}

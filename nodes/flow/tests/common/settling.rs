@@ -41,6 +41,21 @@ pub fn settle(
     segments: usize,
     every: usize,
 ) -> Vec<[f64; 3]> {
+    settle_in_field_steps(fine, correct, t_end, segments, every, 1)
+}
+
+/// [`settle`] with a coupling step of `field_steps` field steps of [`DT_PLUS`] each
+/// (`flow.field_steps`): the fibres, the sampling, the spreading and the correction step
+/// once per coupling step, the field `field_steps` times; `every` counts coupling steps.
+pub fn settle_in_field_steps(
+    fine: bool,
+    correct: bool,
+    t_end: f64,
+    segments: usize,
+    every: usize,
+    field_steps: usize,
+) -> Vec<[f64; 3]> {
+    let dt_plus = DT_PLUS * field_steps as f64;
     let (mut s, sampler, widths, re) = still_channel(fine);
     let p = ModelParams {
         drag: DragModel {
@@ -74,7 +89,7 @@ pub fn settle(
     let mut fb = Feedback::default();
     let mut history = History::default();
     let mean = |f: &Fiber| f.segments.iter().map(|s| s.v.x).sum::<f64>() / segments as f64;
-    let steps = (t_end / DT_PLUS).round() as usize;
+    let steps = (t_end / dt_plus).round() as usize;
     let mut out = Vec::new();
     for k in 0..=steps {
         // state k: the forces of the last step act on the fluid's next step
@@ -103,7 +118,7 @@ pub fn settle(
             history.correct_and_advance(
                 &widths,
                 re,
-                DT_PLUS,
+                dt_plus,
                 &st.segments_per_fiber,
                 &st.centre,
                 &st.hydro_force,
@@ -111,7 +126,7 @@ pub fn settle(
             );
         }
         if k % every == 0 {
-            out.push([k as f64 * DT_PLUS, mean(&one), mean(&two)]);
+            out.push([k as f64 * dt_plus, mean(&one), mean(&two)]);
         }
         if k == steps {
             break;
@@ -124,9 +139,11 @@ pub fn settle(
                 grad: *g,
             })
             .collect();
-        step(&p, &mut two, &fluid, DT_PLUS).unwrap();
-        step(&p, &mut one, &rest, DT_PLUS).unwrap();
-        s.step().unwrap();
+        step(&p, &mut two, &fluid, dt_plus).unwrap();
+        step(&p, &mut one, &rest, dt_plus).unwrap();
+        for _ in 0..field_steps {
+            s.step().unwrap();
+        }
     }
     out
 }
