@@ -120,5 +120,56 @@ fn a_realisation_is_the_same_bits_everywhere_and_its_own_start() {
         dir.join("r3/analysis/summary.md").exists(),
         "each run's fibres analysed"
     );
+
+    // the runs' flow parts (scripts/flow_part.py: no fibre states, the fibres' mass as
+    // metadata) pool to the very same table and loading
+    assert!(
+        python_ok(),
+        "python3 with `mcap` and `mcap-ros2-support` is required"
+    );
+    let parts = dir.join("parts");
+    for r in ["r2-inproc", "r3", "plain", "r0"] {
+        std::fs::create_dir_all(parts.join(r)).unwrap();
+        let o = Command::new("python3")
+            .arg(root().join("scripts/flow_part.py"))
+            .arg(dir.join(r).join("run.mcap"))
+            .arg(parts.join(r).join("run.mcap"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            states(&parts.join(r).join("run.mcap")).is_empty(),
+            "a flow part holds no fibre state"
+        );
+    }
+    let o = Command::new(fiberflow())
+        .arg("analyze")
+        .args([parts.join("r2-inproc"), parts.join("r3")])
+        .arg("--unladen")
+        .args([parts.join("plain"), parts.join("r0")])
+        .args(["--batches", "2"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        String::from_utf8_lossy(&o.stdout).contains("no fibre states (a flow part)"),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    let table = |d: &Path| std::fs::read_to_string(d.join("flow_modulation.csv")).unwrap();
+    assert_eq!(
+        table(&dir.join("r2-inproc-realisations")),
+        table(&parts.join("r2-inproc-realisations")),
+        "the flow parts pool as the whole recordings"
+    );
+    let loading = |d: &Path| -> String {
+        let md = std::fs::read_to_string(d.join("flow_modulation.md")).unwrap();
+        let at = md.find("Mass loading").expect("the loading");
+        md[at..at + 20].to_string()
+    };
+    assert_eq!(
+        loading(&dir.join("r2-inproc-realisations")),
+        loading(&parts.join("r2-inproc-realisations"))
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

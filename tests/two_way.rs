@@ -201,9 +201,15 @@ fn two_field_steps_walk_the_field_of_half_the_coupling_step() {
     assert_eq!(b.len(), 6 * 13, "six groups, coupling steps 0..=12");
     for g in 1..=6 {
         let g = format!("case{g}");
-        assert!(a[&(g.clone(), 0)].centre == b[&(g.clone(), 0)].centre, "{g}");
+        assert!(
+            a[&(g.clone(), 0)].centre == b[&(g.clone(), 0)].centre,
+            "{g}"
+        );
         // one fibre step of 0.5 t+ is not two of 0.25
-        assert!(a[&(g.clone(), 20)].centre != b[&(g.clone(), 10)].centre, "{g}");
+        assert!(
+            a[&(g.clone(), 20)].centre != b[&(g.clone(), 10)].centre,
+            "{g}"
+        );
     }
     let two_way = dir.join("two-way");
     run(&two_way, "inproc", &sets("two-way", 12, 0.5, 2));

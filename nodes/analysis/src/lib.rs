@@ -22,6 +22,10 @@ pub enum AnalysisError {
     },
     #[error("{0}")]
     Data(String),
+    /// The recording holds no fibre state (a flow part, `scripts/flow_part.py`, or a run
+    /// stopped before its first state): nothing for the fibre analysis.
+    #[error("{0}: no fibre states recorded")]
+    NoFiberStates(String),
     #[error("plot {path}: {reason}")]
     Plot { path: String, reason: String },
 }

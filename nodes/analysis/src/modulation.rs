@@ -74,12 +74,34 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
     let segs = fiberflow_messages::segments::segment_paths(mcap_path).map_err(io_err(mcap_path))?;
     let mut out = FlowSeries::default();
     let mut masses: BTreeMap<(String, u32), f64> = BTreeMap::new();
+    // a flow part (scripts/flow_part.py) holds no state: its metadata carries the mass
+    let mut part_mass: Option<f64> = None;
+    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     for seg in &segs {
         // streamed a chunk at a time; a damaged tail ends the segment: analyse what is there
-        fiberflow_messages::reading::for_each_message(seg, |m| {
-            let topic = m.topic;
+        fiberflow_messages::reading::for_each_record(seg, |r| {
+            use mcap::records::Record;
+            let (topic, data) = match &r {
+                Record::Channel(c) => {
+                    topics.insert(c.id, c.topic.clone());
+                    return;
+                }
+                Record::Metadata(md) if md.name == FLOW_PART_METADATA => {
+                    part_mass = md
+                        .metadata
+                        .get("fiber_mass_plus")
+                        .and_then(|v| v.parse::<f64>().ok())
+                        .filter(|m| m.is_finite() && *m >= 0.0);
+                    return;
+                }
+                Record::Message { header, data } => match topics.get(&header.channel_id) {
+                    Some(t) => (t.as_str(), &data[..]),
+                    None => return,
+                },
+                _ => return,
+            };
             if topic.ends_with("/flow/status") {
-                let Ok(s) = decode::<FlowStatus>(m.data) else {
+                let Ok(s) = decode::<FlowStatus>(data) else {
                     return;
                 };
                 if s.check().is_err() || s.re_tau <= 0.0 {
@@ -94,19 +116,19 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
                     fiber_force_x_plus: s.fiber_force_plus.first().copied().unwrap_or(0.0),
                 });
             } else if topic.ends_with("/flow/profiles") {
-                if let Ok(p) = decode::<FlowProfiles>(m.data) {
+                if let Ok(p) = decode::<FlowProfiles>(data) {
                     if p.check().is_ok() && p.samples > 0 {
                         out.profiles.push(p);
                     }
                 }
             } else if topic.ends_with("/control/announce") {
-                if let Ok(a) = decode::<RunAnnouncement>(m.data) {
+                if let Ok(a) = decode::<RunAnnouncement>(data) {
                     if let [x, y, z] = a.box_plus[..] {
                         out.box_plus = [x, y, z];
                     }
                 }
             } else if topic.ends_with("/state") {
-                let Ok(s) = decode::<FiberGroupState>(m.data) else {
+                let Ok(s) = decode::<FiberGroupState>(data) else {
                     return;
                 };
                 if s.check().is_err() {
@@ -129,9 +151,18 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
     out.status.dedup_by(|a, b| a.t_plus == b.t_plus);
     out.profiles.sort_by(|a, b| a.t_plus.total_cmp(&b.t_plus));
     out.profiles.dedup_by(|a, b| a.t_plus == b.t_plus);
-    out.fiber_mass_plus = masses.values().sum();
+    out.fiber_mass_plus = if masses.is_empty() {
+        part_mass.unwrap_or(0.0)
+    } else {
+        masses.values().sum()
+    };
     Ok(out)
 }
+
+/// The metadata record of a recording's flow part (`scripts/flow_part.py`: the flow status
+/// and profiles without the fibres' states) that carries the fibres' total mass in wall
+/// units (`fiber_mass_plus`, ρ_f = 1), as the first states would give it.
+pub const FLOW_PART_METADATA: &str = "fiberflow.flow_part";
 
 /// Mass of a state's fibres: Σ ρ_s/ρ_f · π d²/4 · l over its segments.
 fn state_mass(s: &FiberGroupState) -> f64 {

@@ -78,8 +78,13 @@ pub fn analyze_cmd(
         // realisations: each run's fibres in its own folder, the flow pooled
         let out = out.unwrap_or_else(|| realisations_folder(&folder_of(&runs[0])));
         for r in runs {
-            let table = analyze::fibers(r, &folder_of(r).join("analysis"), coil_thresholds)?;
-            println!("{}:\n{table}", r.display());
+            match analyze::fibers_if_any(r, &folder_of(r).join("analysis"), coil_thresholds)? {
+                Some(table) => println!("{}:\n{table}", r.display()),
+                None => println!(
+                    "{}: no fibre states (a flow part): its flow only",
+                    r.display()
+                ),
+            }
         }
         match analyze::modulation(runs, unladen, transient_plus, batches, &out)? {
             Some(md) => println!("{md}"),
@@ -88,8 +93,13 @@ pub fn analyze_cmd(
         return Ok(());
     };
     let out = out.unwrap_or_else(|| folder_of(one).join("analysis"));
-    let table = analyze::fibers(one, &out, coil_thresholds)?;
-    println!("{table}");
+    match analyze::fibers_if_any(one, &out, coil_thresholds)? {
+        Some(table) => println!("{table}"),
+        None => println!(
+            "{}: no fibre states (a flow part): its flow only",
+            one.display()
+        ),
+    }
     if let Some(md) = analyze::modulation(
         std::slice::from_ref(one),
         unladen,

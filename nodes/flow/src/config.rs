@@ -247,7 +247,10 @@ pub(crate) mod tests {
         assert!(cfg(1).validate().is_ok() && cfg(16).validate().is_ok());
         for bad in [0, 17] {
             let e = cfg(bad).validate().unwrap_err().to_string();
-            assert!(e.contains("flow.field_steps") && e.contains("1..=16"), "{e}");
+            assert!(
+                e.contains("flow.field_steps") && e.contains("1..=16"),
+                "{e}"
+            );
         }
         let mut a = cfg(2);
         a.source = FlowSource::Analytic {

@@ -63,7 +63,11 @@ mod tests {
         let cfl = plain.iter().map(|p| p.cfl).fold(0.0, f64::max);
         assert_eq!(r.cfl, cfl);
         let forcing = plain.iter().map(|p| p.forcing).sum::<f64>() / 3.0;
-        assert!((r.forcing - forcing).abs() <= 1e-12 * forcing.abs(), "{}", r.forcing);
+        assert!(
+            (r.forcing - forcing).abs() <= 1e-12 * forcing.abs(),
+            "{}",
+            r.forcing
+        );
         assert_eq!(r.bulk_velocity, plain[2].bulk_velocity);
         // one field step is a plain step
         let (mut c, mut d) = (solver(), solver());

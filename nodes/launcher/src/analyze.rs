@@ -34,6 +34,23 @@ pub fn fibers(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<String
     Ok(table)
 }
 
+/// [`fibers`], or None when the recording holds no fibre state (a flow part,
+/// `scripts/flow_part.py`: the flow's statistics and the fibres' mass only).
+pub fn fibers_if_any(mcap: &Path, out: &Path, coil_thresholds: &[f64]) -> Result<Option<String>> {
+    match fibers(mcap, out, coil_thresholds) {
+        Ok(table) => Ok(Some(table)),
+        Err(e)
+            if matches!(
+                e.downcast_ref::<fiberflow_analysis::AnalysisError>(),
+                Some(fiberflow_analysis::AnalysisError::NoFiberStates(_))
+            ) =>
+        {
+            Ok(None)
+        }
+        Err(e) => Err(e),
+    }
+}
+
 /// The flow modulation of `runs` (one run, or realisations of it) against `unladen`
 /// (none, one, or realisations of the unladen flow), statistics from `transient_plus` on
 /// in `batches` batches per run; `None` when the runs recorded no flow status.

@@ -72,10 +72,9 @@ pub fn analyse(
     std::fs::create_dir_all(out).map_err(io_err(out))?;
     let (groups, suspension_flocs) = read_recording(mcap_path)?;
     if groups.is_empty() {
-        return Err(AnalysisError::Data(format!(
-            "{}: no fibre states recorded",
-            mcap_path.display()
-        )));
+        return Err(AnalysisError::NoFiberStates(
+            mcap_path.display().to_string(),
+        ));
     }
     let mut summaries = Vec::new();
     let mut ensemble = Ensemble::default();
