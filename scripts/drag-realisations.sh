@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The runs of the drag study (docs/realisations.md): realisations of the unladen channel and
-# of case-1 fibres two-way at mass loading 0.4 and 1.0, each 2500 t+ of launch/two-way.toml in coupling steps of 0.4 t+
+# of case-1 fibres two-way at mass loading 0.4 and 1.0, each 2500 t+ of launch/two-way.toml
 # (the first 500 the transient, the last 2000 the statistics: two batches of 1000 t+, long
 # enough to be independent), one after another. A run
 # stopped half-way resumes from its newest checkpoint; a finished one is skipped, so the
@@ -20,13 +20,7 @@ FF=${FIBERFLOW:-target/release/fiberflow}
 OUT=${OUT:-recordings/drag}
 TRANSPORT=${TRANSPORT:-iceoryx2}
 LAUNCH=launch/two-way.toml
-# coupling steps of 0.4 t+ in two field steps of 0.2 (flow.field_steps, docs/two-way.md,
-# "Field steps per coupling step"): the field of launch/two-way.toml, the fibres' step twice
-# its; the recording's intervals in t+ as the launch file's (status every 2 t+)
-common=(--set run.steps=6250 --set run.dt_plus=0.4 --set flow.field_steps=2
-    --set flow.profiles_every_steps=250 --set flow.slices_every_steps=25
-    --set recorder.states_every_steps=250 --set fibers.case1.metrics_every_steps=25
-    --set run.analyze=false --set 'run.fiber_scheduling="normal"')
+common=(--set run.steps=12500 --set run.analyze=false --set 'run.fiber_scheduling="normal"')
 # the flow part of each finished run (scripts/flow_part.py), small enough to commit
 KEEP=${KEEP:-recordings/drag-flow}
 
