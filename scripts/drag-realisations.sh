@@ -2,7 +2,8 @@
 # The runs of the drag study (docs/realisations.md): realisations of the unladen channel and
 # of case-1 fibres two-way at mass loading 0.4 and 1.0, each 2500 t+ of launch/two-way.toml
 # (the first 500 the transient, the last 2000 the statistics: two batches of 1000 t+, long
-# enough to be independent), one after another. A run
+# enough to be independent), one after another; the laden fibres in four substeps per
+# coupling step (fibers[].substeps, docs/two-way.md, "The fibres' own step"). A run
 # stopped half-way resumes from its newest checkpoint; a finished one is skipped, so the
 # script can be started again after any stop.
 #
@@ -27,8 +28,8 @@ KEEP=${KEEP:-recordings/drag-flow}
 sets_of() {
     case "$1" in
     unladen) echo "--set run.coupling=\"one-way\" --set fibers.case1.placement.count=10" ;;
-    0.4) echo "--set fibers.case1.placement.count=52000" ;;
-    1.0) echo "--set fibers.case1.placement.count=131000" ;;
+    0.4) echo "--set fibers.case1.placement.count=52000 --set fibers.case1.substeps=4" ;;
+    1.0) echo "--set fibers.case1.placement.count=131000 --set fibers.case1.substeps=4" ;;
     *) echo "unknown set $1 (unladen, 0.4 or 1.0)" >&2; exit 2 ;;
     esac
 }

@@ -1,10 +1,11 @@
-"""Tables and figures of the fibres' own time step (docs/two-way.md, "Field steps per
-coupling step"), from the runs of scripts/fiber_step.sh:
+"""Tables and figures of the fibres' own time step (docs/two-way.md, "The fibres' own
+step"), from the runs of scripts/fiber_step.sh:
 
     python3 scripts/fiber_step_tables.py OUT FIGURES
 
-OUT holds one-way/dt-<step> (launch/paper-1e4.toml) and two-way/dt-<step>-field-<step>
-(launch/two-way.toml, its first 100 t+); FIGURES gets fiber-step-sigma2.csv and .png (each
+OUT holds one-way/dt-<step>-field-<step>[-sub-<substeps>] (launch/paper-1e4.toml) and
+two-way/r<i>-dt-<step>-field-<step>[-sub-<substeps>] (launch/two-way.toml, its first 100
+t+; dt the coupling step, the fibres' step dt/substeps); FIGURES gets fiber-step-sigma2.csv and .png (each
 case's final <sigma^2> and MSD_23 slope against the fibres' step) and
 fiber-step-two-way.csv and .png (the pressure gradient and the fibres' streamwise force on
 the fluid over time, and their means over t+ 20-50 and 50-100).
@@ -42,7 +43,9 @@ for name in sorted(os.listdir(one)) if os.path.isdir(one) else []:
         if len(cells) < 10 or not cells[0].startswith('case') or 'l+' in cells[1]:
             continue
         lo, hi = re.findall(r'[0-9.]+', cells[9].split('[', 1)[1])[:2]
-        rows.append({'fiber_dt_plus': dt, 'field_dt_plus': step_of(name, 'field') or dt,
+        sub = int(step_of(name, 'sub') or 1)
+        rows.append({'fiber_dt_plus': dt / sub, 'coupling_dt_plus': dt, 'substeps': sub,
+                     'field_dt_plus': step_of(name, 'field') or dt,
                      'case': cells[0],
                      'msd23_slope': float(cells[4].split()[0]),
                      'final_abs_z1': float(cells[8]),
@@ -54,9 +57,11 @@ if rows:
         w.writeheader()
         w.writerows(rows)
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    # one point per fibres' step: the run with the finest field step
+    # one point per fibres' step: the run with the finest field step (substeps apart)
     finest = {}
     for r in rows:
+        if r['substeps'] > 1:
+            continue
         k = (r['case'], r['fiber_dt_plus'])
         if k not in finest or r['field_dt_plus'] < finest[k]['field_dt_plus']:
             finest[k] = r
@@ -67,8 +72,11 @@ if rows:
         y = [r['final_sigma2'] for r in rs]
         err = [[r['final_sigma2'] - r['final_sigma2_lo'] for r in rs],
                [r['final_sigma2_hi'] - r['final_sigma2'] for r in rs]]
-        a.errorbar(x, y, yerr=err, marker='o', capsize=3, label=case)
+        line = a.errorbar(x, y, yerr=err, marker='o', capsize=3, label=case)
         b.plot(x, [r['msd23_slope'] for r in rs], marker='o', label=case)
+        subs = [r for r in rows if r['case'] == case and r['substeps'] > 1]
+        a.plot([r['fiber_dt_plus'] for r in subs], [r['final_sigma2'] for r in subs], '*',
+               markersize=12, color=line[0].get_color())
     a.set_xlabel('fibres\' time step Δt+')
     a.set_ylabel('final ⟨σ²⟩ (95% bootstrap interval)')
     a.set_xscale('log', base=2)
@@ -76,7 +84,8 @@ if rows:
     b.set_ylabel('MSD₂₃ slope')
     b.set_xscale('log', base=2)
     a.legend(fontsize=8)
-    fig.suptitle('paper-1e4.toml (6 × 10⁴ fibres, 80.8 t+): the fibres\' step alone')
+    fig.suptitle('paper-1e4.toml (6 × 10⁴ fibres, 80.8 t+): the fibres\' step alone '
+                 '(★: coupling step 0.2 in substeps)')
     fig.tight_layout()
     fig.savefig(os.path.join(figures, 'fiber-step-sigma2.png'), dpi=110)
 

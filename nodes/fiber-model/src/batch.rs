@@ -864,4 +864,54 @@ mod tests {
         assert_eq!(bits_of(&c[1..]), want(|s| s.r));
         assert!(a.is_empty() && v.is_empty() && w.is_empty());
     }
+
+    /// Substeps with the fluid held: one is the plain step bit for bit; four are four plain
+    /// steps of a quarter of the step with the same samples (the same bits of every state
+    /// array), and each segment's force is the mean of the four steps' forces, so
+    /// Σ_substeps f (Δt/4) — the impulse the fluid receives — is the force sent times Δt.
+    #[test]
+    fn substeps_are_plain_steps_with_the_mean_force() {
+        let mut seed = 11u64;
+        let mut one = FiberGroup::new(
+            params(0.05, 9.81e-3),
+            fibers_of(9, &[7, 4], false, &mut seed),
+        );
+        let mut plain = one.clone();
+        let fl = fluid(&one, &mut seed, false);
+        one.step_in_substeps(&fl, 0.2, 1).expect("one substep");
+        plain.step(&fl, 0.2).expect("step");
+        assert_eq!(bits(&one), bits(&plain));
+        let forces = |g: &FiberGroup| {
+            let mut f = Vec::new();
+            g.extend_forces(&mut f);
+            f
+        };
+        assert_eq!(forces(&one), forces(&plain));
+
+        let mut sub = FiberGroup::new(
+            params(0.05, 9.81e-3),
+            fibers_of(9, &[7, 4], false, &mut seed),
+        );
+        let mut quarter = sub.clone();
+        let fl = fluid(&sub, &mut seed, false);
+        sub.step_in_substeps(&fl, 0.2, 4).expect("four substeps");
+        let mut sum = vec![0.0; 3 * quarter.segment_count()];
+        for _ in 0..4 {
+            quarter.step(&fl, 0.05).expect("quarter step");
+            for (acc, f) in sum.iter_mut().zip(forces(&quarter)) {
+                *acc += f;
+            }
+        }
+        assert_eq!(bits(&sub), bits(&quarter));
+        let mean = forces(&sub);
+        assert!(mean.iter().any(|f| *f != 0.0));
+        for (m, s) in mean.iter().zip(&sum) {
+            assert!(
+                (m * 0.2 - s * 0.05).abs() <= 1e-12 * (1.0 + s.abs()),
+                "{m} vs {s}"
+            );
+        }
+        // the mean is not the last substep's force
+        assert_ne!(mean, forces(&quarter));
+    }
 }

@@ -130,6 +130,12 @@ pub struct FiberNodeConfig {
     /// Publish metrics every this many steps, ≥ 1.
     #[serde(default = "default_metrics_every")]
     pub metrics_every_steps: u64,
+    /// Fibre steps per coupling step, each of `run.dt_plus / substeps` with the flow's
+    /// samples held, in 1..=64 (1 with `contact`): the fibres' own dynamics resolved finer
+    /// than the coupling step at the cost of the fibre step alone; the force the fluid
+    /// receives is the substeps' mean (docs/two-way.md, "The fibres' own step").
+    #[serde(default = "default_substeps")]
+    pub substeps: u32,
     /// Fibre nodes that integrate the group, each a contiguous slice of its fibres (nodes
     /// `<group>.0`, `<group>.1`, … when > 1); results do not depend on it.
     #[serde(default = "default_shards")]
@@ -162,6 +168,9 @@ pub struct ContactConfig {
     pub sweeps: u32,
 }
 
+fn default_substeps() -> u32 {
+    1
+}
 fn default_friction() -> f64 {
     0.5
 }
@@ -473,6 +482,16 @@ impl FiberNodeConfig {
         if self.metrics_every_steps == 0 {
             return self.bad("metrics_every_steps", ">= 1", "0".into());
         }
+        if !(1..=64).contains(&self.substeps) {
+            return self.bad("substeps", "in 1..=64", self.substeps.to_string());
+        }
+        if self.substeps > 1 && self.contact.is_some() {
+            return self.bad(
+                "substeps",
+                "1 with [fibers.contact] (the contact solve runs once per coupling step)",
+                self.substeps.to_string(),
+            );
+        }
         Ok((l, d, rho))
     }
 
@@ -641,6 +660,32 @@ mod tests {
             .unwrap();
             let e = c.build(b).err().unwrap().to_string();
             assert!(e.contains(&format!("fibers[g].{key}")), "{e}");
+        }
+    }
+
+    /// `substeps` outside 1..=64, or above 1 with contact, is refused naming the key.
+    #[test]
+    fn substeps_are_checked() {
+        let b = [942.0, 300.0, 471.0];
+        for (extra, ok) in [
+            ("substeps = 4", true),
+            ("substeps = 64", true),
+            ("substeps = 0", false),
+            ("substeps = 65", false),
+            (
+                "substeps = 2\ncontact = {}\nplacement = { kind = \"random\", count = 20 }",
+                false,
+            ),
+        ] {
+            let c: FiberNodeConfig =
+                toml::from_str(&format!("group = \"g\"\ncase = \"case1\"\n{extra}")).unwrap();
+            match c.build(b) {
+                Ok(_) => assert!(ok, "{extra}"),
+                Err(e) => {
+                    assert!(!ok, "{extra}: {e}");
+                    assert!(e.to_string().contains("fibers[g].substeps"), "{e}");
+                }
+            }
         }
     }
 

@@ -37,6 +37,8 @@ pub(crate) struct ServedPiece {
     pub(crate) start: u64,
     pub(crate) initial_velocity: InitialVelocity,
     pub(crate) metrics_every_steps: u64,
+    /// Fibre steps per coupling step with the samples held (`fibers[].substeps`).
+    pub(crate) substeps: u32,
     pub(crate) samples_in: Inbox,
     pub(crate) ann_in: Inbox,
     /// The flow node's heartbeats, when it lives on another host ([`RunSettings::flow_elsewhere`]).
@@ -213,6 +215,7 @@ impl ServedPiece {
             start: ck.start_step,
             initial_velocity: cfg.initial_velocity,
             metrics_every_steps: cfg.metrics_every_steps,
+            substeps: cfg.substeps,
             samples_in,
             ann_in,
             flow_hb,
@@ -335,7 +338,7 @@ impl ServedPiece {
             self.publish_state(0)?;
         }
         let report = if self.exchange.is_none() {
-            self.group.step(fluid, self.dt)?
+            self.group.step_in_substeps(fluid, self.dt, self.substeps)?
         } else {
             self.group.step_free(fluid, self.dt)?;
             drop(samples);

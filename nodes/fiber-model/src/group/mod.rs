@@ -483,6 +483,41 @@ impl FiberGroup {
         Ok(self.apply_contact(dt))
     }
 
+    /// [`Self::step`] as `substeps` steps of `dt / substeps` with the fluid held
+    /// (`fibers[].substeps`): the fibres' own dynamics resolved finer than the coupling
+    /// step, at the cost of the fibre step alone (docs/two-way.md, "The fibres' own
+    /// step"). Each segment's force ([`Segment::f`], two-way coupling's feedback) is the
+    /// mean over the substeps, so the fluid receives exactly the impulse the fibres took
+    /// from it over `dt`. One substep is [`Self::step`], bit for bit.
+    pub fn step_in_substeps<'f>(
+        &mut self,
+        fluid: impl Into<Fluid<'f>>,
+        dt: f64,
+        substeps: u32,
+    ) -> Result<StepReport, FiberError> {
+        let fluid = fluid.into();
+        if substeps <= 1 {
+            return self.step(fluid, dt);
+        }
+        let h = dt / f64::from(substeps);
+        let mut sum = vec![crate::lanes::V3::splat([0.0; 3]); self.state.len()];
+        let mut report = self.step(fluid, h)?;
+        for (acc, s) in sum.iter_mut().zip(&self.state) {
+            *acc = *acc + s.f;
+        }
+        for _ in 1..substeps {
+            report = self.step(fluid, h)?;
+            for (acc, s) in sum.iter_mut().zip(&self.state) {
+                *acc = *acc + s.f;
+            }
+        }
+        let n = crate::lanes::F4::splat(f64::from(substeps));
+        for (s, acc) in self.state.iter_mut().zip(sum) {
+            s.f = acc.unscale(n);
+        }
+        Ok(report)
+    }
+
     /// [`Self::step`] without the contact solve (the start kept for it when contact is
     /// on): a piece of a suspension sends this free step to its first piece, which solves
     /// contact for all ([`Self::resolve_contact_for`]) and sends each piece its part
