@@ -217,3 +217,32 @@ fn two_field_steps_walk_the_field_of_half_the_coupling_step() {
     assert_eq!(c.len(), 6 * 13);
     assert!(c[&("case1".to_string(), 10)].centre != b[&("case1".to_string(), 10)].centre);
 }
+
+/// `fibers[].substeps` (docs/two-way.md, "The fibres' own step"), two-way: two fibre steps
+/// per coupling step give the same bits in one process and over zenoh with case 1 and
+/// case 4 in three shards each, and other states than one step.
+#[test]
+fn fiber_substeps_are_bitwise_over_transports_and_shards() {
+    let _one = one_run_at_a_time();
+    let dir = scratch("substeps");
+    let with = |shards: u32, substeps: u32| -> Vec<String> {
+        let mut s = sets("two-way", shards);
+        s[0] = "run.steps=40".into();
+        for g in 1..=6 {
+            s.push(format!("fibers.case{g}.substeps={substeps}"));
+        }
+        s
+    };
+    let a_out = dir.join("inproc");
+    run(&a_out, "inproc", &with(1, 2));
+    let a = whole(&a_out);
+    assert_eq!(a.len(), 6 * 41);
+    let b_out = dir.join("zenoh");
+    run(&b_out, "zenoh", &with(3, 2));
+    assert_same(&a, &whole(&b_out), "two substeps over zenoh, three shards");
+    let c_out = dir.join("one-substep");
+    run(&c_out, "inproc", &with(1, 1));
+    let c = whole(&c_out);
+    assert!(a[&("case1".to_string(), 40)].centre != c[&("case1".to_string(), 40)].centre);
+    std::fs::remove_dir_all(&dir).ok();
+}
