@@ -52,7 +52,17 @@ pub struct Message<'a> {
 /// returns why reading stopped early, if it did (what came before was handed over).
 pub fn for_each_message(
     path: &Path,
+    f: impl FnMut(Message<'_>),
+) -> Result<Option<String>, std::io::Error> {
+    for_each_message_and_metadata(path, f, |_| {})
+}
+
+/// [`for_each_message`], and `meta` for every metadata record (name and key–value map) in
+/// the order the file holds them.
+pub fn for_each_message_and_metadata(
+    path: &Path,
     mut f: impl FnMut(Message<'_>),
+    mut meta: impl FnMut(&mcap::records::Metadata),
 ) -> Result<Option<String>, std::io::Error> {
     use mcap::records::Record;
     let mut topics: BTreeMap<u16, String> = BTreeMap::new();
@@ -69,6 +79,7 @@ pub fn for_each_message(
                 });
             }
         }
+        Record::Metadata(m) => meta(&m),
         _ => {}
     })
 }

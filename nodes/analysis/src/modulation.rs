@@ -76,69 +76,61 @@ pub fn read_flow(mcap_path: &Path) -> Result<FlowSeries, AnalysisError> {
     let mut masses: BTreeMap<(String, u32), f64> = BTreeMap::new();
     // a flow part (scripts/flow_part.py) holds no state: its metadata carries the mass
     let mut part_mass: Option<f64> = None;
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
     for seg in &segs {
         // streamed a chunk at a time; a damaged tail ends the segment: analyse what is there
-        fiberflow_messages::reading::for_each_record(seg, |r| {
-            use mcap::records::Record;
-            let (topic, data) = match &r {
-                Record::Channel(c) => {
-                    topics.insert(c.id, c.topic.clone());
-                    return;
+        fiberflow_messages::reading::for_each_message_and_metadata(
+            seg,
+            |m| {
+                let (topic, data) = (m.topic, m.data);
+                if topic.ends_with("/flow/status") {
+                    let Ok(s) = decode::<FlowStatus>(data) else {
+                        return;
+                    };
+                    if s.check().is_err() || s.re_tau <= 0.0 {
+                        return;
+                    }
+                    out.two_way |= s.fiber_force_plus.len() == 3;
+                    out.status.push(StatusRow {
+                        t_plus: s.t_plus,
+                        re_tau: s.re_tau,
+                        bulk_velocity: s.bulk_velocity,
+                        pressure_gradient: s.pressure_gradient,
+                        fiber_force_x_plus: s.fiber_force_plus.first().copied().unwrap_or(0.0),
+                    });
+                } else if topic.ends_with("/flow/profiles") {
+                    if let Ok(p) = decode::<FlowProfiles>(data) {
+                        if p.check().is_ok() && p.samples > 0 {
+                            out.profiles.push(p);
+                        }
+                    }
+                } else if topic.ends_with("/control/announce") {
+                    if let Ok(a) = decode::<RunAnnouncement>(data) {
+                        if let [x, y, z] = a.box_plus[..] {
+                            out.box_plus = [x, y, z];
+                        }
+                    }
+                } else if topic.ends_with("/state") {
+                    let Ok(s) = decode::<FiberGroupState>(data) else {
+                        return;
+                    };
+                    if s.check().is_err() {
+                        return;
+                    }
+                    masses
+                        .entry((s.group.clone(), s.first_fiber))
+                        .or_insert_with(|| state_mass(&s));
                 }
-                Record::Metadata(md) if md.name == FLOW_PART_METADATA => {
+            },
+            |md| {
+                if md.name == FLOW_PART_METADATA {
                     part_mass = md
                         .metadata
                         .get("fiber_mass_plus")
                         .and_then(|v| v.parse::<f64>().ok())
                         .filter(|m| m.is_finite() && *m >= 0.0);
-                    return;
                 }
-                Record::Message { header, data } => match topics.get(&header.channel_id) {
-                    Some(t) => (t.as_str(), &data[..]),
-                    None => return,
-                },
-                _ => return,
-            };
-            if topic.ends_with("/flow/status") {
-                let Ok(s) = decode::<FlowStatus>(data) else {
-                    return;
-                };
-                if s.check().is_err() || s.re_tau <= 0.0 {
-                    return;
-                }
-                out.two_way |= s.fiber_force_plus.len() == 3;
-                out.status.push(StatusRow {
-                    t_plus: s.t_plus,
-                    re_tau: s.re_tau,
-                    bulk_velocity: s.bulk_velocity,
-                    pressure_gradient: s.pressure_gradient,
-                    fiber_force_x_plus: s.fiber_force_plus.first().copied().unwrap_or(0.0),
-                });
-            } else if topic.ends_with("/flow/profiles") {
-                if let Ok(p) = decode::<FlowProfiles>(data) {
-                    if p.check().is_ok() && p.samples > 0 {
-                        out.profiles.push(p);
-                    }
-                }
-            } else if topic.ends_with("/control/announce") {
-                if let Ok(a) = decode::<RunAnnouncement>(data) {
-                    if let [x, y, z] = a.box_plus[..] {
-                        out.box_plus = [x, y, z];
-                    }
-                }
-            } else if topic.ends_with("/state") {
-                let Ok(s) = decode::<FiberGroupState>(data) else {
-                    return;
-                };
-                if s.check().is_err() {
-                    return;
-                }
-                masses
-                    .entry((s.group.clone(), s.first_fiber))
-                    .or_insert_with(|| state_mass(&s));
-            }
-        })
+            },
+        )
         .map_err(io_err(seg))?;
     }
     if out.box_plus[1] <= 0.0 {

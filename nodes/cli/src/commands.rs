@@ -78,13 +78,8 @@ pub fn analyze_cmd(
         // realisations: each run's fibres in its own folder, the flow pooled
         let out = out.unwrap_or_else(|| realisations_folder(&folder_of(&runs[0])));
         for r in runs {
-            match analyze::fibers_if_any(r, &folder_of(r).join("analysis"), coil_thresholds)? {
-                Some(table) => println!("{}:\n{table}", r.display()),
-                None => println!(
-                    "{}: no fibre states (a flow part): its flow only",
-                    r.display()
-                ),
-            }
+            let table = analyze::fibers_if_any(r, &folder_of(r).join("analysis"), coil_thresholds)?;
+            println!("{}:\n{}", r.display(), fiber_table_or_why(table));
         }
         match analyze::modulation(runs, unladen, transient_plus, batches, &out)? {
             Some(md) => println!("{md}"),
@@ -93,13 +88,8 @@ pub fn analyze_cmd(
         return Ok(());
     };
     let out = out.unwrap_or_else(|| folder_of(one).join("analysis"));
-    match analyze::fibers_if_any(one, &out, coil_thresholds)? {
-        Some(table) => println!("{table}"),
-        None => println!(
-            "{}: no fibre states (a flow part): its flow only",
-            one.display()
-        ),
-    }
+    let table = analyze::fibers_if_any(one, &out, coil_thresholds)?;
+    println!("{}", fiber_table_or_why(table));
     if let Some(md) = analyze::modulation(
         std::slice::from_ref(one),
         unladen,
@@ -110,6 +100,11 @@ pub fn analyze_cmd(
         println!("{md}");
     }
     Ok(())
+}
+
+/// The fibre analysis's table, or why a recording has none (a flow part).
+fn fiber_table_or_why(table: Option<String>) -> String {
+    table.unwrap_or_else(|| "no fibre states (a flow part): its flow only".into())
 }
 
 /// Where the pooled analysis of realisations goes: beside the first, named for it without

@@ -500,21 +500,22 @@ impl FiberGroup {
             return self.step(fluid, dt);
         }
         let h = dt / f64::from(substeps);
-        let mut sum = vec![crate::lanes::V3::splat([0.0; 3]); self.state.len()];
-        let mut report = self.step(fluid, h)?;
-        for (acc, s) in sum.iter_mut().zip(&self.state) {
-            *acc = *acc + s.f;
-        }
-        for _ in 1..substeps {
+        // the sum of the substeps' forces, in the group's working memory between steps
+        let mut sum = std::mem::take(&mut self.work.force_sum);
+        sum.clear();
+        sum.resize(self.state.len(), crate::lanes::V3::default());
+        let mut report = StepReport::default();
+        for _ in 0..substeps {
             report = self.step(fluid, h)?;
             for (acc, s) in sum.iter_mut().zip(&self.state) {
                 *acc = *acc + s.f;
             }
         }
         let n = crate::lanes::F4::splat(f64::from(substeps));
-        for (s, acc) in self.state.iter_mut().zip(sum) {
+        for (s, acc) in self.state.iter_mut().zip(&sum) {
             s.f = acc.unscale(n);
         }
+        self.work.force_sum = sum;
         Ok(report)
     }
 
@@ -707,6 +708,8 @@ struct Work {
     one: Option<Fiber>,
     /// One fibre's samples, decoded for the fibre-by-fibre step.
     fluid: Vec<FluidSample>,
+    /// The substeps' summed forces ([`FiberGroup::step_in_substeps`]).
+    force_sum: Vec<crate::lanes::V3>,
 }
 
 /// What a block's step reads besides its own storage.
